@@ -1,0 +1,1 @@
+"""Analysis: KPIs, savings and reports, shared by the CLI and the service."""

@@ -1,0 +1,219 @@
+"""Self-contained HTML reports with Plotly figures (plotly.js embedded: no CDN needed)."""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+import numpy as np
+import plotly.graph_objects as go
+from plotly.subplots import make_subplots
+
+from trainclimate.analysis.summary import fleet_kpis
+from trainclimate.sim import hvac, thermal
+from trainclimate.sim.rule import MODE_NAMES
+from trainclimate.sim.scenarios import LOCAL_TZ, Scenario
+from trainclimate.sim.simulator import DECKS, SimulationResult
+
+DECK_COLOURS = {"up": "#d62728", "mid": "#2ca02c", "low": "#1f77b4"}
+
+
+def _local(result: SimulationResult):
+    return result.time.tz_convert(LOCAL_TZ).tz_localize(None)
+
+
+def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
+    """Deck temperatures with T_ref and the T_rule ± 1 K band; T_amb and irradiance below."""
+    t = _local(result)
+    fig = make_subplots(
+        rows=2,
+        cols=1,
+        shared_xaxes=True,
+        row_heights=[0.65, 0.35],
+        specs=[[{}], [{"secondary_y": True}]],
+        vertical_spacing=0.06,
+    )
+    rule = result.t_rule_c[:, coach]
+    fig.add_trace(
+        go.Scatter(x=t, y=rule + 1.0, line={"width": 0}, showlegend=False, hoverinfo="skip"),
+        row=1,
+        col=1,
+    )
+    fig.add_trace(
+        go.Scatter(
+            x=t,
+            y=rule - 1.0,
+            fill="tonexty",
+            line={"width": 0},
+            fillcolor="rgba(120,120,120,0.18)",
+            name="T_rule ± 1 K",
+        ),
+        row=1,
+        col=1,
+    )
+    for d, deck in enumerate(DECKS):
+        fig.add_trace(
+            go.Scatter(
+                x=t,
+                y=result.t_room_c[:, coach, d],
+                name=f"T_room {deck}",
+                line={"color": DECK_COLOURS[deck], "width": 1.2},
+            ),
+            row=1,
+            col=1,
+        )
+    fig.add_trace(
+        go.Scatter(
+            x=t, y=result.t_ref_c[:, coach], name="T_ref", line={"color": "black", "dash": "dash"}
+        ),
+        row=1,
+        col=1,
+    )
+    env = result.env
+    s = len(t)
+    fig.add_trace(
+        go.Scatter(x=t, y=env.t_amb_c[:s, coach], name="T_amb", line={"color": "#9467bd"}),
+        row=2,
+        col=1,
+    )
+    fig.add_trace(
+        go.Scatter(
+            x=t, y=env.ghi_w_m2[:s, coach], name="global irradiance", line={"color": "#ff7f0e"}
+        ),
+        row=2,
+        col=1,
+        secondary_y=True,
+    )
+    fig.update_yaxes(title_text="temperature (°C)", row=1, col=1)
+    fig.update_yaxes(title_text="T_amb (°C)", row=2, col=1)
+    fig.update_yaxes(title_text="irradiance (W/m²)", row=2, col=1, secondary_y=True)
+    fig.update_xaxes(title_text="local time (Europe/Zurich)", row=2, col=1)
+    fig.update_layout(title=title, height=620, template="plotly_white")
+    return fig
+
+
+def power_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
+    """Electrical power by component (stacked, kW) and cumulative energy (kWh)."""
+    t = _local(result)
+    fig = make_subplots(specs=[[{"secondary_y": True}]])
+    for name, value in result.power_w.items():
+        fig.add_trace(
+            go.Scatter(
+                x=t,
+                y=value[:, coach] / 1e3,
+                name=name.replace("_", "/"),
+                stackgroup="power",
+                line={"width": 0.5},
+            )
+        )
+    energy = np.cumsum(result.total_power_w[:, coach]) * result.dt_s / 3.6e6
+    fig.add_trace(
+        go.Scatter(x=t, y=energy, name="cumulative energy", line={"color": "black"}),
+        secondary_y=True,
+    )
+    fig.update_yaxes(title_text="electrical power (kW)")
+    fig.update_yaxes(title_text="energy (kWh)", secondary_y=True)
+    fig.update_xaxes(title_text="local time (Europe/Zurich)")
+    fig.update_layout(title=title, height=420, template="plotly_white")
+    return fig
+
+
+def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
+    """HVAC mode and state over time, and the fresh-air fraction (substate)."""
+    t = _local(result)
+    s = len(t)
+    fig = make_subplots(rows=2, cols=1, shared_xaxes=True, vertical_spacing=0.08)
+    fig.add_trace(
+        go.Scatter(
+            x=t,
+            y=[hvac.STATE_NAMES[int(v)] for v in result.hvac_state[:, coach]],
+            name="HVAC state",
+            mode="lines",
+            line={"shape": "hv"},
+        ),
+        row=1,
+        col=1,
+    )
+    fig.add_trace(
+        go.Scatter(
+            x=t,
+            y=[MODE_NAMES[int(v)] for v in result.env.mode[:s, coach]],
+            name="HVAC mode",
+            mode="lines",
+            line={"shape": "hv", "dash": "dot"},
+        ),
+        row=1,
+        col=1,
+    )
+    fig.add_trace(
+        go.Scatter(
+            x=t, y=result.fresh_fraction[:, coach], name="fresh-air fraction", line={"shape": "hv"}
+        ),
+        row=2,
+        col=1,
+    )
+    fig.update_yaxes(title_text="fraction (–)", row=2, col=1)
+    fig.update_xaxes(title_text="local time (Europe/Zurich)", row=2, col=1)
+    fig.update_layout(title=title, height=460, template="plotly_white")
+    return fig
+
+
+def heat_balance_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
+    """Heat entering the coach over the run by mechanism, kWh (negative: heat leaving)."""
+    ext = result.flows_w[:, coach, thermal.N_INTERNAL :].sum(axis=0) * result.dt_s / 3.6e6
+    names = list(thermal.FLOW_NAMES[thermal.N_INTERNAL :])
+    fig = go.Figure(go.Bar(x=names, y=ext, marker_color=np.where(ext >= 0, "#d62728", "#1f77b4")))
+    fig.update_yaxes(title_text="heat into the coach (kWh)")
+    fig.update_layout(title=title, height=420, template="plotly_white")
+    return fig
+
+
+def fleet_energy_figure(result: SimulationResult, title: str) -> go.Figure:
+    """Electrical energy of every coach, kWh."""
+    energy = result.energy_kwh
+    fig = go.Figure(go.Bar(x=[f"coach {i}" for i in range(len(energy))], y=energy))
+    fig.update_yaxes(title_text="electrical energy (kWh)")
+    fig.update_layout(title=title, height=360, template="plotly_white")
+    return fig
+
+
+def write_simulation_report(
+    results: dict[str, SimulationResult], scenario: Scenario, path: str | Path
+) -> Path:
+    """One HTML page for a scenario simulated with one or more controllers."""
+    path = Path(path)
+    parts = [f"<h1>{html.escape(scenario.name)}</h1><p>{html.escape(scenario.description)}</p>"]
+    first = True
+    for controller, result in results.items():
+        kpis = fleet_kpis(result)
+        rows = "".join(
+            f"<tr><td>{i}</td><td>{c['energy_kwh']:.1f}</td><td>{c['mean_power_kw']:.2f}</td>"
+            f"<td>{c['avg_hourly_violation_k']:.4f}</td><td>{c['discomfort_kh']:.3f}</td></tr>"
+            for i, c in enumerate(kpis["coaches"])
+        )
+        parts.append(
+            f"<h2>controller: {html.escape(controller)}</h2>"
+            "<table border=1 cellpadding=4><tr><th>coach</th><th>energy (kWh)</th>"
+            "<th>mean power (kW)</th><th>avg hourly violation (K)</th>"
+            f"<th>discomfort (K·h per deck)</th></tr>{rows}</table>"
+        )
+        figures = [
+            temperature_figure(result, f"{controller}: coach 0 deck temperatures"),
+            power_figure(result, f"{controller}: coach 0 electrical power"),
+            state_figure(result, f"{controller}: coach 0 HVAC mode, state and substate"),
+        ]
+        if result.flows_w is not None:
+            figures.append(heat_balance_figure(result, f"{controller}: coach 0 heat balance"))
+        if result.t_ref_c.shape[1] > 1:
+            figures.append(fleet_energy_figure(result, f"{controller}: energy per coach"))
+        for fig in figures:
+            parts.append(fig.to_html(full_html=False, include_plotlyjs=first))
+            first = False
+    page = (
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>trainclimate report</title>"
+        "<style>body{font-family:sans-serif;max-width:1400px;margin:auto}</style></head><body>"
+        + "\n".join(parts)
+        + "</body></html>"
+    )
+    path.write_text(page, encoding="utf-8")
+    return path

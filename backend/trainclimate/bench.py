@@ -1,0 +1,78 @@
+"""Benchmarks (``trainclimate bench …``): speed figures measured against a baseline in one run."""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+import numpy as np
+
+from trainclimate.sim import scenarios
+from trainclimate.sim.simulator import Environment, FleetSimulator
+
+
+def _subset(env: Environment, coaches: list[int]) -> Environment:
+    """The environment of some of the coaches."""
+    pick = lambda a: np.ascontiguousarray(a[:, coaches])  # noqa: E731
+    return Environment(
+        time=env.time,
+        t_amb_c=pick(env.t_amb_c),
+        ghi_w_m2=pick(env.ghi_w_m2),
+        zenith_deg=pick(env.zenith_deg),
+        azimuth_deg=pick(env.azimuth_deg),
+        heading_deg=pick(env.heading_deg),
+        speed_kmh=pick(env.speed_kmh),
+        occupancy_pct=pick(env.occupancy_pct),
+        door_open=pick(env.door_open),
+        mode=pick(env.mode),
+    )
+
+
+def machine() -> dict:
+    """What the figures were measured on."""
+    return {
+        "cpu": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+    }
+
+
+def bench_simulator(coaches: int = 100, days: float = 1.0, loop_coaches: int = 5) -> dict:
+    """Simulated coach-days per second for a vectorised fleet, against a per-coach loop.
+
+    The fleet runs ``coaches`` half coaches of the ``winter-day`` scenario (in service, all
+    blocks active) for ``days`` at the simulator's own 10 s step; the baseline simulates
+    ``loop_coaches`` of the same coaches one at a time (one simulator per coach, the plain
+    Python loop over coaches) and is scaled per coach-day. Environment construction (weather,
+    routes) is not timed.
+    """
+    scenario = scenarios.get("winter-day")
+    env, params = scenarios.build(scenario, n_coaches=coaches, hours=24.0 * days)
+    t0 = time.perf_counter()
+    sim = FleetSimulator(params, env)
+    sim.run()
+    fleet_s = time.perf_counter() - t0
+
+    n_loop = min(loop_coaches, coaches)
+    t0 = time.perf_counter()
+    for i in range(n_loop):
+        single = FleetSimulator([params[i]], _subset(env, [i]))
+        single.run()
+    loop_s = time.perf_counter() - t0
+
+    fleet_rate = coaches * days / fleet_s
+    loop_rate = n_loop * days / loop_s
+    return {
+        "coach_days_per_s": fleet_rate,
+        "coaches": coaches,
+        "days": days,
+        "dt_s": env.dt_s,
+        "steps": len(env.time),
+        "fleet_seconds": fleet_s,
+        "loop_coach_days_per_s": loop_rate,
+        "loop_coaches": n_loop,
+        "speedup_vs_loop": fleet_rate / loop_rate,
+        "machine": machine(),
+    }

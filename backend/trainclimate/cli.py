@@ -1,0 +1,250 @@
+"""The ``trainclimate`` command line (see CONTRACT.md for the commands and their JSON).
+
+Every command takes ``--json`` and then prints exactly one JSON object on stdout; logs and
+progress go to stderr. Bad arguments, an unknown scenario or a malformed input file end with exit
+code 2 and a one-line message on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from trainclimate.sim.params import CoachParams, ParamsError, load_params
+from trainclimate.sim.scenarios import SCENARIOS, ScenarioError
+from trainclimate.sim.weather import WeatherError
+
+CONTROLLERS = ("rule", "ddpc", "edge")
+AVAILABLE_CONTROLLERS = ("rule",)
+
+
+class UsageError(Exception):
+    """Bad input from the user: exit code 2 with a one-line message."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, exit 2
+        raise UsageError(message)
+
+
+def _emit(args: argparse.Namespace, data: dict, human: Callable[[dict], str]) -> None:
+    if args.json:
+        print(json.dumps(data, default=_json_default))
+    else:
+        print(human(data))
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def _progress(total: int, desc: str):
+    """A tqdm progress bar on stderr when it is a terminal, else a no-op."""
+    from tqdm import tqdm
+
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit="step",
+        file=sys.stderr,
+        leave=False,
+        disable=not sys.stderr.isatty(),
+        mininterval=0.5,
+    )
+
+
+# --- commands -------------------------------------------------------------------------------
+def cmd_scenarios(args: argparse.Namespace) -> None:
+    data = {
+        "scenarios": [{"name": s.name, "description": s.description} for s in SCENARIOS.values()]
+    }
+    _emit(
+        args,
+        data,
+        lambda d: "\n".join(f"{s['name']:<34} {s['description']}" for s in d["scenarios"]),
+    )
+
+
+def cmd_coach_params(args: argparse.Namespace) -> None:
+    params = load_params(args.file) if args.file else CoachParams()
+    data = params.to_dict()
+
+    def human(d: dict) -> str:
+        return "\n".join(f"{k:<32} {v}" for k, v in d.items())
+
+    _emit(args, data, human)
+
+
+def run_simulation(args: argparse.Namespace, record_flows: bool = False):
+    """Build and run the simulation an argparse namespace asks for; returns the result."""
+    from trainclimate.sim import scenarios
+    from trainclimate.sim.simulator import FleetSimulator
+    from trainclimate.sim.weather import load_weather_csv
+
+    scenario = scenarios.get(args.scenario)
+    if args.controller not in AVAILABLE_CONTROLLERS:
+        raise UsageError(
+            f"controller {args.controller!r} is not available yet (it arrives with the DDPC "
+            f"controller); available: {', '.join(AVAILABLE_CONTROLLERS)}"
+        )
+    weather = load_weather_csv(args.weather_csv) if args.weather_csv else None
+    base = load_params(args.coach_params) if args.coach_params else None
+    env, params = scenarios.build(
+        scenario, n_coaches=args.coaches, hours=args.hours, weather=weather, base_params=base
+    )
+    sim = FleetSimulator(
+        params, env, seed=scenario.seed, record_flows=record_flows or args.out is not None
+    )
+    with _progress(sim.n_steps, f"simulate {scenario.name}") as bar:
+        chunk = 360
+        while sim.k < sim.n_steps:
+            before = sim.k
+            sim.run(steps=chunk)
+            bar.update(sim.k - before)
+    return scenario, sim.result()
+
+
+def cmd_simulate(args: argparse.Namespace) -> None:
+    from trainclimate.analysis.summary import fleet_kpis
+
+    if args.coaches < 1:
+        raise UsageError("--coaches must be at least 1")
+    if args.hours is not None and args.hours <= 0:
+        raise UsageError("--hours must be positive")
+    scenario, result = run_simulation(args)
+    data = {"scenario": scenario.name, "controller": args.controller, **fleet_kpis(result)}
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        frames = []
+        for c in range(len(data["coaches"])):
+            frame = result.frame(c)
+            frame.insert(0, "coach", c)
+            frames.append(frame)
+        pd.concat(frames).to_parquet(out)
+        data["out"] = str(out)
+
+    def human(d: dict) -> str:
+        return (
+            f"{d['scenario']} ({d['controller']}, {len(d['coaches'])} coach(es), "
+            f"{d['hours']:.1f} h): {d['energy_kwh']:.1f} kWh per coach, "
+            f"mean {d['mean_power_kw']:.2f} kW, avg hourly violation "
+            f"{d['avg_hourly_violation_k']:.4f} K, discomfort {d['discomfort_kh']:.3f} K·h"
+            + (f"\ntime series: {d['out']}" if "out" in d else "")
+        )
+
+    _emit(args, data, human)
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from trainclimate.bench import bench_simulator
+
+    if args.coaches < 1 or args.days <= 0:
+        raise UsageError("--coaches must be ≥ 1 and --days positive")
+    data = bench_simulator(coaches=args.coaches, days=args.days, loop_coaches=args.loop_coaches)
+
+    def human(d: dict) -> str:
+        return (
+            f"simulator: {d['coach_days_per_s']:.1f} coach-days/s for {d['coaches']} coaches × "
+            f"{d['days']:g} day(s) at dt = {d['dt_s']:g} s; per-coach loop "
+            f"{d['loop_coach_days_per_s']:.2f} coach-days/s; speed-up {d['speedup_vs_loop']:.0f}×"
+        )
+
+    _emit(args, data, human)
+
+
+def cmd_demo(args: argparse.Namespace) -> None:
+    from trainclimate.analysis.report import write_simulation_report
+    from trainclimate.analysis.summary import fleet_kpis
+
+    results = {}
+    for controller in AVAILABLE_CONTROLLERS:
+        ns = argparse.Namespace(
+            scenario="winter-day",
+            controller=controller,
+            coaches=args.coaches,
+            hours=None,
+            weather_csv=None,
+            coach_params=None,
+            out=None,
+        )
+        scenario, results[controller] = run_simulation(ns, record_flows=True)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = write_simulation_report(results, scenario, out / "winter-day.html")
+    data = {
+        "report": str(path.resolve()),
+        "scenario": scenario.name,
+        "controllers": {
+            c: {k: v for k, v in fleet_kpis(r).items() if k != "coaches"}
+            for c, r in results.items()
+        },
+    }
+    _emit(args, data, lambda d: f"report written: {d['report']}")
+
+
+# --- parser ----------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="trainclimate", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    def add(name: str, func, help_: str) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_, description=help_)
+        p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+        p.set_defaults(func=func)
+        return p
+
+    add("scenarios", cmd_scenarios, "list the named scenarios")
+
+    p = add("simulate", cmd_simulate, "simulate a scenario and print its KPIs")
+    p.add_argument("--scenario", required=True, help="scenario name (see `scenarios`)")
+    p.add_argument("--controller", choices=CONTROLLERS, default="rule")
+    p.add_argument("--hours", type=float, default=None, help="duration (default: scenario's)")
+    p.add_argument("--coaches", type=int, default=1, help="number of coaches (default 1)")
+    p.add_argument("--weather-csv", default=None, help="measured weather (time,t_amb_c,ghi_w_m2)")
+    p.add_argument("--coach-params", default=None, help="coach parameter JSON file")
+    p.add_argument("--out", default=None, help="write the full time series (Parquet)")
+
+    p = add("coach-params", cmd_coach_params, "print coach parameters (the file format)")
+    p.add_argument("--default", action="store_true", help="the default parameters")
+    p.add_argument("--file", default=None, help="validate and print a parameter file")
+
+    p = add("bench", cmd_bench, "run a benchmark")
+    p.add_argument("target", choices=("simulator",))
+    p.add_argument("--coaches", type=int, default=100)
+    p.add_argument("--days", type=float, default=1.0)
+    p.add_argument(
+        "--loop-coaches", type=int, default=5, help="coaches simulated one by one for the baseline"
+    )
+
+    p = add("demo", cmd_demo, "simulate winter-day and write an HTML report")
+    p.add_argument("--out", default="out/demo", help="output directory")
+    p.add_argument("--coaches", type=int, default=3)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        if args.command == "coach-params" and not (args.default or args.file):
+            raise UsageError("coach-params needs --default or --file FILE")
+        args.func(args)
+    except (UsageError, ScenarioError, WeatherError, ParamsError) as exc:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"trainclimate: error: {message}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

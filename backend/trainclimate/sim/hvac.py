@@ -1,0 +1,315 @@
+"""The HVAC system and control block (paper, Section II.B), vectorised over coaches.
+
+Every function takes *stacked* parameters (:func:`trainclimate.sim.params.stack`): each field has
+a leading coach axis N.
+
+Three sub-blocks, as in the paper's Figure 2:
+
+- :func:`next_state`: the HVAC state from the mode, T_room, T_ref and T_amb, with hysteresis.
+  Regular mode: preheating, precooling, heating, cooling, mixed. Slumber mode: active heating,
+  active ventilation, active cooling, off. Off mode: off.
+- :func:`fresh_air_fraction`: the substate — recirculated, outside or mixed air — from the
+  state, T_room, T_amb and the occupancy (a minimum of fresh air per passenger).
+- :class:`PID`: one PID per deck whose output limits, rate limits, initial conditions, resets and
+  anti-windup are set by the state.
+
+Plus the floor and wall heating (:func:`floor_wall_heating`): maximum in preheating, piecewise
+linear in T_amb in heating, off otherwise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trainclimate.sim.params import AIR_DENSITY_KG_M3, CoachParams
+from trainclimate.sim.rule import MODE_REGULAR, MODE_SLUMBER
+
+# HVAC states ----------------------------------------------------------------------------------
+OFF = 0
+PREHEATING, PRECOOLING, HEATING, COOLING, MIXED = 1, 2, 3, 4, 5
+SLUMBER_HEATING, SLUMBER_VENTILATION, SLUMBER_COOLING, SLUMBER_OFF = 6, 7, 8, 9
+STATE_NAMES = {
+    OFF: "off",
+    PREHEATING: "preheating",
+    PRECOOLING: "precooling",
+    HEATING: "heating",
+    COOLING: "cooling",
+    MIXED: "mixed",
+    SLUMBER_HEATING: "slumber_heating",
+    SLUMBER_VENTILATION: "slumber_ventilation",
+    SLUMBER_COOLING: "slumber_cooling",
+    SLUMBER_OFF: "slumber_off",
+}
+REGULAR_STATES = (PREHEATING, PRECOOLING, HEATING, COOLING, MIXED)
+SLUMBER_STATES = (SLUMBER_HEATING, SLUMBER_VENTILATION, SLUMBER_COOLING, SLUMBER_OFF)
+
+# Substates (fresh-air modes) -----------------------------------------------------------------
+RECIRCULATED, OUTSIDE, MIXED_AIR = 0, 1, 2
+SUBSTATE_NAMES = {RECIRCULATED: "recirculated", OUTSIDE: "outside", MIXED_AIR: "mixed"}
+
+
+def interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """Row-wise piecewise-linear interpolation, held constant outside the breakpoints.
+
+    ``x`` (N,); ``xp``, ``fp`` (N, k) with each row of ``xp`` increasing. Returns (N,).
+    """
+    out = np.where(x <= xp[:, 0], fp[:, 0], fp[:, -1])
+    for j in range(xp.shape[1] - 1):
+        x0, x1, f0, f1 = xp[:, j], xp[:, j + 1], fp[:, j], fp[:, j + 1]
+        inside = (x > x0) & (x <= x1)
+        out = np.where(inside, f0 + (f1 - f0) * (x - x0) / (x1 - x0), out)
+    return out
+
+
+def _climate_state(state, t_amb, t_ref, p: CoachParams) -> np.ndarray:
+    """Heating / cooling / mixed from T_amb against thresholds below T_ref, with hysteresis."""
+    heat_th = t_ref - p.heat_below_k
+    cool_th = t_ref - p.cool_above_k
+    hy = p.climate_hysteresis_k
+    fresh = np.select([t_amb < heat_th, t_amb > cool_th], [HEATING, COOLING], MIXED)
+    from_mixed = np.select([t_amb < heat_th - hy, t_amb > cool_th + hy], [HEATING, COOLING], MIXED)
+    from_heating = np.where(
+        t_amb > heat_th + hy, np.where(t_amb > cool_th + hy, COOLING, MIXED), HEATING
+    )
+    from_cooling = np.where(
+        t_amb < cool_th - hy, np.where(t_amb < heat_th - hy, HEATING, MIXED), COOLING
+    )
+    return np.select(
+        [state == HEATING, state == COOLING, state == MIXED],
+        [from_heating, from_cooling, from_mixed],
+        fresh,
+    )
+
+
+def next_state(
+    state: np.ndarray,
+    mode: np.ndarray,
+    t_room_c: np.ndarray,
+    t_ref_c: np.ndarray,
+    t_amb_c: np.ndarray,
+    p: CoachParams,
+) -> np.ndarray:
+    """The HVAC state after this control step, shape (N,) int.
+
+    ``state`` (N,) the previous state; ``mode`` (N,) ``MODE_*``; ``t_room_c`` (N, 3) measured
+    deck temperatures (°C, the unit controls on their mean); ``t_ref_c``, ``t_amb_c`` (N,) °C.
+
+    Regular mode: preheating while T_room < T_ref − ``pre_enter_k`` until it reaches
+    T_ref − ``pre_exit_k`` (likewise precooling above); otherwise heating below
+    T_amb = T_ref − ``heat_below_k``, cooling above T_ref − ``cool_above_k`` and mixed between,
+    each switch with ``climate_hysteresis_k``. Slumber mode keeps a wide band: active heating
+    below T_ref − ``slumber_enter_k`` until T_ref − ``slumber_exit_k``, active cooling likewise
+    above, active ventilation when the coach is warm and outside air is cooler, off otherwise.
+    """
+    t_avg = t_room_c.mean(axis=1)
+    dev = t_avg - t_ref_c
+
+    # regular mode
+    climate = _climate_state(state, t_amb_c, t_ref_c, p)
+    stay_pre = (state == PREHEATING) & (dev < -p.pre_exit_k)
+    stay_precool = (state == PRECOOLING) & (dev > p.pre_exit_k)
+    regular = np.select(
+        [dev < -p.pre_enter_k, dev > p.pre_enter_k, stay_pre, stay_precool],
+        [PREHEATING, PRECOOLING, PREHEATING, PRECOOLING],
+        climate,
+    )
+
+    # slumber mode
+    heat_on, heat_off = dev < -p.slumber_enter_k, dev >= -p.slumber_exit_k
+    cool_on, cool_off = dev > p.slumber_enter_k, dev <= p.slumber_exit_k
+    vent_on = (dev > p.slumber_vent_k) & (t_amb_c < t_avg - p.slumber_vent_k)
+    vent_off = (dev <= p.slumber_vent_k - 1.0) | (t_amb_c >= t_avg - 1.0)
+    idle = np.select(
+        [heat_on, cool_on, vent_on],
+        [SLUMBER_HEATING, SLUMBER_COOLING, SLUMBER_VENTILATION],
+        SLUMBER_OFF,
+    )
+    slumber = np.select(
+        [
+            (state == SLUMBER_HEATING) & ~heat_off,
+            (state == SLUMBER_COOLING) & ~cool_off,
+            (state == SLUMBER_VENTILATION) & cool_on,
+            (state == SLUMBER_VENTILATION) & ~vent_off,
+        ],
+        [SLUMBER_HEATING, SLUMBER_COOLING, SLUMBER_COOLING, SLUMBER_VENTILATION],
+        idle,
+    )
+    return np.select([mode == MODE_REGULAR, mode == MODE_SLUMBER], [regular, slumber], OFF)
+
+
+def minimum_fresh_fraction(passengers: np.ndarray, p: CoachParams, base: bool) -> np.ndarray:
+    """Minimum fresh-air fraction of the supply air, (N,): per passenger, plus a base if asked.
+
+    ``passengers`` (N, 3) per deck. Per passenger ``fresh_air_per_passenger_m3_h`` (20 m³/h, the
+    order of EN 14750-1's requirement); the base share keeps the car body over-pressured.
+    """
+    f = passengers.sum(axis=1) * p.fresh_air_per_passenger_m3_h / p.supply_air_m3_h
+    if base:
+        f = f + p.fresh_air_base_fraction
+    return np.clip(f, 0.0, 1.0)
+
+
+def fresh_air_fraction(
+    state: np.ndarray,
+    t_room_c: np.ndarray,
+    t_ref_c: np.ndarray,
+    t_amb_c: np.ndarray,
+    passengers: np.ndarray,
+    p: CoachParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The substate: fresh-air fraction f ∈ [0, 1] of the supply air and its label, each (N,).
+
+    - off / slumber off: fans stopped, f = 0;
+    - preheating / precooling: recirculated air, only the per-passenger minimum;
+    - heating: recirculated (base + per-passenger minimum), or all outside air when outside is
+      warmer than the coach by ``economiser_band_k``;
+    - cooling: recirculated, or — when outside is cooler by ``economiser_band_k`` — an economiser
+      damper opening linearly from the minimum at T_ref − 0.5 K to all outside air at
+      T_ref + 0.5 K (mixed air between);
+    - mixed state: as cooling when the coach is above T_ref, as heating otherwise;
+    - slumber ventilation: all outside air; slumber heating / cooling: the minimum.
+    """
+    t_avg = t_room_c.mean(axis=1)
+    f_min = minimum_fresh_fraction(passengers, p, base=True)
+    f_pax = minimum_fresh_fraction(passengers, p, base=False)
+    band = p.economiser_band_k
+    heat_f = np.where(t_amb_c > t_avg + band, 1.0, f_min)
+    opening = np.clip(t_avg - (t_ref_c - 0.5), 0.0, 1.0)
+    cool_f = np.where(t_amb_c < t_avg - band, f_min + (1.0 - f_min) * opening, f_min)
+    f = np.select(
+        [
+            (state == OFF) | (state == SLUMBER_OFF),
+            (state == PREHEATING) | (state == PRECOOLING),
+            state == HEATING,
+            state == COOLING,
+            state == MIXED,
+            state == SLUMBER_VENTILATION,
+        ],
+        [0.0, f_pax, heat_f, cool_f, np.where(t_avg > t_ref_c, cool_f, heat_f), 1.0],
+        f_min,
+    )
+    label = np.select([f >= 1.0 - 1e-9, f <= f_min + 1e-9], [OUTSIDE, RECIRCULATED], MIXED_AIR)
+    return f, label
+
+
+def fresh_air_mass_flow(fraction: np.ndarray, p: CoachParams) -> np.ndarray:
+    """Outside air supplied to each deck, kg/s, shape (N, 3), for fresh-air ``fraction`` (N,)."""
+    supply_kg_s = p.supply_air_m3_h / 3600.0 * AIR_DENSITY_KG_M3
+    return (fraction * supply_kg_s)[:, None] * p.air_share
+
+
+def fans_running(state: np.ndarray) -> np.ndarray:
+    """Whether the supply fans run in ``state`` (N,) → bool (N,)."""
+    return (state != OFF) & (state != SLUMBER_OFF)
+
+
+def floor_wall_heating(state: np.ndarray, t_amb_c: np.ndarray, p: CoachParams) -> np.ndarray:
+    """Floor and wall heating per deck, W, (N, 3).
+
+    Maximum in preheating; ``q_fw_max_w`` × a piecewise-linear fraction of T_amb (°C) in heating
+    (``fw_curve_*``); zero in every other state (paper, Section II.B).
+    """
+    frac = interp_rows(t_amb_c, p.fw_curve_t_amb_c, p.fw_curve_fraction)
+    level = np.select([state == PREHEATING, state == HEATING], [1.0, frac], 0.0)
+    return level[:, None] * p.q_fw_max_w
+
+
+def output_limits(state: np.ndarray, p: CoachParams) -> tuple[np.ndarray, np.ndarray]:
+    """PID output limits (W) per deck for each coach's state, each (N, 3)."""
+    qh, qc = p.q_heat_max_w, p.q_cool_max_w
+    cap = p.slumber_capacity[:, None]
+    s = state[:, None]
+    zero = np.zeros_like(qh)
+    lo = np.select(
+        [(s == PRECOOLING) | (s == COOLING) | (s == MIXED), s == SLUMBER_COOLING],
+        [-qc, -cap * qc],
+        zero,
+    )
+    hi = np.select(
+        [(s == PREHEATING) | (s == HEATING) | (s == MIXED), s == SLUMBER_HEATING],
+        [qh, cap * qh],
+        zero,
+    )
+    return lo, hi
+
+
+def pid_setpoint(state: np.ndarray, t_ref_c: np.ndarray, p: CoachParams) -> np.ndarray:
+    """The temperature each deck's PID tracks (°C), (N,): T_ref, or the slumber band's edge.
+
+    In slumber heating the PID heats to 0.5 K past the exit threshold, T_ref − slumber_exit_k
+    + 0.5, so the state machine leaves active heating; slumber cooling mirrors it.
+    """
+    back = p.slumber_exit_k - 0.5
+    return np.select(
+        [state == SLUMBER_HEATING, state == SLUMBER_COOLING],
+        [t_ref_c - back, t_ref_c + back],
+        t_ref_c,
+    )
+
+
+class PID:
+    """Three PIDs per coach (decks up, mid, low) in the form ``Q = kp·(e + ∫e/ti + td·ė)``.
+
+    State per coach and deck: the integral term (W), the filtered derivative term (W), the last
+    measurement (°C), error (K) and output (W). Discrete at the control step ``dt_s``:
+
+    - derivative on the measurement (no kick on setpoint changes), first-order filtered with
+      time constant ``td / 8``;
+    - output limits from the HVAC state (:func:`output_limits`) and a rate limit
+      ``pid_rate_w_s``; the limits win over the rate limit (a heater may always switch off);
+    - anti-windup by conditional integration: the integral does not grow while the output is
+      held by a limit (output or rate) in the direction the error pushes;
+    - reset and initial conditions on a state change: preheating / precooling start at full
+      output, slumber heating / cooling and the idle states from zero, and a change among
+      heating, cooling and mixed is bumpless (the integral takes the clipped last output).
+    """
+
+    def __init__(self, n: int, p: CoachParams, dt_s: float):
+        self.p = p
+        self.dt_s = float(dt_s)
+        self.integral = np.zeros((n, 3))
+        self.deriv = np.zeros((n, 3))
+        self.last_y = np.full((n, 3), np.nan)
+        self.output = np.zeros((n, 3))
+        self.last_e = np.zeros((n, 3))
+
+    def reset_on_transition(self, old: np.ndarray, new: np.ndarray) -> None:
+        """Apply the state-dependent reset / initial conditions for coaches whose state changed."""
+        changed = old != new
+        if not np.any(changed):
+            return
+        lo, hi = output_limits(new, self.p)
+        smooth = (HEATING, COOLING, MIXED)
+        bumpless = (np.isin(new, smooth) & np.isin(old, smooth))[:, None]
+        # bumpless: the integral absorbs the difference so that P + I + D keeps the last output
+        held = np.clip(self.output, lo, hi) - self.p.pid_kp_w_k * self.last_e - self.deriv
+        init = np.select(
+            [new[:, None] == PREHEATING, new[:, None] == PRECOOLING, bumpless],
+            [hi, lo, held],
+            0.0,
+        )
+        c = changed[:, None]
+        self.integral = np.where(c, init, self.integral)
+        self.deriv = np.where(c & ~bumpless, 0.0, self.deriv)
+        self.output = np.where(c, np.clip(self.output, lo, hi), self.output)
+
+    def update(self, setpoint_c: np.ndarray, y_c: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """One control step: heat flow per deck (W, (N, 3)) for setpoints (N,) and measurements
+        ``y_c`` (N, 3) in °C."""
+        p, dt = self.p, self.dt_s
+        kp, ti, td, rate = p.pid_kp_w_k, p.pid_ti_s, p.pid_td_s, p.pid_rate_w_s
+        e = setpoint_c[:, None] - y_c
+        dy = np.where(np.isnan(self.last_y), 0.0, y_c - self.last_y)
+        tf = td / 8.0
+        self.deriv = (tf * self.deriv - kp * td * dy) / (tf + dt)
+        candidate = self.integral + kp * dt / ti * e
+        unsat = kp * e + candidate + self.deriv
+        lo, hi = output_limits(state, p)
+        limited = np.clip(unsat, self.output - rate * dt, self.output + rate * dt)
+        out = np.clip(limited, lo, hi)
+        held = ((out < unsat - 1e-9) & (e > 0)) | ((out > unsat + 1e-9) & (e < 0))
+        self.integral = np.clip(np.where(held, self.integral, candidate), lo, hi)
+        self.last_y = y_c.copy()
+        self.last_e = e
+        self.output = out
+        return out

@@ -1,0 +1,354 @@
+"""Physical and control parameters of one half coach of a Regio-Dosto (RABe 511) double-deck car.
+
+The paper publishes no parameter values; every default here is derived in ``docs/model.md`` from
+the RABe 511 geometry (car width 2.8 m, height 4.6 m, ~25 m per car, ~89 seats per car, lower floor
+0.44 m and upper floor 2.5 m above rail) and textbook rail-vehicle values. Arrays of three are per
+deck in the order ``up, mid, low``; the three chassis parts are ``up`` (roof and upper side walls),
+``mid`` (the floor between the decks) and ``low`` (floor, underframe and lower side walls).
+
+A :class:`CoachParams` describes one coach; :func:`stack` turns several into one whose array
+fields carry a leading coach axis, which is what the vectorised fleet simulator consumes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+DECKS = ("up", "mid", "low")
+
+#: Specific heat capacity of air at constant pressure, J/(kg K).
+AIR_CP_J_KG_K = 1005.0
+#: Density of air at ~20 °C and the Swiss Plateau's pressure, kg/m³.
+AIR_DENSITY_KG_M3 = 1.2
+#: Stefan–Boltzmann constant, W/(m² K⁴).
+STEFAN_BOLTZMANN = 5.670374419e-8
+
+
+class ParamsError(ValueError):
+    """A coach parameter set is malformed or non-physical."""
+
+
+def _a(*values: float) -> np.ndarray:
+    return np.array(values, dtype=float)
+
+
+def _default_distribution() -> np.ndarray:
+    """Λ (6×6): column j is where input j = [Q_hvac up,mid,low; Q_fw up,mid,low] ends up.
+
+    Rows are Q_act = [Q_room up,mid,low; Q_chassis up,mid,low]. Each column sums to 1 (paper,
+    Section II.C). The pattern follows the paper's Figure 3: the upper HVAC outlet feeds the upper
+    deck, the middle floor and the roof; the lower one the lower and middle decks and the
+    underframe; part of each input is lost into the structure (ducts in the roof and underframe,
+    floor heating in the floors).
+    """
+    lam = np.zeros((6, 6))
+    # columns: hvac_up, hvac_mid, hvac_low, fw_up, fw_mid, fw_low
+    lam[:, 0] = [0.82, 0.03, 0.00, 0.12, 0.03, 0.00]
+    lam[:, 1] = [0.03, 0.85, 0.02, 0.05, 0.00, 0.05]
+    lam[:, 2] = [0.00, 0.03, 0.82, 0.00, 0.05, 0.10]
+    lam[:, 3] = [0.55, 0.00, 0.00, 0.15, 0.30, 0.00]
+    lam[:, 4] = [0.00, 0.60, 0.00, 0.10, 0.00, 0.30]
+    lam[:, 5] = [0.00, 0.00, 0.55, 0.00, 0.05, 0.40]
+    return lam
+
+
+@dataclass(frozen=True)
+class CoachParams:
+    """Parameters of one half coach (or, after :func:`stack`, of N coaches on a leading axis).
+
+    Units are in the field names: ``_j_k`` J/K, ``_w_k`` W/K, ``_w`` W, ``_m2`` m², ``_k`` K,
+    ``_c`` °C, ``_s`` s, ``_m3_h`` m³/h, ``_kg_s`` kg/s; fractions are dimensionless.
+    """
+
+    # --- thermal capacities (Eq. (1): m_p^d c_p^d) -----------------------------------------
+    c_room_j_k: np.ndarray = field(default_factory=lambda: _a(90e3, 60e3, 105e3))
+    c_inv_j_k: np.ndarray = field(default_factory=lambda: _a(0.42e6, 0.20e6, 0.38e6))
+    c_chassis_j_k: np.ndarray = field(default_factory=lambda: _a(1.40e6, 0.70e6, 1.80e6))
+    # --- convection and conduction ----------------------------------------------------------
+    #: air exchange between decks through the stairwells: [up–mid, mid–low]
+    ua_deck_deck_w_k: np.ndarray = field(default_factory=lambda: _a(120.0, 120.0))
+    #: deck air ↔ inventory (seats, linings) per deck
+    ua_room_inv_w_k: np.ndarray = field(default_factory=lambda: _a(240.0, 100.0, 232.0))
+    #: deck air (rows up, mid, low) ↔ chassis part (columns up, mid, low); envelope U·A for the
+    #: outer parts, interior film for the middle floor
+    ua_room_chassis_w_k: np.ndarray = field(
+        default_factory=lambda: np.array(
+            [[86.0, 125.0, 0.0], [41.0, 0.0, 32.0], [0.0, 125.0, 88.0]]
+        )
+    )
+    #: conduction between chassis parts: [up–mid, mid–low, up–low]
+    ua_chassis_chassis_w_k: np.ndarray = field(default_factory=lambda: _a(40.0, 40.0, 16.0))
+    #: outer surface of the [upper, lower] chassis exchanging heat with the environment
+    area_ext_m2: np.ndarray = field(default_factory=lambda: _a(83.0, 87.0))
+    # --- solar and ground radiation ---------------------------------------------------------
+    roof_area_m2: float = 35.0
+    roof_absorptance: float = 0.6
+    #: sunlit opaque side wall of the [upper, lower] chassis (one side of the car)
+    side_area_m2: np.ndarray = field(default_factory=lambda: _a(17.7, 17.3))
+    side_absorptance: float = 0.45
+    #: sunlit window area per deck (one side of the car)
+    window_area_m2: np.ndarray = field(default_factory=lambda: _a(5.5, 2.5, 5.0))
+    window_g: float = 0.40
+    #: effective emissivity × view factor × area of the underframe seen by the track
+    ground_area_m2: float = 35.0
+    ground_emissivity: float = 0.85
+    #: ground radiation acts only above this ambient temperature (paper: 20 °C)
+    ground_threshold_c: float = 20.0
+    #: T_G = T_amb + ground_slope · (T_amb − ground_threshold_c) (assumption, docs/model.md)
+    ground_slope: float = 1.0
+    # --- passengers, doors, ventilation -----------------------------------------------------
+    seats: np.ndarray = field(default_factory=lambda: _a(20.0, 8.0, 17.0))
+    heat_per_passenger_w: float = 100.0
+    #: air exchanged through the open lower-deck door
+    door_mass_flow_kg_s: float = 0.6
+    supply_air_m3_h: float = 3600.0
+    air_share: np.ndarray = field(default_factory=lambda: _a(0.36, 0.22, 0.42))
+    fresh_air_base_fraction: float = 0.15
+    fresh_air_per_passenger_m3_h: float = 20.0
+    # --- HVAC capacities and heat distribution ----------------------------------------------
+    q_heat_max_w: np.ndarray = field(default_factory=lambda: _a(9000.0, 5000.0, 10000.0))
+    q_cool_max_w: np.ndarray = field(default_factory=lambda: _a(8500.0, 4500.0, 9000.0))
+    q_fw_max_w: np.ndarray = field(default_factory=lambda: _a(2000.0, 1200.0, 2800.0))
+    #: floor/wall heating in the heating state: fraction of max vs T_amb (piecewise linear)
+    fw_curve_t_amb_c: np.ndarray = field(default_factory=lambda: _a(-10.0, 15.0))
+    fw_curve_fraction: np.ndarray = field(default_factory=lambda: _a(1.0, 0.0))
+    distribution: np.ndarray = field(default_factory=_default_distribution)
+    # --- PID per deck -------------------------------------------------------------------------
+    pid_kp_w_k: np.ndarray = field(default_factory=lambda: _a(3000.0, 1800.0, 3300.0))
+    pid_ti_s: np.ndarray = field(default_factory=lambda: _a(600.0, 600.0, 600.0))
+    pid_td_s: np.ndarray = field(default_factory=lambda: _a(30.0, 30.0, 30.0))
+    pid_rate_w_s: np.ndarray = field(default_factory=lambda: _a(300.0, 200.0, 300.0))
+    # --- HVAC state machine thresholds (K relative to T_ref) --------------------------------
+    pre_enter_k: float = 3.0
+    pre_exit_k: float = 1.0
+    heat_below_k: float = 8.0
+    cool_above_k: float = 2.0
+    climate_hysteresis_k: float = 1.0
+    slumber_enter_k: float = 5.0
+    slumber_exit_k: float = 4.0
+    slumber_vent_k: float = 2.0
+    slumber_capacity: float = 0.6
+    economiser_band_k: float = 1.0
+    # --- electrical power -------------------------------------------------------------------
+    heater_efficiency: float = 1.0
+    #: COP = clip(cop_a − cop_b · T_amb, cop_min, cop_max)
+    cop_a: float = 4.4
+    cop_b: float = 0.06
+    cop_min: float = 1.5
+    cop_max: float = 4.5
+    fan_supply_w: float = 1100.0
+    fan_condenser_w: float = 800.0
+    # --- sensors ----------------------------------------------------------------------------
+    sensor_noise_k: float = 0.05
+    sensor_quantum_k: float = 0.1
+
+    # ------------------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """The parameters as a JSON-ready dict (the ``coach-params`` file format)."""
+        out = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            out[f.name] = value.tolist() if isinstance(value, np.ndarray) else float(value)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> CoachParams:
+        """Parameters from a (possibly partial) dict; missing keys take the defaults.
+
+        Raises :class:`ParamsError` naming the first unknown key, wrong shape or non-physical
+        value.
+        """
+        if not isinstance(data, dict):
+            raise ParamsError("coach parameters must be a JSON object")
+        defaults = cls()
+        known = {f.name: f for f in dataclasses.fields(cls)}
+        kwargs = {}
+        for key, value in data.items():
+            if key not in known:
+                raise ParamsError(f"unknown coach parameter {key!r}")
+            default = getattr(defaults, key)
+            try:
+                if isinstance(default, np.ndarray):
+                    arr = np.asarray(value, dtype=float)
+                    if arr.shape != default.shape:
+                        raise ParamsError(
+                            f"coach parameter {key!r} must have shape {list(default.shape)}, "
+                            f"got {list(arr.shape)}"
+                        )
+                    kwargs[key] = arr
+                else:
+                    if isinstance(value, bool) or not isinstance(value, int | float):
+                        raise ParamsError(f"coach parameter {key!r} must be a number")
+                    kwargs[key] = float(value)
+            except (TypeError, ValueError) as exc:
+                if isinstance(exc, ParamsError):
+                    raise
+                raise ParamsError(f"coach parameter {key!r} is not numeric") from exc
+        params = dataclasses.replace(defaults, **kwargs)
+        params.validate()
+        return params
+
+    def validate(self) -> None:
+        """Raise :class:`ParamsError` if any value is non-physical (for one coach)."""
+        for f in dataclasses.fields(self):
+            value = np.asarray(getattr(self, f.name), dtype=float)
+            if not np.all(np.isfinite(value)):
+                raise ParamsError(f"coach parameter {f.name!r} must be finite")
+        positive = [
+            "c_room_j_k",
+            "c_inv_j_k",
+            "c_chassis_j_k",
+            "supply_air_m3_h",
+            "pid_rate_w_s",
+            "cop_a",
+            "cop_min",
+            "cop_max",
+            "heater_efficiency",
+        ]
+        for name in positive:
+            if np.any(np.asarray(getattr(self, name)) <= 0):
+                raise ParamsError(f"coach parameter {name!r} must be > 0")
+        non_negative = [
+            "ua_deck_deck_w_k",
+            "ua_room_inv_w_k",
+            "ua_room_chassis_w_k",
+            "ua_chassis_chassis_w_k",
+            "area_ext_m2",
+            "roof_area_m2",
+            "side_area_m2",
+            "window_area_m2",
+            "ground_area_m2",
+            "seats",
+            "heat_per_passenger_w",
+            "door_mass_flow_kg_s",
+            "air_share",
+            "fresh_air_per_passenger_m3_h",
+            "q_heat_max_w",
+            "q_cool_max_w",
+            "q_fw_max_w",
+            "pid_kp_w_k",
+            "pid_td_s",
+            "fan_supply_w",
+            "fan_condenser_w",
+            "sensor_noise_k",
+            "sensor_quantum_k",
+            "distribution",
+            "ground_slope",
+            "cop_b",
+            "economiser_band_k",
+            "climate_hysteresis_k",
+        ]
+        for name in non_negative:
+            if np.any(np.asarray(getattr(self, name)) < 0):
+                raise ParamsError(f"coach parameter {name!r} must be >= 0")
+        if np.any(self.pid_ti_s <= 0):
+            raise ParamsError("coach parameter 'pid_ti_s' must be > 0")
+        fractions = [
+            "roof_absorptance",
+            "side_absorptance",
+            "window_g",
+            "ground_emissivity",
+            "fresh_air_base_fraction",
+            "slumber_capacity",
+            "fw_curve_fraction",
+        ]
+        for name in fractions:
+            v = np.asarray(getattr(self, name))
+            if np.any(v < 0) or np.any(v > 1):
+                raise ParamsError(f"coach parameter {name!r} must lie in [0, 1]")
+        col = self.distribution.sum(axis=0)
+        if not np.allclose(col, 1.0, atol=1e-6):
+            bad = int(np.argmax(np.abs(col - 1.0)))
+            raise ParamsError(
+                f"coach parameter 'distribution' (Λ): column {bad} sums to {col[bad]:.4f}, not 1"
+            )
+        if not np.isclose(self.air_share.sum(), 1.0, atol=1e-6):
+            raise ParamsError("coach parameter 'air_share' must sum to 1")
+        if np.any(np.diff(self.fw_curve_t_amb_c) <= 0):
+            raise ParamsError("coach parameter 'fw_curve_t_amb_c' must be strictly increasing")
+        if self.pre_exit_k >= self.pre_enter_k or self.slumber_exit_k >= self.slumber_enter_k:
+            raise ParamsError("state machine exit thresholds must be below the entry thresholds")
+        if self.cop_min > self.cop_max:
+            raise ParamsError("coach parameter 'cop_min' must not exceed 'cop_max'")
+
+
+#: Parameters that differ between real coaches (manufacturing, ageing, fit-out) and are varied
+#: by :func:`diversify`. Control software settings (PID gains, thresholds) are the same on every
+#: coach and are not varied.
+VARIED = (
+    "c_room_j_k",
+    "c_inv_j_k",
+    "c_chassis_j_k",
+    "ua_deck_deck_w_k",
+    "ua_room_inv_w_k",
+    "ua_room_chassis_w_k",
+    "ua_chassis_chassis_w_k",
+    "area_ext_m2",
+    "roof_absorptance",
+    "side_absorptance",
+    "window_g",
+    "ground_emissivity",
+    "door_mass_flow_kg_s",
+    "supply_air_m3_h",
+    "q_heat_max_w",
+    "q_cool_max_w",
+    "q_fw_max_w",
+    "distribution",
+    "cop_a",
+    "fan_supply_w",
+)
+
+
+def diversify(base: CoachParams, n: int, *, seed: int, spread: float = 0.15) -> list[CoachParams]:
+    """``n`` coach parameter sets scattered around ``base``.
+
+    Each varied parameter (see :data:`VARIED`) is multiplied element-wise by an independent
+    factor drawn uniformly from [1 − spread, 1 + spread] (default ±15 %, inside the ±10–20 % the
+    fleet shows). Λ's entries are perturbed and its columns renormalised to sum to 1; fractions are
+    clipped to [0, 1]. Coach 0 is ``base`` itself only if ``spread`` is 0.
+    """
+    if not 0 <= spread < 1:
+        raise ValueError("spread must lie in [0, 1)")
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        changes = {}
+        for name in VARIED:
+            value = np.asarray(getattr(base, name), dtype=float)
+            factor = rng.uniform(1 - spread, 1 + spread, size=value.shape)
+            new = value * factor
+            if name == "distribution":
+                new = new / new.sum(axis=0, keepdims=True)
+            elif name in ("roof_absorptance", "side_absorptance", "window_g", "ground_emissivity"):
+                new = np.clip(new, 0.0, 1.0)
+            changes[name] = new if value.ndim else float(new)
+        out.append(dataclasses.replace(base, **changes))
+    return out
+
+
+def stack(params: list[CoachParams]) -> CoachParams:
+    """One :class:`CoachParams` whose every field has a leading axis of length ``len(params)``."""
+    if not params:
+        raise ValueError("need at least one coach")
+    kwargs = {
+        f.name: np.stack([np.asarray(getattr(p, f.name), dtype=float) for p in params])
+        for f in dataclasses.fields(CoachParams)
+    }
+    return CoachParams(**kwargs)
+
+
+def load_params(path: str | Path) -> CoachParams:
+    """Read a ``coach-params`` JSON file (the format of ``trainclimate coach-params --default``)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise ParamsError(f"coach parameter file not found: {path}") from exc
+    except json.JSONDecodeError as exc:
+        raise ParamsError(f"coach parameter file {path} is not valid JSON: {exc.msg}") from exc
+    return CoachParams.from_dict(data)

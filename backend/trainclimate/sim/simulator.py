@@ -1,0 +1,328 @@
+"""The SBB simulator of the paper's Figure 2, for a fleet of half coaches at once.
+
+Rule-based control → HVAC state, substate and PID → heat distribution Λ → coach, closed through
+the (noisy, quantised) room-temperature sensors. Every coach is a row of the same arrays, so a
+fleet of N coaches costs one set of numpy operations per time step, not N.
+
+Time advances in steps of ``dt_s`` (10 s by default): at each step the HVAC control runs on the
+measurements, its heat flows are held (zero-order hold, as a digital controller does) and the nine
+temperatures are integrated over the step with RK4 (:func:`trainclimate.sim.thermal.rk4_step`).
+Records at index k hold the state at the start of step k and the inputs, heat flows and power over
+[t_k, t_k + dt).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from trainclimate.sim import hvac, thermal
+from trainclimate.sim.params import CoachParams, stack
+from trainclimate.sim.power import electrical_power
+from trainclimate.sim.rule import MODE_REGULAR, RuleCurve
+from trainclimate.sim.solar import roof_irradiance, side_irradiance
+
+DECKS = ("up", "mid", "low")
+
+
+@dataclass
+class Environment:
+    """The disturbances and the operation of N coaches on a uniform time grid of S steps.
+
+    ``time`` (S,) tz-aware UTC; every other field is (S, N): ``t_amb_c`` °C, ``ghi_w_m2`` W/m²,
+    solar ``zenith_deg`` / ``azimuth_deg``, train ``heading_deg`` (clockwise from north),
+    ``speed_kmh``, ``occupancy_pct`` (% of seats), ``door_open`` (0…1), ``mode`` (``MODE_*``).
+    """
+
+    time: pd.DatetimeIndex
+    t_amb_c: np.ndarray
+    ghi_w_m2: np.ndarray
+    zenith_deg: np.ndarray
+    azimuth_deg: np.ndarray
+    heading_deg: np.ndarray
+    speed_kmh: np.ndarray
+    occupancy_pct: np.ndarray
+    door_open: np.ndarray
+    mode: np.ndarray
+    q_roof_w_m2: np.ndarray = field(init=False)
+    q_side_w_m2: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        if self.time.tz is None:
+            raise ValueError("environment time must be timezone-aware")
+        s = len(self.time)
+        for name in (
+            "t_amb_c",
+            "ghi_w_m2",
+            "zenith_deg",
+            "azimuth_deg",
+            "heading_deg",
+            "speed_kmh",
+            "occupancy_pct",
+            "door_open",
+            "mode",
+        ):
+            value = np.asarray(getattr(self, name))
+            if value.ndim == 1:
+                value = value[:, None]
+            if value.ndim != 2 or value.shape[0] != s:
+                raise ValueError(f"environment field {name!r} must have shape (steps, coaches)")
+            setattr(self, name, value)
+        n = max(np.shape(getattr(self, f))[1] for f in ("t_amb_c", "mode", "speed_kmh"))
+        for name in (
+            "t_amb_c",
+            "ghi_w_m2",
+            "zenith_deg",
+            "azimuth_deg",
+            "heading_deg",
+            "speed_kmh",
+            "occupancy_pct",
+            "door_open",
+            "mode",
+        ):
+            setattr(self, name, np.broadcast_to(getattr(self, name), (s, n)))
+        self.q_roof_w_m2 = roof_irradiance(self.ghi_w_m2, self.zenith_deg)
+        self.q_side_w_m2 = side_irradiance(
+            self.ghi_w_m2, self.zenith_deg, self.azimuth_deg, self.heading_deg
+        )
+
+    @property
+    def n_coaches(self) -> int:
+        return self.t_amb_c.shape[1]
+
+    @property
+    def dt_s(self) -> float:
+        return float((self.time[1] - self.time[0]).total_seconds())
+
+
+#: A setpoint policy: called at every step with the step index and the simulator, returns T_ref
+#: (N,) in °C. ``None`` means the rule-based architecture, T_ref = T_rule.
+SetpointPolicy = Callable[[int, "FleetSimulator"], np.ndarray]
+
+
+@dataclass
+class SimulationResult:
+    """Everything recorded by :class:`FleetSimulator`; arrays have leading axes (S, N)."""
+
+    time: pd.DatetimeIndex
+    dt_s: float
+    env: Environment
+    states_c: np.ndarray  # (S, N, 9) true temperatures at the start of each step
+    t_room_meas_c: np.ndarray  # (S, N, 3) sensor readings
+    t_ref_c: np.ndarray
+    t_rule_c: np.ndarray
+    hvac_state: np.ndarray
+    substate: np.ndarray
+    fresh_fraction: np.ndarray
+    q_hvac_w: np.ndarray  # (S, N, 3)
+    q_fw_w: np.ndarray  # (S, N, 3)
+    power_w: dict[str, np.ndarray]  # component → (S, N)
+    flows_w: np.ndarray | None  # (S, N, n_flows) step means, when recorded
+    final_states_c: np.ndarray  # (N, 9) state at the end of the last step
+
+    @property
+    def t_room_c(self) -> np.ndarray:
+        return self.states_c[:, :, thermal.ROOM]
+
+    @property
+    def total_power_w(self) -> np.ndarray:
+        return sum(self.power_w.values())
+
+    @property
+    def energy_kwh(self) -> np.ndarray:
+        """Electrical energy of each coach over the run, kWh, (N,)."""
+        return self.total_power_w.sum(axis=0) * self.dt_s / 3.6e6
+
+    def frame(self, coach: int = 0) -> pd.DataFrame:
+        """The full time series of one coach as a DataFrame indexed by UTC time."""
+        cols: dict[str, np.ndarray] = {}
+        for j, name in enumerate(thermal.STATE_NAMES):
+            cols[name] = self.states_c[:, coach, j]
+        for d, deck in enumerate(DECKS):
+            cols[f"t_room_meas_{deck}_c"] = self.t_room_meas_c[:, coach, d]
+        env, s = self.env, len(self.time)
+        cols.update(
+            t_ref_c=self.t_ref_c[:, coach],
+            t_rule_c=self.t_rule_c[:, coach],
+            t_amb_c=env.t_amb_c[:s, coach],
+            ghi_w_m2=env.ghi_w_m2[:s, coach],
+            q_gt_w_m2=env.q_roof_w_m2[:s, coach],
+            q_gs_w_m2=env.q_side_w_m2[:s, coach],
+            solar_zenith_deg=env.zenith_deg[:s, coach],
+            solar_azimuth_deg=env.azimuth_deg[:s, coach],
+            heading_deg=env.heading_deg[:s, coach],
+            speed_kmh=env.speed_kmh[:s, coach],
+            occupancy_pct=env.occupancy_pct[:s, coach],
+            door_open=env.door_open[:s, coach],
+            mode=env.mode[:s, coach],
+            hvac_state=self.hvac_state[:, coach],
+            substate=self.substate[:, coach],
+            fresh_air_fraction=self.fresh_fraction[:, coach],
+        )
+        for d, deck in enumerate(DECKS):
+            cols[f"q_hvac_{deck}_w"] = self.q_hvac_w[:, coach, d]
+        for d, deck in enumerate(DECKS):
+            cols[f"q_fw_{deck}_w"] = self.q_fw_w[:, coach, d]
+        for name, value in self.power_w.items():
+            cols[f"power_{name}_kw"] = value[:, coach] / 1e3
+        cols["power_kw"] = self.total_power_w[:, coach] / 1e3
+        if self.flows_w is not None:
+            for j, name in enumerate(thermal.FLOW_NAMES):
+                cols[f"q_{name}_w"] = self.flows_w[:, coach, j]
+        return pd.DataFrame(cols, index=pd.DatetimeIndex(self.time, name="time"))
+
+
+def initial_states(env: Environment, rule: RuleCurve) -> np.ndarray:
+    """A plausible start (N, 9) °C: a coach already in regular mode starts at T_rule throughout
+    its interior; any other starts 3 K above ambient (residual warmth); chassis 1 K above T_amb."""
+    t_amb = env.t_amb_c[0]
+    interior = np.where(env.mode[0] == MODE_REGULAR, rule(t_amb), t_amb + 3.0)
+    return np.column_stack([interior] * 6 + [t_amb + 1.0] * 3)
+
+
+class FleetSimulator:
+    """N half coaches under the two-level control architecture, stepped together.
+
+    ``params``: one :class:`CoachParams` per coach (or one, used for all). ``env``: the
+    :class:`Environment` (its time step is the simulator's). ``seed`` drives the sensor noise.
+    ``record_flows`` keeps every heat flow (memory S × N × 36 floats).
+    """
+
+    def __init__(
+        self,
+        params: list[CoachParams] | CoachParams,
+        env: Environment,
+        *,
+        rule: RuleCurve | None = None,
+        seed: int = 0,
+        initial_c: np.ndarray | None = None,
+        record_flows: bool = False,
+    ):
+        n = env.n_coaches
+        if isinstance(params, CoachParams):
+            params = [params] * n
+        if len(params) != n:
+            raise ValueError(f"{len(params)} parameter sets for {n} coaches")
+        self.p = stack(list(params))
+        self.env = env
+        self.rule = rule or RuleCurve()
+        self.dt_s = env.dt_s
+        self.rng = np.random.default_rng(seed)
+        self.inv_cap = 1.0 / thermal.capacities(self.p)
+        self.T = (
+            np.array(initial_c, dtype=float)
+            if initial_c is not None
+            else initial_states(env, self.rule)
+        )
+        self.T = np.broadcast_to(self.T, (n, thermal.N_STATES)).copy()
+        self.hvac_state = np.full(n, hvac.OFF, dtype=np.int8)
+        self.pid = hvac.PID(n, self.p, self.dt_s)
+        self.k = 0
+        s = len(env.time)
+        self._rec = {
+            "states_c": np.empty((s, n, thermal.N_STATES)),
+            "t_room_meas_c": np.empty((s, n, 3)),
+            "t_ref_c": np.empty((s, n)),
+            "t_rule_c": np.empty((s, n)),
+            "hvac_state": np.empty((s, n), dtype=np.int8),
+            "substate": np.empty((s, n), dtype=np.int8),
+            "fresh_fraction": np.empty((s, n)),
+            "q_hvac_w": np.empty((s, n, 3)),
+            "q_fw_w": np.empty((s, n, 3)),
+        }
+        self._power = {k: np.empty((s, n)) for k in ("heater", "floor_wall", "compressor", "fans")}
+        self._flows = np.empty((s, n, len(thermal.FLOW_NAMES))) if record_flows else None
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.env.time)
+
+    def measure(self) -> np.ndarray:
+        """Deck temperature sensor readings (N, 3) °C: Gaussian noise, then quantisation."""
+        p = self.p
+        noisy = (
+            self.T[:, thermal.ROOM]
+            + self.rng.normal(size=(self.T.shape[0], 3)) * (p.sensor_noise_k[:, None])
+        )
+        q = p.sensor_quantum_k[:, None]
+        return np.where(q > 0, np.round(noisy / np.where(q > 0, q, 1.0)) * q, noisy)
+
+    def t_rule(self, k: int | None = None) -> np.ndarray:
+        """T_rule (N,) °C at step ``k`` (default: the current step)."""
+        return self.rule(self.env.t_amb_c[self.k if k is None else k])
+
+    def step(self, t_ref_c: np.ndarray | None = None) -> None:
+        """Advance one time step with setpoint ``t_ref_c`` (N,) °C; ``None`` → T_rule."""
+        if self.k >= self.n_steps:
+            raise IndexError("the simulation has reached the end of its environment")
+        k, env, p = self.k, self.env, self.p
+        t_amb = env.t_amb_c[k]
+        t_rule = self.rule(t_amb)
+        t_ref = (
+            t_rule if t_ref_c is None else np.broadcast_to(np.asarray(t_ref_c, float), t_rule.shape)
+        )
+        y = self.measure()
+        passengers = env.occupancy_pct[k][:, None] / 100.0 * p.seats
+
+        new_state = hvac.next_state(self.hvac_state, env.mode[k], y, t_ref, t_amb, p)
+        self.pid.reset_on_transition(self.hvac_state, new_state)
+        self.hvac_state = new_state
+        fresh, sub = hvac.fresh_air_fraction(new_state, y, t_ref, t_amb, passengers, p)
+        q_hvac = self.pid.update(hvac.pid_setpoint(new_state, t_ref, p), y, new_state)
+        q_fw = hvac.floor_wall_heating(new_state, t_amb, p)
+        q_in = np.concatenate([q_hvac, q_fw], axis=1)
+        q_act = np.einsum("nij,nj->ni", p.distribution, q_in)
+
+        drv = thermal.Drivers(
+            q_act_w=q_act,
+            t_amb_c=t_amb,
+            speed_kmh=env.speed_kmh[k],
+            q_roof_w_m2=env.q_roof_w_m2[k],
+            q_side_w_m2=env.q_side_w_m2[k],
+            passengers=passengers,
+            door_open=env.door_open[k],
+            fresh_air_kg_s=hvac.fresh_air_mass_flow(fresh, p),
+        )
+        rec = self._rec
+        rec["states_c"][k] = self.T
+        rec["t_room_meas_c"][k] = y
+        rec["t_ref_c"][k] = t_ref
+        rec["t_rule_c"][k] = t_rule
+        rec["hvac_state"][k] = new_state
+        rec["substate"][k] = sub
+        rec["fresh_fraction"][k] = fresh
+        rec["q_hvac_w"][k] = q_hvac
+        rec["q_fw_w"][k] = q_fw
+        power = electrical_power(q_hvac, q_fw, t_amb, hvac.fans_running(new_state), p)
+        self._power["heater"][k] = power.heater_w
+        self._power["floor_wall"][k] = power.floor_wall_w
+        self._power["compressor"][k] = power.compressor_w
+        self._power["fans"][k] = power.fans_w
+
+        self.T, flows = thermal.rk4_step(self.T, drv, p, self.inv_cap, self.dt_s)
+        if self._flows is not None:
+            self._flows[k] = flows
+        self.k += 1
+
+    def run(self, policy: SetpointPolicy | None = None, steps: int | None = None) -> None:
+        """Advance ``steps`` steps (default: to the end), T_ref from ``policy`` (None → T_rule)."""
+        end = self.n_steps if steps is None else min(self.n_steps, self.k + steps)
+        while self.k < end:
+            self.step(None if policy is None else policy(self.k, self))
+
+    def result(self) -> SimulationResult:
+        """What has been simulated so far."""
+        k = self.k
+        rec = {name: arr[:k] for name, arr in self._rec.items()}
+        return SimulationResult(
+            time=self.env.time[:k],
+            dt_s=self.dt_s,
+            env=self.env,
+            power_w={name: arr[:k] for name, arr in self._power.items()},
+            flows_w=None if self._flows is None else self._flows[:k],
+            final_states_c=self.T.copy(),
+            **rec,
+        )

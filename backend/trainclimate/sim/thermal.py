@@ -1,0 +1,224 @@
+"""The coach block: nine temperatures and every heat flow of the paper's Section II.C.
+
+State (per coach), in this order: ``T_room`` up, mid, low; ``T_inv`` up, mid, low; ``T_chassis``
+up, mid, low (°C). Each obeys Eq. (1), ``dT_p^d/dt = (1 / m_p^d c_p^d) · Σ_i Q_p,i^d``. The heat
+flows, all in W and all vectorised over a leading coach axis (shape ``(N,)``):
+
+- input: ``Q_act = Λ Q_in`` into the three rooms and three chassis parts;
+- convection: deck ↔ deck (up–mid, mid–low), deck ↔ inventory, deck ↔ chassis, and upper/lower
+  chassis ↔ environment with a speed-dependent coefficient :func:`h_ext_w_m2_k`;
+- conduction: between the chassis parts (up–mid, mid–low, up–low);
+- solar: roof term ``Q_Gt`` on the upper chassis, side term ``Q_Gs`` on both chassis walls and
+  through the windows into every deck (see :mod:`trainclimate.sim.solar` on the angle);
+- ground radiation on the lower chassis, only above ``ground_threshold_c`` of T_amb;
+- passengers (100 W each on their deck), the lower-deck door at stops, and the ventilation load
+  of the fresh-air fraction.
+
+Internal flows appear with opposite signs in two nodes, so the sum of ``C · dT/dt`` over the nine
+nodes equals the sum of the external flows: the energy balance closes by construction, and the
+tests check it numerically.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from trainclimate.sim.params import AIR_CP_J_KG_K, STEFAN_BOLTZMANN, CoachParams
+
+N_STATES = 9
+ROOM, INV, CHASSIS = slice(0, 3), slice(3, 6), slice(6, 9)
+STATE_NAMES = tuple(
+    f"t_{part}_{deck}_c" for part in ("room", "inv", "chassis") for deck in ("up", "mid", "low")
+)
+KELVIN = 273.15
+
+#: Internal flows: name → (node receiving +Q, node giving it). Q = UA · (T_giver − T_receiver).
+INTERNAL_LINKS = (
+    ("conv_room_up_mid", 0, 1),
+    ("conv_room_mid_low", 1, 2),
+    ("conv_room_inv_up", 0, 3),
+    ("conv_room_inv_mid", 1, 4),
+    ("conv_room_inv_low", 2, 5),
+    ("conv_room_chassis_up_up", 0, 6),
+    ("conv_room_chassis_up_mid", 0, 7),
+    ("conv_room_chassis_mid_up", 1, 6),
+    ("conv_room_chassis_mid_low", 1, 8),
+    ("conv_room_chassis_low_mid", 2, 7),
+    ("conv_room_chassis_low_low", 2, 8),
+    ("cond_chassis_up_mid", 6, 7),
+    ("cond_chassis_mid_low", 7, 8),
+    ("cond_chassis_up_low", 6, 8),
+)
+#: External flows: name → node they enter.
+EXTERNAL_FLOWS = (
+    ("input_room_up", 0),
+    ("input_room_mid", 1),
+    ("input_room_low", 2),
+    ("input_chassis_up", 6),
+    ("input_chassis_mid", 7),
+    ("input_chassis_low", 8),
+    ("conv_env_chassis_up", 6),
+    ("conv_env_chassis_low", 8),
+    ("solar_roof", 6),
+    ("solar_side_chassis_up", 6),
+    ("solar_side_chassis_low", 8),
+    ("solar_window_up", 0),
+    ("solar_window_mid", 1),
+    ("solar_window_low", 2),
+    ("ground_radiation", 8),
+    ("occupancy_up", 0),
+    ("occupancy_mid", 1),
+    ("occupancy_low", 2),
+    ("door", 2),
+    ("ventilation_up", 0),
+    ("ventilation_mid", 1),
+    ("ventilation_low", 2),
+)
+FLOW_NAMES = tuple(name for name, *_ in INTERNAL_LINKS) + tuple(n for n, _ in EXTERNAL_FLOWS)
+
+
+def _incidence() -> np.ndarray:
+    """(n_flows, 9) matrix adding each flow (W) into the node(s) it enters or leaves."""
+    m = np.zeros((len(FLOW_NAMES), N_STATES))
+    for k, (_, to, frm) in enumerate(INTERNAL_LINKS):
+        m[k, to] += 1.0
+        m[k, frm] -= 1.0
+    for k, (_, node) in enumerate(EXTERNAL_FLOWS, start=len(INTERNAL_LINKS)):
+        m[k, node] = 1.0
+    return m
+
+
+INCIDENCE = _incidence()
+N_INTERNAL = len(INTERNAL_LINKS)
+
+
+def h_ext_w_m2_k(speed_kmh: np.ndarray) -> np.ndarray:
+    """Outer convective heat-transfer coefficient of the car body, W/(m² K).
+
+    McAdams' wind correlation as given by Duffie & Beckman (Solar Engineering of Thermal
+    Processes, Eq. 3.15.1 ff.): ``h = 5.7 + 3.8 v`` for v ≤ 5 m/s and ``h = 7.2 v^0.78`` above,
+    with v the air speed over the surface (here the train speed, no wind), in m/s.
+    ``speed_kmh`` in km/h.
+    """
+    v = np.abs(np.asarray(speed_kmh, dtype=float)) / 3.6
+    return np.where(v <= 5.0, 5.7 + 3.8 * v, 7.2 * np.power(np.maximum(v, 5.0), 0.78))
+
+
+def ground_temperature_c(t_amb_c: np.ndarray, params: CoachParams) -> np.ndarray:
+    """Track (ballast) temperature T_G in °C as a function of T_amb (°C), paper Section II.C.4.
+
+    ASSUMPTION (documented in docs/model.md): T_G = T_amb + s · (T_amb − T_threshold) above the
+    threshold, i.e. a sun-heated ballast ~12 K above a 32 °C afternoon for the default s = 1.
+    """
+    excess = np.maximum(np.asarray(t_amb_c) - params.ground_threshold_c, 0.0)
+    return t_amb_c + params.ground_slope * excess
+
+
+@dataclass
+class Drivers:
+    """Everything that drives the coach block during one step, each with a leading coach axis.
+
+    ``q_act_w`` (N, 6) is Λ·Q_in; ``t_amb_c`` (N,) °C; ``speed_kmh`` (N,); ``q_roof_w_m2`` and
+    ``q_side_w_m2`` (N,) the roof and side solar projections Q_Gt, Q_Gs; ``passengers`` (N, 3)
+    per deck; ``door_open`` (N,) fraction of the step the lower-deck door is open (0…1);
+    ``fresh_air_kg_s`` (N, 3) outside air supplied to each deck.
+    """
+
+    q_act_w: np.ndarray
+    t_amb_c: np.ndarray
+    speed_kmh: np.ndarray
+    q_roof_w_m2: np.ndarray
+    q_side_w_m2: np.ndarray
+    passengers: np.ndarray
+    door_open: np.ndarray
+    fresh_air_kg_s: np.ndarray
+
+
+def capacities(params: CoachParams) -> np.ndarray:
+    """Heat capacities m·c of the nine nodes, J/K, shape (..., 9)."""
+    return np.concatenate([params.c_room_j_k, params.c_inv_j_k, params.c_chassis_j_k], axis=-1)
+
+
+def heat_flows(T: np.ndarray, drv: Drivers, p: CoachParams) -> np.ndarray:
+    """Every heat flow of the coach block, W, shape (N, n_flows) in :data:`FLOW_NAMES` order.
+
+    ``T`` (N, 9) in °C; ``p`` stacked parameters (leading axis N).
+    """
+    t_amb = drv.t_amb_c
+    r_up, r_mid, r_low = T[:, 0], T[:, 1], T[:, 2]
+    c_up, c_mid, c_low = T[:, 6], T[:, 7], T[:, 8]
+    ua_rc = p.ua_room_chassis_w_k
+    h = h_ext_w_m2_k(drv.speed_kmh)
+    # ground radiation (Stefan–Boltzmann), only when T_amb exceeds the threshold
+    t_g = ground_temperature_c(t_amb, p) + KELVIN
+    ground = np.where(
+        t_amb > p.ground_threshold_c,
+        p.ground_emissivity
+        * STEFAN_BOLTZMANN
+        * p.ground_area_m2
+        * (t_g**4 - (c_low + KELVIN) ** 4),
+        0.0,
+    )
+    vent = drv.fresh_air_kg_s * AIR_CP_J_KG_K * (t_amb[:, None] - T[:, ROOM])
+    flows = [
+        # internal: convection between decks
+        p.ua_deck_deck_w_k[:, 0] * (r_mid - r_up),
+        p.ua_deck_deck_w_k[:, 1] * (r_low - r_mid),
+        # deck ↔ inventory
+        *(p.ua_room_inv_w_k[:, d] * (T[:, 3 + d] - T[:, d]) for d in range(3)),
+        # deck ↔ chassis
+        ua_rc[:, 0, 0] * (c_up - r_up),
+        ua_rc[:, 0, 1] * (c_mid - r_up),
+        ua_rc[:, 1, 0] * (c_up - r_mid),
+        ua_rc[:, 1, 2] * (c_low - r_mid),
+        ua_rc[:, 2, 1] * (c_mid - r_low),
+        ua_rc[:, 2, 2] * (c_low - r_low),
+        # conduction between chassis parts
+        p.ua_chassis_chassis_w_k[:, 0] * (c_mid - c_up),
+        p.ua_chassis_chassis_w_k[:, 1] * (c_low - c_mid),
+        p.ua_chassis_chassis_w_k[:, 2] * (c_low - c_up),
+        # external: inputs Q_act
+        *(drv.q_act_w[:, k] for k in range(6)),
+        # chassis ↔ environment, speed-dependent coefficient
+        h * p.area_ext_m2[:, 0] * (t_amb - c_up),
+        h * p.area_ext_m2[:, 1] * (t_amb - c_low),
+        # solar
+        p.roof_absorptance * p.roof_area_m2 * drv.q_roof_w_m2,
+        p.side_absorptance * p.side_area_m2[:, 0] * drv.q_side_w_m2,
+        p.side_absorptance * p.side_area_m2[:, 1] * drv.q_side_w_m2,
+        *(p.window_g * p.window_area_m2[:, d] * drv.q_side_w_m2 for d in range(3)),
+        ground,
+        # passengers, door, ventilation
+        *(p.heat_per_passenger_w * drv.passengers[:, d] for d in range(3)),
+        drv.door_open * p.door_mass_flow_kg_s * AIR_CP_J_KG_K * (t_amb - r_low),
+        vent[:, 0],
+        vent[:, 1],
+        vent[:, 2],
+    ]
+    return np.stack(flows, axis=1)
+
+
+def derivative(T: np.ndarray, drv: Drivers, p: CoachParams, inv_cap: np.ndarray) -> np.ndarray:
+    """dT/dt in K/s, shape (N, 9): Eq. (1) for every node. ``inv_cap`` = 1 / :func:`capacities`."""
+    return (heat_flows(T, drv, p) @ INCIDENCE) * inv_cap
+
+
+def rk4_step(
+    T: np.ndarray, drv: Drivers, p: CoachParams, inv_cap: np.ndarray, dt_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Advance the nine temperatures by ``dt_s`` seconds with drivers held (classical RK4).
+
+    Returns the new state (N, 9) and the step-mean heat flows (N, n_flows) in W, weighted like
+    the RK4 update so that Σ C·ΔT = dt · Σ(external mean flows) holds to round-off.
+    """
+    f1 = heat_flows(T, drv, p)
+    k1 = (f1 @ INCIDENCE) * inv_cap
+    f2 = heat_flows(T + 0.5 * dt_s * k1, drv, p)
+    k2 = (f2 @ INCIDENCE) * inv_cap
+    f3 = heat_flows(T + 0.5 * dt_s * k2, drv, p)
+    k3 = (f3 @ INCIDENCE) * inv_cap
+    f4 = heat_flows(T + dt_s * k3, drv, p)
+    mean_flows = (f1 + 2.0 * f2 + 2.0 * f3 + f4) / 6.0
+    return T + dt_s * (mean_flows @ INCIDENCE) * inv_cap, mean_flows
