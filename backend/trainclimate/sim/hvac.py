@@ -48,6 +48,15 @@ RECIRCULATED, OUTSIDE, MIXED_AIR = 0, 1, 2
 SUBSTATE_NAMES = {RECIRCULATED: "recirculated", OUTSIDE: "outside", MIXED_AIR: "mixed"}
 
 
+def first_true(conditions, choices, default):
+    """Like :func:`numpy.select` (the first true condition picks its choice), as a chain of
+    :func:`numpy.where` — several times faster on the small arrays of one time step."""
+    out = default
+    for cond, choice in zip(reversed(conditions), reversed(choices), strict=True):
+        out = np.where(cond, choice, out)
+    return out
+
+
 def interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     """Row-wise piecewise-linear interpolation, held constant outside the breakpoints.
 
@@ -66,15 +75,15 @@ def _climate_state(state, t_amb, t_ref, p: CoachParams) -> np.ndarray:
     heat_th = t_ref - p.heat_below_k
     cool_th = t_ref - p.cool_above_k
     hy = p.climate_hysteresis_k
-    fresh = np.select([t_amb < heat_th, t_amb > cool_th], [HEATING, COOLING], MIXED)
-    from_mixed = np.select([t_amb < heat_th - hy, t_amb > cool_th + hy], [HEATING, COOLING], MIXED)
+    fresh = first_true([t_amb < heat_th, t_amb > cool_th], [HEATING, COOLING], MIXED)
+    from_mixed = first_true([t_amb < heat_th - hy, t_amb > cool_th + hy], [HEATING, COOLING], MIXED)
     from_heating = np.where(
         t_amb > heat_th + hy, np.where(t_amb > cool_th + hy, COOLING, MIXED), HEATING
     )
     from_cooling = np.where(
         t_amb < cool_th - hy, np.where(t_amb < heat_th - hy, HEATING, MIXED), COOLING
     )
-    return np.select(
+    return first_true(
         [state == HEATING, state == COOLING, state == MIXED],
         [from_heating, from_cooling, from_mixed],
         fresh,
@@ -108,7 +117,7 @@ def next_state(
     climate = _climate_state(state, t_amb_c, t_ref_c, p)
     stay_pre = (state == PREHEATING) & (dev < -p.pre_exit_k)
     stay_precool = (state == PRECOOLING) & (dev > p.pre_exit_k)
-    regular = np.select(
+    regular = first_true(
         [dev < -p.pre_enter_k, dev > p.pre_enter_k, stay_pre, stay_precool],
         [PREHEATING, PRECOOLING, PREHEATING, PRECOOLING],
         climate,
@@ -119,12 +128,12 @@ def next_state(
     cool_on, cool_off = dev > p.slumber_enter_k, dev <= p.slumber_exit_k
     vent_on = (dev > p.slumber_vent_k) & (t_amb_c < t_avg - p.slumber_vent_k)
     vent_off = (dev <= p.slumber_vent_k - 1.0) | (t_amb_c >= t_avg - 1.0)
-    idle = np.select(
+    idle = first_true(
         [heat_on, cool_on, vent_on],
         [SLUMBER_HEATING, SLUMBER_COOLING, SLUMBER_VENTILATION],
         SLUMBER_OFF,
     )
-    slumber = np.select(
+    slumber = first_true(
         [
             (state == SLUMBER_HEATING) & ~heat_off,
             (state == SLUMBER_COOLING) & ~cool_off,
@@ -134,7 +143,7 @@ def next_state(
         [SLUMBER_HEATING, SLUMBER_COOLING, SLUMBER_COOLING, SLUMBER_VENTILATION],
         idle,
     )
-    return np.select([mode == MODE_REGULAR, mode == MODE_SLUMBER], [regular, slumber], OFF)
+    return first_true([mode == MODE_REGULAR, mode == MODE_SLUMBER], [regular, slumber], OFF)
 
 
 def minimum_fresh_fraction(passengers: np.ndarray, p: CoachParams, base: bool) -> np.ndarray:
@@ -176,7 +185,7 @@ def fresh_air_fraction(
     heat_f = np.where(t_amb_c > t_avg + band, 1.0, f_min)
     opening = np.clip(t_avg - (t_ref_c - 0.5), 0.0, 1.0)
     cool_f = np.where(t_amb_c < t_avg - band, f_min + (1.0 - f_min) * opening, f_min)
-    f = np.select(
+    f = first_true(
         [
             (state == OFF) | (state == SLUMBER_OFF),
             (state == PREHEATING) | (state == PRECOOLING),
@@ -188,7 +197,7 @@ def fresh_air_fraction(
         [0.0, f_pax, heat_f, cool_f, np.where(t_avg > t_ref_c, cool_f, heat_f), 1.0],
         f_min,
     )
-    label = np.select([f >= 1.0 - 1e-9, f <= f_min + 1e-9], [OUTSIDE, RECIRCULATED], MIXED_AIR)
+    label = first_true([f >= 1.0 - 1e-9, f <= f_min + 1e-9], [OUTSIDE, RECIRCULATED], MIXED_AIR)
     return f, label
 
 
@@ -210,7 +219,7 @@ def floor_wall_heating(state: np.ndarray, t_amb_c: np.ndarray, p: CoachParams) -
     (``fw_curve_*``); zero in every other state (paper, Section II.B).
     """
     frac = interp_rows(t_amb_c, p.fw_curve_t_amb_c, p.fw_curve_fraction)
-    level = np.select([state == PREHEATING, state == HEATING], [1.0, frac], 0.0)
+    level = first_true([state == PREHEATING, state == HEATING], [1.0, frac], 0.0)
     return level[:, None] * p.q_fw_max_w
 
 
@@ -220,12 +229,12 @@ def output_limits(state: np.ndarray, p: CoachParams) -> tuple[np.ndarray, np.nda
     cap = p.slumber_capacity[:, None]
     s = state[:, None]
     zero = np.zeros_like(qh)
-    lo = np.select(
+    lo = first_true(
         [(s == PRECOOLING) | (s == COOLING) | (s == MIXED), s == SLUMBER_COOLING],
         [-qc, -cap * qc],
         zero,
     )
-    hi = np.select(
+    hi = first_true(
         [(s == PREHEATING) | (s == HEATING) | (s == MIXED), s == SLUMBER_HEATING],
         [qh, cap * qh],
         zero,
@@ -240,7 +249,7 @@ def pid_setpoint(state: np.ndarray, t_ref_c: np.ndarray, p: CoachParams) -> np.n
     + 0.5, so the state machine leaves active heating; slumber cooling mirrors it.
     """
     back = p.slumber_exit_k - 0.5
-    return np.select(
+    return first_true(
         [state == SLUMBER_HEATING, state == SLUMBER_COOLING],
         [t_ref_c - back, t_ref_c + back],
         t_ref_c,
@@ -283,7 +292,7 @@ class PID:
         bumpless = (np.isin(new, smooth) & np.isin(old, smooth))[:, None]
         # bumpless: the integral absorbs the difference so that P + I + D keeps the last output
         held = np.clip(self.output, lo, hi) - self.p.pid_kp_w_k * self.last_e - self.deriv
-        init = np.select(
+        init = first_true(
             [new[:, None] == PREHEATING, new[:, None] == PRECOOLING, bumpless],
             [hi, lo, held],
             0.0,

@@ -141,63 +141,77 @@ def capacities(params: CoachParams) -> np.ndarray:
     return np.concatenate([params.c_room_j_k, params.c_inv_j_k, params.c_chassis_j_k], axis=-1)
 
 
-def heat_flows(T: np.ndarray, drv: Drivers, p: CoachParams) -> np.ndarray:
+def _link_conductances(p: CoachParams) -> np.ndarray:
+    """UA (W/K) of every internal link in :data:`INTERNAL_LINKS` order, (N, 14)."""
+    rc = p.ua_room_chassis_w_k
+    return np.concatenate(
+        [
+            p.ua_deck_deck_w_k,
+            p.ua_room_inv_w_k,
+            rc[:, [0, 0, 1, 1, 2, 2], [0, 1, 0, 2, 1, 2]],
+            p.ua_chassis_chassis_w_k,
+        ],
+        axis=1,
+    )
+
+
+_RECEIVER = np.array([link[1] for link in INTERNAL_LINKS])
+_GIVER = np.array([link[2] for link in INTERNAL_LINKS])
+_COL = {name: j for j, name in enumerate(FLOW_NAMES)}
+
+
+def held_flows(drv: Drivers, p: CoachParams) -> np.ndarray:
+    """The heat flows that do not depend on the temperatures (W, (N, n_flows), zeros
+    elsewhere): inputs Q_act, solar gains and passengers. Constant over a step."""
+    out = np.zeros((drv.t_amb_c.shape[0], len(FLOW_NAMES)))
+    c = _COL
+    out[:, c["input_room_up"] : c["input_chassis_low"] + 1] = drv.q_act_w
+    out[:, c["solar_roof"]] = p.roof_absorptance * p.roof_area_m2 * drv.q_roof_w_m2
+    side = drv.q_side_w_m2[:, None]
+    out[:, c["solar_side_chassis_up"] : c["solar_side_chassis_low"] + 1] = (
+        p.side_absorptance[:, None] * p.side_area_m2 * side
+    )
+    out[:, c["solar_window_up"] : c["solar_window_low"] + 1] = (
+        p.window_g[:, None] * p.window_area_m2 * side
+    )
+    out[:, c["occupancy_up"] : c["occupancy_low"] + 1] = (
+        p.heat_per_passenger_w[:, None] * drv.passengers
+    )
+    return out
+
+
+def heat_flows(
+    T: np.ndarray, drv: Drivers, p: CoachParams, held: np.ndarray | None = None
+) -> np.ndarray:
     """Every heat flow of the coach block, W, shape (N, n_flows) in :data:`FLOW_NAMES` order.
 
-    ``T`` (N, 9) in °C; ``p`` stacked parameters (leading axis N).
+    ``T`` (N, 9) in °C; ``p`` stacked parameters (leading axis N); ``held`` the result of
+    :func:`held_flows` for these drivers when already computed.
     """
+    out = held_flows(drv, p) if held is None else held.copy()
+    c = _COL
     t_amb = drv.t_amb_c
-    r_up, r_mid, r_low = T[:, 0], T[:, 1], T[:, 2]
-    c_up, c_mid, c_low = T[:, 6], T[:, 7], T[:, 8]
-    ua_rc = p.ua_room_chassis_w_k
-    h = h_ext_w_m2_k(drv.speed_kmh)
+    # internal: convection between decks, deck–inventory, deck–chassis, chassis conduction
+    out[:, :N_INTERNAL] = _link_conductances(p) * (T[:, _GIVER] - T[:, _RECEIVER])
+    # chassis ↔ environment with the speed-dependent coefficient
+    h = h_ext_w_m2_k(drv.speed_kmh)[:, None]
+    out[:, [c["conv_env_chassis_up"], c["conv_env_chassis_low"]]] = (
+        h * p.area_ext_m2 * (t_amb[:, None] - T[:, [6, 8]])
+    )
     # ground radiation (Stefan–Boltzmann), only when T_amb exceeds the threshold
     t_g = ground_temperature_c(t_amb, p) + KELVIN
-    ground = np.where(
+    out[:, c["ground_radiation"]] = np.where(
         t_amb > p.ground_threshold_c,
-        p.ground_emissivity
-        * STEFAN_BOLTZMANN
-        * p.ground_area_m2
-        * (t_g**4 - (c_low + KELVIN) ** 4),
+        p.ground_emissivity * STEFAN_BOLTZMANN * p.ground_area_m2
+        * (t_g**4 - (T[:, 8] + KELVIN) ** 4),
         0.0,
+    )  # fmt: skip
+    # lower-deck door and ventilation with outside air
+    out[:, c["door"]] = drv.door_open * p.door_mass_flow_kg_s * AIR_CP_J_KG_K * (t_amb - T[:, 2])
+    out[:, c["ventilation_up"] : c["ventilation_low"] + 1] = (
+        drv.fresh_air_kg_s * AIR_CP_J_KG_K * (t_amb[:, None] - T[:, ROOM])
     )
-    vent = drv.fresh_air_kg_s * AIR_CP_J_KG_K * (t_amb[:, None] - T[:, ROOM])
-    flows = [
-        # internal: convection between decks
-        p.ua_deck_deck_w_k[:, 0] * (r_mid - r_up),
-        p.ua_deck_deck_w_k[:, 1] * (r_low - r_mid),
-        # deck ↔ inventory
-        *(p.ua_room_inv_w_k[:, d] * (T[:, 3 + d] - T[:, d]) for d in range(3)),
-        # deck ↔ chassis
-        ua_rc[:, 0, 0] * (c_up - r_up),
-        ua_rc[:, 0, 1] * (c_mid - r_up),
-        ua_rc[:, 1, 0] * (c_up - r_mid),
-        ua_rc[:, 1, 2] * (c_low - r_mid),
-        ua_rc[:, 2, 1] * (c_mid - r_low),
-        ua_rc[:, 2, 2] * (c_low - r_low),
-        # conduction between chassis parts
-        p.ua_chassis_chassis_w_k[:, 0] * (c_mid - c_up),
-        p.ua_chassis_chassis_w_k[:, 1] * (c_low - c_mid),
-        p.ua_chassis_chassis_w_k[:, 2] * (c_low - c_up),
-        # external: inputs Q_act
-        *(drv.q_act_w[:, k] for k in range(6)),
-        # chassis ↔ environment, speed-dependent coefficient
-        h * p.area_ext_m2[:, 0] * (t_amb - c_up),
-        h * p.area_ext_m2[:, 1] * (t_amb - c_low),
-        # solar
-        p.roof_absorptance * p.roof_area_m2 * drv.q_roof_w_m2,
-        p.side_absorptance * p.side_area_m2[:, 0] * drv.q_side_w_m2,
-        p.side_absorptance * p.side_area_m2[:, 1] * drv.q_side_w_m2,
-        *(p.window_g * p.window_area_m2[:, d] * drv.q_side_w_m2 for d in range(3)),
-        ground,
-        # passengers, door, ventilation
-        *(p.heat_per_passenger_w * drv.passengers[:, d] for d in range(3)),
-        drv.door_open * p.door_mass_flow_kg_s * AIR_CP_J_KG_K * (t_amb - r_low),
-        vent[:, 0],
-        vent[:, 1],
-        vent[:, 2],
-    ]
-    return np.stack(flows, axis=1)
+    return out
 
 
 def derivative(T: np.ndarray, drv: Drivers, p: CoachParams, inv_cap: np.ndarray) -> np.ndarray:
@@ -213,12 +227,13 @@ def rk4_step(
     Returns the new state (N, 9) and the step-mean heat flows (N, n_flows) in W, weighted like
     the RK4 update so that Σ C·ΔT = dt · Σ(external mean flows) holds to round-off.
     """
-    f1 = heat_flows(T, drv, p)
+    held = held_flows(drv, p)
+    f1 = heat_flows(T, drv, p, held)
     k1 = (f1 @ INCIDENCE) * inv_cap
-    f2 = heat_flows(T + 0.5 * dt_s * k1, drv, p)
+    f2 = heat_flows(T + 0.5 * dt_s * k1, drv, p, held)
     k2 = (f2 @ INCIDENCE) * inv_cap
-    f3 = heat_flows(T + 0.5 * dt_s * k2, drv, p)
+    f3 = heat_flows(T + 0.5 * dt_s * k2, drv, p, held)
     k3 = (f3 @ INCIDENCE) * inv_cap
-    f4 = heat_flows(T + dt_s * k3, drv, p)
+    f4 = heat_flows(T + dt_s * k3, drv, p, held)
     mean_flows = (f1 + 2.0 * f2 + 2.0 * f3 + f4) / 6.0
     return T + dt_s * (mean_flows @ INCIDENCE) * inv_cap, mean_flows
