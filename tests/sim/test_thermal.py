@@ -74,7 +74,7 @@ def test_door_effect_only_when_open_and_on_the_lower_deck():
     closed = flows(T=20.0, t_amb_c=0.0, door_open=0.0)
     opened = flows(T=20.0, t_amb_c=0.0, door_open=1.0)
     assert closed[FLOW["door"]] == 0.0
-    assert opened[FLOW["door"]] == pytest.approx(-0.6 * 1005 * 20)
+    assert opened[FLOW["door"]] == pytest.approx(-0.25 * 1005 * 20)
     assert dict(thermal.EXTERNAL_FLOWS)["door"] == 2  # T_room,low
 
 

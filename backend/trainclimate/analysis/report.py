@@ -16,10 +16,17 @@ from trainclimate.sim.scenarios import LOCAL_TZ, Scenario
 from trainclimate.sim.simulator import DECKS, SimulationResult
 
 DECK_COLOURS = {"up": "#d62728", "mid": "#2ca02c", "low": "#1f77b4"}
+#: Plotted resolution: one point per minute keeps a day's report small and fast.
+PLOT_STEP_S = 60.0
 
 
 def _local(result: SimulationResult):
-    return result.time.tz_convert(LOCAL_TZ).tz_localize(None)
+    return result.time.tz_convert(LOCAL_TZ).tz_localize(None)[_every(result)]
+
+
+def _every(result: SimulationResult) -> slice:
+    """Every sample at most once per :data:`PLOT_STEP_S`."""
+    return slice(None, None, max(1, round(PLOT_STEP_S / result.dt_s)))
 
 
 def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
@@ -33,7 +40,8 @@ def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> 
         specs=[[{}], [{"secondary_y": True}]],
         vertical_spacing=0.06,
     )
-    rule = result.t_rule_c[:, coach]
+    e = _every(result)
+    rule = result.t_rule_c[e, coach]
     fig.add_trace(
         go.Scatter(x=t, y=rule + 1.0, line={"width": 0}, showlegend=False, hoverinfo="skip"),
         row=1,
@@ -55,7 +63,7 @@ def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> 
         fig.add_trace(
             go.Scatter(
                 x=t,
-                y=result.t_room_c[:, coach, d],
+                y=result.t_room_c[e, coach, d],
                 name=f"T_room {deck}",
                 line={"color": DECK_COLOURS[deck], "width": 1.2},
             ),
@@ -64,21 +72,21 @@ def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> 
         )
     fig.add_trace(
         go.Scatter(
-            x=t, y=result.t_ref_c[:, coach], name="T_ref", line={"color": "black", "dash": "dash"}
+            x=t, y=result.t_ref_c[e, coach], name="T_ref", line={"color": "black", "dash": "dash"}
         ),
         row=1,
         col=1,
     )
     env = result.env
-    s = len(t)
+    s, e = len(result.time), _every(result)
     fig.add_trace(
-        go.Scatter(x=t, y=env.t_amb_c[:s, coach], name="T_amb", line={"color": "#9467bd"}),
+        go.Scatter(x=t, y=env.t_amb_c[:s][e, coach], name="T_amb", line={"color": "#9467bd"}),
         row=2,
         col=1,
     )
     fig.add_trace(
         go.Scatter(
-            x=t, y=env.ghi_w_m2[:s, coach], name="global irradiance", line={"color": "#ff7f0e"}
+            x=t, y=env.ghi_w_m2[:s][e, coach], name="global irradiance", line={"color": "#ff7f0e"}
         ),
         row=2,
         col=1,
@@ -96,17 +104,18 @@ def power_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
     """Electrical power by component (stacked, kW) and cumulative energy (kWh)."""
     t = _local(result)
     fig = make_subplots(specs=[[{"secondary_y": True}]])
+    e = _every(result)
     for name, value in result.power_w.items():
         fig.add_trace(
             go.Scatter(
                 x=t,
-                y=value[:, coach] / 1e3,
+                y=value[e, coach] / 1e3,
                 name=name.replace("_", "/"),
                 stackgroup="power",
                 line={"width": 0.5},
             )
         )
-    energy = np.cumsum(result.total_power_w[:, coach]) * result.dt_s / 3.6e6
+    energy = (np.cumsum(result.total_power_w[:, coach]) * result.dt_s / 3.6e6)[e]
     fig.add_trace(
         go.Scatter(x=t, y=energy, name="cumulative energy", line={"color": "black"}),
         secondary_y=True,
@@ -121,12 +130,12 @@ def power_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
 def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
     """HVAC mode and state over time, and the fresh-air fraction (substate)."""
     t = _local(result)
-    s = len(t)
+    s, e = len(result.time), _every(result)
     fig = make_subplots(rows=2, cols=1, shared_xaxes=True, vertical_spacing=0.08)
     fig.add_trace(
         go.Scatter(
             x=t,
-            y=[hvac.STATE_NAMES[int(v)] for v in result.hvac_state[:, coach]],
+            y=[hvac.STATE_NAMES[int(v)] for v in result.hvac_state[e, coach]],
             name="HVAC state",
             mode="lines",
             line={"shape": "hv"},
@@ -137,7 +146,7 @@ def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
     fig.add_trace(
         go.Scatter(
             x=t,
-            y=[MODE_NAMES[int(v)] for v in result.env.mode[:s, coach]],
+            y=[MODE_NAMES[int(v)] for v in result.env.mode[:s][e, coach]],
             name="HVAC mode",
             mode="lines",
             line={"shape": "hv", "dash": "dot"},
@@ -147,7 +156,7 @@ def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
     )
     fig.add_trace(
         go.Scatter(
-            x=t, y=result.fresh_fraction[:, coach], name="fresh-air fraction", line={"shape": "hv"}
+            x=t, y=result.fresh_fraction[e, coach], name="fresh-air fraction", line={"shape": "hv"}
         ),
         row=2,
         col=1,

@@ -105,7 +105,7 @@ class CoachParams:
     seats: np.ndarray = field(default_factory=lambda: _a(20.0, 8.0, 17.0))
     heat_per_passenger_w: float = 100.0
     #: air exchanged through the open lower-deck door
-    door_mass_flow_kg_s: float = 0.6
+    door_mass_flow_kg_s: float = 0.25
     supply_air_m3_h: float = 3600.0
     air_share: np.ndarray = field(default_factory=lambda: _a(0.36, 0.22, 0.42))
     fresh_air_base_fraction: float = 0.15
