@@ -105,3 +105,19 @@ def test_bad_input():
         stationary(t, latitude_deg=47, longitude_deg=8, heading_deg=0)
     with pytest.raises(ValueError, match="before last_arrival"):
         day(first_departure=pd.Timestamp("2022-03-28 22:00", tz="UTC"))
+
+
+def test_heading_comes_from_positions_and_holds_at_stops():
+    op = day()
+    moving = op.speed_kmh > 0
+    k = np.flatnonzero(moving[:-1] & moving[1:])
+    expected = bearing_deg(
+        op.latitude_deg[k], op.longitude_deg[k], op.latitude_deg[k + 1], op.longitude_deg[k + 1]
+    )
+    np.testing.assert_allclose(op.heading_deg[k], expected, atol=1e-6)
+    last_moving = np.maximum.accumulate(np.where(moving, np.arange(len(moving)), 0))
+    doors = np.flatnonzero(op.doors_open)
+    np.testing.assert_allclose(op.heading_deg[doors], op.heading_deg[last_moving[doors]])
+    # trips in both directions: headings roughly opposite appear
+    h = op.heading_deg[moving]
+    assert np.ptp(h) > 150

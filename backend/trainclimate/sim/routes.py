@@ -290,40 +290,25 @@ def service_day(
                 pos = j
                 break
             dwell = float(rng.uniform(30.0, 60.0))
-            segs.append(
-                (
-                    t,
-                    t + dwell,
-                    "dwell",
-                    dict(i=j, occ=occ, heading=float(bearing_deg(lat[i], lon[i], lat[j], lon[j]))),
-                )
-            )
+            segs.append((t, t + dwell, "dwell", dict(i=j, occ=occ)))
             t += dwell
         direction = -direction
-        head = float(
-            segs[-1][3].get(
-                "heading",
-                bearing_deg(lat[segs[-1][3]["i"]], lon[segs[-1][3]["i"]], lat[pos], lon[pos]),
-            )
-        )
         if t >= last_arrival.timestamp():
-            segs.append((t, np.inf, "parked", dict(i=pos, heading=head)))
+            segs.append((t, np.inf, "parked", dict(i=pos)))
             break
         lay = next(((a, b) for a, b in pending if a <= t + 1800.0 and b > t), None)
         if lay is not None:
             pending.remove(lay)
-            segs.append((t, lay[1], "layover", dict(i=pos, heading=head)))
+            segs.append((t, lay[1], "layover", dict(i=pos)))
             t = lay[1]
         else:
             turn = float(rng.uniform(8 * 60.0, 15 * 60.0))
-            segs.append((t, t + turn, "turnaround", dict(i=pos, heading=head)))
+            segs.append((t, t + turn, "turnaround", dict(i=pos)))
             t += turn
 
     n = len(times)
     x = times.as_unit("ns").asi8 / 1e9
     out_lat, out_lon = np.full(n, lat[0]), np.full(n, lon[0])
-    first_head = float(bearing_deg(lat[0], lon[0], lat[1], lon[1]))
-    head = np.full(n, first_head)
     speed, occ = np.zeros(n), np.zeros(n)
     doors = np.zeros(n, dtype=bool)
     op = np.full(n, "parked", dtype=object)
@@ -340,10 +325,9 @@ def service_day(
             f = dist / d["length"]
             out_lat[sl] = lat[i] + f * (lat[j] - lat[i])
             out_lon[sl] = lon[i] + f * (lon[j] - lon[i])
-            head[sl] = bearing_deg(lat[i], lon[i], lat[j], lon[j])
             speed[sl], occ[sl], op[sl] = spd * 3.6, d["occ"], "service"
             continue
-        out_lat[sl], out_lon[sl], head[sl] = lat[d["i"]], lon[d["i"]], d["heading"]
+        out_lat[sl], out_lon[sl] = lat[d["i"]], lon[d["i"]]
         if kind == "dwell":
             doors[sl] = (tau >= 5.0) & (tau < (b - a) - 5.0)
             occ[sl], op[sl] = d["occ"], "service"
@@ -356,7 +340,7 @@ def service_day(
         time=times,
         latitude_deg=out_lat,
         longitude_deg=out_lon,
-        heading_deg=head,
+        heading_deg=heading_from_positions(out_lat, out_lon),
         speed_kmh=speed,
         doors_open=doors,
         occupancy_pct=occ,
