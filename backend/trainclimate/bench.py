@@ -9,24 +9,7 @@ import time
 import numpy as np
 
 from trainclimate.sim import scenarios
-from trainclimate.sim.simulator import Environment, FleetSimulator
-
-
-def _subset(env: Environment, coaches: list[int]) -> Environment:
-    """The environment of some of the coaches."""
-    pick = lambda a: np.ascontiguousarray(a[:, coaches])  # noqa: E731
-    return Environment(
-        time=env.time,
-        t_amb_c=pick(env.t_amb_c),
-        ghi_w_m2=pick(env.ghi_w_m2),
-        zenith_deg=pick(env.zenith_deg),
-        azimuth_deg=pick(env.azimuth_deg),
-        heading_deg=pick(env.heading_deg),
-        speed_kmh=pick(env.speed_kmh),
-        occupancy_pct=pick(env.occupancy_pct),
-        door_open=pick(env.door_open),
-        mode=pick(env.mode),
-    )
+from trainclimate.sim.simulator import FleetSimulator
 
 
 def machine() -> dict:
@@ -58,7 +41,7 @@ def bench_simulator(coaches: int = 100, days: float = 1.0, loop_coaches: int = 5
     n_loop = min(loop_coaches, coaches)
     t0 = time.perf_counter()
     for i in range(n_loop):
-        single = FleetSimulator([params[i]], _subset(env, [i]))
+        single = FleetSimulator([params[i]], env.coaches([i]))
         single.run()
     loop_s = time.perf_counter() - t0
 

@@ -26,6 +26,11 @@ from trainclimate.sim.rule import MODE_REGULAR, RuleCurve
 from trainclimate.sim.solar import roof_irradiance, side_irradiance
 
 DECKS = ("up", "mid", "low")
+#: The (steps, coaches) series of an :class:`Environment`.
+SERIES_FIELDS = (
+    "t_amb_c", "ghi_w_m2", "zenith_deg", "azimuth_deg", "heading_deg", "speed_kmh",
+    "occupancy_pct", "door_open", "mode",
+)  # fmt: skip
 
 
 @dataclass
@@ -54,39 +59,26 @@ class Environment:
         if self.time.tz is None:
             raise ValueError("environment time must be timezone-aware")
         s = len(self.time)
-        for name in (
-            "t_amb_c",
-            "ghi_w_m2",
-            "zenith_deg",
-            "azimuth_deg",
-            "heading_deg",
-            "speed_kmh",
-            "occupancy_pct",
-            "door_open",
-            "mode",
-        ):
+        for name in SERIES_FIELDS:
             value = np.asarray(getattr(self, name))
             if value.ndim == 1:
                 value = value[:, None]
             if value.ndim != 2 or value.shape[0] != s:
                 raise ValueError(f"environment field {name!r} must have shape (steps, coaches)")
             setattr(self, name, value)
-        n = max(np.shape(getattr(self, f))[1] for f in ("t_amb_c", "mode", "speed_kmh"))
-        for name in (
-            "t_amb_c",
-            "ghi_w_m2",
-            "zenith_deg",
-            "azimuth_deg",
-            "heading_deg",
-            "speed_kmh",
-            "occupancy_pct",
-            "door_open",
-            "mode",
-        ):
+        n = max(getattr(self, name).shape[1] for name in SERIES_FIELDS)
+        for name in SERIES_FIELDS:
             setattr(self, name, np.broadcast_to(getattr(self, name), (s, n)))
         self.q_roof_w_m2 = roof_irradiance(self.ghi_w_m2, self.zenith_deg)
         self.q_side_w_m2 = side_irradiance(
             self.ghi_w_m2, self.zenith_deg, self.azimuth_deg, self.heading_deg
+        )
+
+    def coaches(self, index: list[int]) -> Environment:
+        """The environment of some of the coaches."""
+        return Environment(
+            time=self.time,
+            **{name: np.ascontiguousarray(getattr(self, name)[:, index]) for name in SERIES_FIELDS},
         )
 
     @property
