@@ -172,6 +172,8 @@ def time_grid(start: pd.Timestamp, hours: float, dt_s: float) -> pd.DatetimeInde
     if hours <= 0:
         raise ScenarioError(f"hours must be positive, got {hours:g}")
     n = round(hours * 3600.0 / dt_s)
+    if n < 2:
+        raise ScenarioError(f"hours = {hours:g} is shorter than two simulator steps of {dt_s:g} s")
     return pd.date_range(start.tz_convert("UTC"), periods=n, freq=pd.Timedelta(seconds=dt_s))
 
 
