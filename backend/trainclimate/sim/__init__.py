@@ -1,0 +1,7 @@
+"""The half-coach thermal simulator of the paper's Section II (see docs/model.md).
+
+Modules: ``rule`` (rule-based controller and HVAC modes), ``hvac`` (state machine, substate, PID,
+floor/wall heating), ``thermal`` (heat distribution and the nine-state coach block), ``power``
+(electrical power), ``solar``, ``weather`` and ``routes`` (inputs), ``params`` (coach parameters
+and diversity), ``scenarios`` (named, seeded settings) and ``simulator`` (the vectorised fleet).
+"""
