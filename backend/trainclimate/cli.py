@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from trainclimate.data.pipeline import PipelineError
 from trainclimate.sim.params import CoachParams, ParamsError, load_params
 from trainclimate.sim.scenarios import SCENARIOS, ScenarioError
 from trainclimate.sim.weather import WeatherError
@@ -48,14 +50,14 @@ def _json_default(value):
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def _progress(total: int, desc: str):
+def _progress(total: int, desc: str, unit: str = "step"):
     """A tqdm progress bar on stderr when it is a terminal, else a no-op."""
     from tqdm import tqdm
 
     return tqdm(
         total=total,
         desc=desc,
-        unit="step",
+        unit=unit,
         file=sys.stderr,
         leave=False,
         disable=not sys.stderr.isatty(),
@@ -163,6 +165,58 @@ def cmd_bench(args: argparse.Namespace) -> None:
     _emit(args, data, human)
 
 
+def cmd_dataset_build(args: argparse.Namespace) -> None:
+    from trainclimate.data import fleetlogs, pipeline
+
+    if (args.days is not None and args.days < 1) or (args.coaches is not None and args.coaches < 1):
+        raise UsageError("--days and --coaches must be at least 1")
+    out = Path(args.out)
+    generated = None
+    if args.raw:
+        raw = Path(args.raw)
+        if not raw.is_dir():
+            raise UsageError(f"--raw: no such directory: {raw}")
+    else:
+        raw = out / "raw"
+        campaigns = tuple(fleetlogs.CAMPAIGNS[c] for c in args.campaign or fleetlogs.CAMPAIGNS)
+        total = sum(
+            len(c.days[: args.days] if args.days else c.days)
+            * min(len(c.coaches), args.coaches or len(c.coaches))
+            for c in campaigns
+        )
+        with _progress(total, "generate raw logs", "coach-day") as bar:
+            generated = fleetlogs.generate(
+                raw,
+                campaigns=campaigns,
+                max_days=args.days,
+                max_coaches=args.coaches,
+                progress=bar.update,
+            )
+    groups, _ = pipeline.discover(raw)
+    with _progress(len(groups), "pipeline", "coach-day") as bar:
+        summary = pipeline.build_dataset(raw, out, progress=bar.update)
+    data = {**summary.to_dict(), "raw": str(raw), "out": str(out)}
+    if generated is not None:
+        data["generated"] = {"files": generated.files, "rows": generated.rows,
+                             "coach_days": generated.coach_days}  # fmt: skip
+
+    def human(d: dict) -> str:
+        lines = [f"{'campaign':<15}{'sampling':>9}{'#T':>7}{'#D':>8}"]
+        lines += [
+            f"{r['campaign']:<15}{r['sampling_min']:>6} min{r['trajectories']:>7}"
+            f"{r['mean_points']:>8.0f}"
+            for r in d["table"]
+        ]
+        lines.append("dropped: " + ", ".join(f"{k} {v}" for k, v in d["dropped_rows"].items()))
+        lines.append("repaired: " + ", ".join(f"{k} {v}" for k, v in d["repaired_rows"].items()))
+        if d["unreadable_files"]:
+            lines.append(f"unreadable files: {len(d['unreadable_files'])} (see warnings)")
+        lines.append(f"trajectories written under {d['out']}")
+        return "\n".join(lines)
+
+    _emit(args, data, human)
+
+
 def cmd_demo(args: argparse.Namespace) -> None:
     from trainclimate.analysis.report import write_simulation_report
     from trainclimate.analysis.summary import fleet_kpis
@@ -227,6 +281,23 @@ def build_parser() -> argparse.ArgumentParser:
         "--loop-coaches", type=int, default=5, help="coaches simulated one by one for the baseline"
     )
 
+    dataset = sub.add_parser("dataset", help="fleet logs and the data pipeline")
+    dsub = dataset.add_subparsers(dest="dataset_command", required=True, parser_class=_Parser)
+    p = dsub.add_parser(
+        "build",
+        help="generate raw fleet logs (or read --raw) and run the pipeline",
+        description="generate raw fleet logs (or read --raw) and run the pipeline",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.set_defaults(func=cmd_dataset_build)
+    p.add_argument("--out", required=True, help="output directory (trajectories, dataset.json)")
+    p.add_argument("--raw", default=None, help="read raw logs from here instead of generating")
+    p.add_argument("--days", type=int, default=None, help="only the first N days per campaign")
+    p.add_argument("--coaches", type=int, default=None, help="only the first N coaches")
+    p.add_argument(
+        "--campaign", action="append", choices=("winter-spring", "summer"), help="repeatable"
+    )
+
     p = add("demo", cmd_demo, "simulate winter-day and write an HTML report")
     p.add_argument("--out", default="out/demo", help="output directory")
     p.add_argument("--coaches", type=int, default=3)
@@ -234,12 +305,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.WARNING, format="trainclimate: warning: %(message)s")
     try:
         args = build_parser().parse_args(argv)
         if args.command == "coach-params" and not (args.default or args.file):
             raise UsageError("coach-params needs --default or --file FILE")
         args.func(args)
-    except (UsageError, ScenarioError, WeatherError, ParamsError) as exc:
+    except (UsageError, ScenarioError, WeatherError, ParamsError, PipelineError) as exc:
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"trainclimate: error: {message}", file=sys.stderr)
         return 2

@@ -81,6 +81,25 @@ class Environment:
             **{name: np.ascontiguousarray(getattr(self, name)[:, index]) for name in SERIES_FIELDS},
         )
 
+    @classmethod
+    def side_by_side(cls, envs: list[Environment]) -> Environment:
+        """Independent environments of equal length and step as the columns of one, so that
+        runs on different days are simulated together as one vectorised fleet.
+
+        The result keeps the first environment's ``time``: the simulator only uses the grid's
+        step, so each column's own clock stays with whoever built it.
+        """
+        if not envs:
+            raise ValueError("need at least one environment")
+        first = envs[0]
+        for env in envs[1:]:
+            if len(env.time) != len(first.time) or env.dt_s != first.dt_s:
+                raise ValueError("environments side by side need the same length and step")
+        return cls(
+            time=first.time,
+            **{name: np.hstack([getattr(e, name) for e in envs]) for name in SERIES_FIELDS},
+        )
+
     @property
     def n_coaches(self) -> int:
         return self.t_amb_c.shape[1]

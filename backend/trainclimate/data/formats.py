@@ -1,0 +1,257 @@
+"""Raw fleet-log formats: the paper's three sources (Section III.A) as two campaigns export them.
+
+Every source has a *canonical* table (the pipeline's input, whatever the origin — CSV files or the
+service's stored telemetry):
+
+- HVAC: ``time`` (UTC), ``mode`` (``regular`` / ``slumber`` / ``off``), ``t_ref_c``,
+  ``t_room_up_c``, ``t_room_mid_c``, ``t_room_low_c`` (°C), ``speed_kmh``;
+- weather: ``time``, ``latitude_deg``, ``longitude_deg``, ``t_amb_c``, ``ghi_w_m2``,
+  ``solar_elevation_deg``, ``solar_azimuth_deg`` (clockwise from north);
+- trips (train recordings, one row per trip): ``train``, ``departure``, ``arrival`` (UTC),
+  ``origin``, ``destination``, ``occupancy_pct`` (% of seats).
+
+Each campaign's export differs (:data:`FORMATS`): Winter/Spring 2022 files are semicolon-separated
+with decimal commas, German column names and local Zurich time without offset; Summer 2023 files
+are comma-separated ISO 8601 UTC with English names and the speed in m/s. :func:`read_source`
+recognises a file's campaign and source from its header, so files can be read in any layout.
+
+Files are named ``<campaign>/<source>/<train>_<coach>_<YYYY-MM-DD>.csv`` (:func:`log_path`).
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+SOURCES = ("hvac", "weather", "trips")
+CANONICAL = {
+    "hvac": ("time", "mode", "t_ref_c", "t_room_up_c", "t_room_mid_c", "t_room_low_c", "speed_kmh"),
+    "weather": (
+        "time", "latitude_deg", "longitude_deg", "t_amb_c", "ghi_w_m2",
+        "solar_elevation_deg", "solar_azimuth_deg",
+    ),
+    "trips": ("train", "departure", "arrival", "origin", "destination", "occupancy_pct"),
+}  # fmt: skip
+#: Columns holding times, and columns holding free text, per source (the rest are numbers).
+TIME_COLUMNS = {"hvac": ("time",), "weather": ("time",), "trips": ("departure", "arrival")}
+TEXT_COLUMNS = {"hvac": ("mode",), "weather": (), "trips": ("train", "origin", "destination")}
+MODES = ("regular", "slumber", "off")
+
+
+class FormatError(ValueError):
+    """A file that is not a fleet log of a known format."""
+
+
+@dataclass(frozen=True)
+class ExportFormat:
+    """How one campaign's export writes the canonical tables.
+
+    ``columns[source]`` maps canonical names to the export's; ``time_format`` is a strftime
+    pattern read in ``timezone``; numbers use ``decimal``; ``modes`` maps canonical mode names to
+    the export's labels; the exported speed is ``speed_kmh * speed_factor``.
+    """
+
+    name: str
+    sep: str
+    decimal: str
+    time_format: str
+    timezone: str
+    columns: dict[str, dict[str, str]]
+    modes: dict[str, str]
+    speed_factor: float = 1.0
+    header: dict[str, tuple[str, ...]] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self,
+            "header",
+            {s: tuple(self.columns[s][c] for c in CANONICAL[s]) for s in SOURCES},
+        )
+
+
+WINTER_FORMAT = ExportFormat(
+    name="winter-spring",
+    sep=";",
+    decimal=",",
+    time_format="%d.%m.%Y %H:%M:%S",
+    timezone="Europe/Zurich",
+    columns={
+        "hvac": dict(
+            time="Zeit", mode="Betriebsart", t_ref_c="T_Soll", t_room_up_c="T_Raum_OG",
+            t_room_mid_c="T_Raum_MG", t_room_low_c="T_Raum_UG", speed_kmh="Geschwindigkeit_kmh",
+        ),
+        "weather": dict(
+            time="Zeit", latitude_deg="Breite", longitude_deg="Laenge", t_amb_c="T_aussen",
+            ghi_w_m2="Globalstrahlung", solar_elevation_deg="Sonnenhoehe",
+            solar_azimuth_deg="Sonnenazimut",
+        ),
+        "trips": dict(
+            train="Zug", departure="Abfahrt", arrival="Ankunft", origin="Von",
+            destination="Nach", occupancy_pct="Belegung_Prozent",
+        ),
+    },
+    modes={"regular": "Normal", "slumber": "Schlummer", "off": "Aus"},
+)  # fmt: skip
+
+SUMMER_FORMAT = ExportFormat(
+    name="summer",
+    sep=",",
+    decimal=".",
+    time_format="%Y-%m-%dT%H:%M:%SZ",
+    timezone="UTC",
+    columns={
+        "hvac": dict(
+            time="timestamp", mode="hvac_mode", t_ref_c="t_setpoint", t_room_up_c="t_room_upper",
+            t_room_mid_c="t_room_middle", t_room_low_c="t_room_lower", speed_kmh="speed_mps",
+        ),
+        "weather": dict(
+            time="timestamp", latitude_deg="lat", longitude_deg="lon", t_amb_c="temp_air",
+            ghi_w_m2="ghi", solar_elevation_deg="sun_elevation", solar_azimuth_deg="sun_azimuth",
+        ),
+        "trips": dict(
+            train="train", departure="departure", arrival="arrival", origin="from",
+            destination="to", occupancy_pct="occupancy_pct",
+        ),
+    },
+    modes={"regular": "REGULAR", "slumber": "SLUMBER", "off": "OFF"},
+    speed_factor=1 / 3.6,
+)  # fmt: skip
+
+FORMATS = {f.name: f for f in (WINTER_FORMAT, SUMMER_FORMAT)}
+
+_NAME = re.compile(r"^(?P<train>[^_]+)_(?P<coach>[^_]+)_(?P<day>\d{4}-\d{2}-\d{2})\.csv$")
+
+
+def log_path(root: Path, campaign: str, source: str, train: str, coach: str, day: str) -> Path:
+    """Where a raw log file lives: ``root/campaign/source/train_coach_day.csv``."""
+    return Path(root) / campaign / source / f"{train}_{coach}_{day}.csv"
+
+
+def parse_log_name(path: Path) -> tuple[str, str, str] | None:
+    """(train, coach, day) from a log file's name, or None if it does not follow the layout."""
+    m = _NAME.match(Path(path).name)
+    return (m["train"], m["coach"], m["day"]) if m else None
+
+
+# --- writing ---------------------------------------------------------------------------------
+def _format_number(values: pd.Series, decimal: str, digits: int) -> list[str]:
+    return [
+        "" if np.isnan(v) else f"{v:.{digits}f}".replace(".", decimal)
+        for v in np.asarray(values, dtype=float)
+    ]
+
+
+def to_export(frame: pd.DataFrame, source: str, fmt: ExportFormat) -> pd.DataFrame:
+    """A canonical table converted to ``fmt``'s columns and text (all values as strings)."""
+    out = {}
+    for col in CANONICAL[source]:
+        values = frame[col]
+        if col in TIME_COLUMNS[source]:
+            text = pd.DatetimeIndex(values).tz_convert(fmt.timezone).strftime(fmt.time_format)
+            out[fmt.columns[source][col]] = np.asarray(text, dtype=object)
+        elif col == "mode":
+            out[fmt.columns[source][col]] = values.map(fmt.modes).fillna("").to_numpy()
+        elif col in TEXT_COLUMNS[source]:
+            out[fmt.columns[source][col]] = values.astype(str).to_numpy()
+        else:
+            v = values.astype(float) * (fmt.speed_factor if col == "speed_kmh" else 1.0)
+            digits = 6 if col in ("latitude_deg", "longitude_deg") else 2
+            out[fmt.columns[source][col]] = _format_number(v, fmt.decimal, digits)
+    return pd.DataFrame(out)
+
+
+def write_export(frame: pd.DataFrame, path: Path, fmt: ExportFormat) -> None:
+    """Write an already exported table (:func:`to_export`, possibly with defects added)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(path, sep=fmt.sep, index=False, lineterminator="\n")
+
+
+# --- reading ---------------------------------------------------------------------------------
+@dataclass
+class SourceTable:
+    """A raw file read into its canonical table, with what reading had to drop."""
+
+    source: str
+    campaign: str
+    frame: pd.DataFrame
+    dropped: Counter = field(default_factory=Counter)
+
+
+def _detect(header_line: str) -> tuple[ExportFormat, str]:
+    for fmt in FORMATS.values():
+        names = tuple(h.strip() for h in header_line.rstrip("\r\n").split(fmt.sep))
+        for source in SOURCES:
+            if names == fmt.header[source]:
+                return fmt, source
+    raise FormatError(f"unrecognised header {header_line.strip()[:80]!r}")
+
+
+def _parse_times(text: pd.Series, fmt: ExportFormat) -> pd.DatetimeIndex:
+    """Export times → UTC; unparseable, non-existent (DST gap) or ambiguous local times → NaT."""
+    parsed = pd.to_datetime(text, format=fmt.time_format, errors="coerce")
+    index = pd.DatetimeIndex(parsed)
+    if fmt.timezone == "UTC":
+        return index.tz_localize("UTC")
+    return index.tz_localize(fmt.timezone, nonexistent="NaT", ambiguous="NaT").tz_convert("UTC")
+
+
+def read_source(path: str | Path) -> SourceTable:
+    """Read one raw log file of either campaign into its canonical table.
+
+    Rows that cannot be parsed — the wrong number of fields, an unreadable time or number, an
+    unknown mode label — are dropped and counted as ``unparseable``; empty fields become NaN for
+    the pipeline to judge. Raises :class:`FormatError` (or OSError / UnicodeDecodeError) for a
+    file that is not a fleet log at all.
+    """
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    if not lines:
+        raise FormatError("empty file")
+    fmt, source = _detect(lines[0])
+    n_data = sum(1 for line in lines[1:] if line.strip())
+    raw = pd.read_csv(
+        path,
+        sep=fmt.sep,
+        dtype=str,
+        keep_default_na=False,
+        on_bad_lines="skip",
+        engine="c",
+        skip_blank_lines=True,
+    )
+    bad = raw.isna().any(axis=1)  # rows with too few fields come back NaN-padded
+    dropped = Counter()
+    dropped["unparseable"] += n_data - len(raw)
+    raw = raw[~bad]
+    dropped["unparseable"] += int(bad.sum())
+
+    cols = fmt.columns[source]
+    out: dict[str, object] = {}
+    ok = np.ones(len(raw), dtype=bool)
+    for col in CANONICAL[source]:
+        values = raw[cols[col]].str.strip()
+        if col in TIME_COLUMNS[source]:
+            times = _parse_times(values, fmt)
+            ok &= ~times.isna()
+            out[col] = times
+        elif col == "mode":
+            labels = {v: k for k, v in fmt.modes.items()}
+            mode = values.map(labels)
+            ok &= ~(mode.isna() & (values != "")).to_numpy()
+            out[col] = mode.to_numpy(dtype=object)
+        elif col in TEXT_COLUMNS[source]:
+            out[col] = values.to_numpy(dtype=object)
+        else:
+            if fmt.decimal != ".":
+                values = values.str.replace(fmt.decimal, ".", regex=False)
+            num = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
+            ok &= ~(np.isnan(num) & (values != "").to_numpy())
+            out[col] = num / fmt.speed_factor if col == "speed_kmh" else num
+    frame = pd.DataFrame(out).loc[ok]
+    dropped["unparseable"] += int((~ok).sum())
+    return SourceTable(source, fmt.name, frame.reset_index(drop=True), +dropped)

@@ -1,0 +1,501 @@
+"""The data pipeline of the paper's Section III.A: raw fleet logs → clean trajectories.
+
+For each coach and day (bounded memory, whatever the fleet's size):
+
+0. **Clean** each source's canonical table (:func:`clean`): sort rows back into time order
+   (repaired ``out_of_order``), drop duplicated times (``duplicate``), rows with an empty
+   required field (``missing_value``), physically impossible values (``out_of_range``) and sensor
+   spikes — readings more than ``spike_k`` from the rolling median of their
+   ``spike_window_min`` neighbourhood (``spike``).
+1. **Fuse** the three sources into one table at the HVAC's timestamps (:func:`fuse`): the weather
+   is interpolated in time (never across a gap longer than ``max_weather_gap_min``), the heading θ
+   comes from the train's successive positions, the solar projections are
+   ``Q_Gt = |G cos z|`` and ``Q_Gs = |G sin z sin(β − θ)|`` with z the solar *zenith* angle
+   (90° − the logged elevation; see DESIGN.md), and the occupancy P is the trip's. A moving train
+   with no trip recorded has an unknown occupancy.
+2. **Aggregate** to 1 min (:func:`aggregate`): y is the mean of the samples measured in the
+   minute up to t, u and d the means over the minute from t; a minute is in regular mode only
+   if every sample in it is.
+3. **Segment and filter** (:func:`segment`): interior gaps of at most ``max_fill_min`` minutes
+   between regular-mode minutes are interpolated (repaired ``short_gap``); every other missing
+   or non-regular minute ends a trajectory; trajectories shorter than ``min_minutes`` are dropped.
+4. **Down-sample** to 5 and 10 min (:func:`downsample`), blocks aligned to the clock: y at the
+   block's start, u and d the block's means (the convention of
+   :mod:`trainclimate.data.trajectory`); trajectories with fewer than ``min_points`` samples are
+   dropped.
+
+The input of steps 0–4 is a table of records per source, so the service's stored telemetry
+feeds it as well as CSV files (:func:`build_dataset` reads the files).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import Counter, defaultdict
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from trainclimate.data.formats import (
+    CANONICAL,
+    FORMATS,
+    FormatError,
+    parse_log_name,
+    read_source,
+)
+from trainclimate.data.trajectory import D_NAMES, U_NAMES, Y_NAMES, Trajectory, TrajectoryWriter
+from trainclimate.sim.routes import heading_from_positions
+from trainclimate.sim.solar import roof_irradiance, side_irradiance
+
+log = logging.getLogger(__name__)
+
+SIGNALS = (*Y_NAMES, *U_NAMES, *D_NAMES)
+#: Physically possible range of each canonical column (outside: a faulty reading).
+RANGES = {
+    "t_room_up_c": (-30.0, 60.0),
+    "t_room_mid_c": (-30.0, 60.0),
+    "t_room_low_c": (-30.0, 60.0),
+    "t_ref_c": (10.0, 35.0),
+    "speed_kmh": (0.0, 250.0),
+    "latitude_deg": (-90.0, 90.0),
+    "longitude_deg": (-180.0, 180.0),
+    "t_amb_c": (-40.0, 50.0),
+    "ghi_w_m2": (0.0, 1500.0),
+    "solar_elevation_deg": (-90.0, 90.0),
+    "solar_azimuth_deg": (0.0, 360.0),
+    "occupancy_pct": (0.0, 300.0),
+}
+SPIKE_COLUMNS = {"hvac": ("t_ref_c", *Y_NAMES), "weather": ("t_amb_c",), "trips": ()}
+
+
+class PipelineError(ValueError):
+    """The input holds no usable data at all."""
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Knobs of the pipeline (defaults documented in the module docstring)."""
+
+    sampling_min: tuple[int, ...] = (1, 5, 10)
+    min_minutes: int = 30
+    min_points: int = 6
+    max_fill_min: int = 2
+    max_weather_gap_min: float = 30.0
+    spike_k: float = 4.0
+    spike_window_min: float = 5.0
+
+
+@dataclass
+class Counts:
+    """Rows (or minutes, where the reason says so) dropped and repaired, by reason."""
+
+    dropped: Counter = field(default_factory=Counter)
+    repaired: Counter = field(default_factory=Counter)
+
+    def update(self, other: Counts) -> None:
+        self.dropped.update(other.dropped)
+        self.repaired.update(other.repaired)
+
+
+def _seconds(times) -> np.ndarray:
+    return pd.DatetimeIndex(times).as_unit("ns").asi8 / 1e9
+
+
+# --- 0. clean ----------------------------------------------------------------------------------
+def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSettings):
+    """One source's canonical table, sorted, de-duplicated and rid of faulty rows (see module)."""
+    key = "departure" if source == "trips" else "time"
+    frame = frame.reset_index(drop=True)
+    t = _seconds(frame[key]) if len(frame) else np.array([])
+    if len(t):
+        late = t < np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
+        counts.repaired["out_of_order"] += int(late.sum())
+        frame = frame.iloc[np.argsort(t, kind="stable")].reset_index(drop=True)
+    dup = frame.duplicated(subset=[key], keep="first")
+    counts.dropped["duplicate"] += int(dup.sum())
+    frame = frame.loc[~dup]
+
+    required = [c for c in CANONICAL[source] if c not in ("origin", "destination")]
+    missing = frame[required].isna().any(axis=1)
+    counts.dropped["missing_value"] += int(missing.sum())
+    frame = frame.loc[~missing]
+
+    bad = np.zeros(len(frame), dtype=bool)
+    for col in CANONICAL[source]:
+        if col in RANGES:
+            lo, hi = RANGES[col]
+            v = frame[col].to_numpy(dtype=float)
+            bad |= (v < lo) | (v > hi)
+    if source == "trips":
+        bad |= (frame["arrival"] <= frame["departure"]).to_numpy()
+    counts.dropped["out_of_range"] += int(bad.sum())
+    frame = frame.loc[~bad]
+
+    if SPIKE_COLUMNS[source] and len(frame):
+        indexed = frame.set_index(key)
+        spike = np.zeros(len(frame), dtype=bool)
+        window = pd.Timedelta(minutes=settings.spike_window_min)
+        for col in SPIKE_COLUMNS[source]:
+            median = indexed[col].rolling(window, center=True, min_periods=1).median()
+            spike |= (np.abs(indexed[col] - median) > settings.spike_k).to_numpy()
+        counts.dropped["spike"] += int(spike.sum())
+        frame = frame.loc[~spike]
+    return frame.reset_index(drop=True)
+
+
+# --- 1. fuse -----------------------------------------------------------------------------------
+def _interpolate(times_s, sample_s, values, max_gap_s, hold_s):
+    """Linear interpolation of ``values`` sampled at ``sample_s`` onto ``times_s``; NaN between
+    samples more than ``max_gap_s`` apart and beyond ``hold_s`` outside the samples."""
+    out = np.interp(times_s, sample_s, values)
+    i = np.searchsorted(sample_s, times_s, side="right")
+    inside = (i > 0) & (i < len(sample_s))
+    gap = np.full(len(times_s), np.inf)
+    gap[inside] = sample_s[i[inside]] - sample_s[i[inside] - 1]
+    exact = np.isin(times_s, sample_s)
+    near_ends = ((times_s >= sample_s[0] - hold_s) & (times_s < sample_s[0])) | (
+        (times_s > sample_s[-1]) & (times_s <= sample_s[-1] + hold_s)
+    )
+    ok = (inside & (gap <= max_gap_s)) | exact | near_ends
+    return np.where(ok, out, np.nan)
+
+
+def fuse(
+    hvac: pd.DataFrame,
+    weather: pd.DataFrame | None,
+    trips: pd.DataFrame | None,
+    settings: PipelineSettings,
+    counts: Counts | None = None,
+) -> pd.DataFrame:
+    """Step 1: one table at the HVAC's times with ``mode``, u, y and d (see the module).
+
+    ``weather`` or ``trips`` None (file missing or unreadable) leave the signals they give NaN;
+    an empty ``trips`` table means no trip that day (occupancy 0 while standing).
+    """
+    counts = counts or Counts()
+    out = pd.DataFrame({"time": hvac["time"].to_numpy(), "mode": hvac["mode"].to_numpy()})
+    for col in ("t_ref_c", *Y_NAMES, "speed_kmh"):
+        out[col] = hvac[col].to_numpy(dtype=float)
+    ts = _seconds(out["time"])
+    n = len(out)
+
+    if weather is not None and len(weather) >= 2:
+        ws = _seconds(weather["time"])
+        period = float(np.median(np.diff(ws)))
+        interp = {
+            col: _interpolate(ts, ws, values, settings.max_weather_gap_min * 60.0, period)
+            for col, values in (
+                ("t_amb_c", weather["t_amb_c"].to_numpy(float)),
+                ("ghi_w_m2", weather["ghi_w_m2"].to_numpy(float)),
+                ("elevation", weather["solar_elevation_deg"].to_numpy(float)),
+                ("azimuth", np.unwrap(weather["solar_azimuth_deg"].to_numpy(float), period=360)),
+            )
+        }
+        heading = heading_from_positions(weather["latitude_deg"], weather["longitude_deg"])
+        # the heading of the weather interval [w_i, w_i+1) a time falls in: its direction of travel
+        idx = np.clip(np.searchsorted(ws, ts, side="right") - 1, 0, len(ws) - 1)
+        theta = np.where(np.isnan(interp["t_amb_c"]), np.nan, heading[idx])
+        zenith = 90.0 - interp["elevation"]
+        out["t_amb_c"] = interp["t_amb_c"]
+        out["q_gt_w_m2"] = roof_irradiance(interp["ghi_w_m2"], zenith)
+        out["q_gs_w_m2"] = side_irradiance(
+            interp["ghi_w_m2"], zenith, np.mod(interp["azimuth"], 360.0), theta
+        )
+        for col in ("q_gt_w_m2", "q_gs_w_m2"):
+            out.loc[np.isnan(interp["ghi_w_m2"]) | np.isnan(zenith), col] = np.nan
+    else:
+        for col in ("t_amb_c", "q_gt_w_m2", "q_gs_w_m2"):
+            out[col] = np.nan
+
+    if trips is None:
+        out["occupancy_pct"] = np.nan
+    else:
+        occ = np.zeros(n)
+        if len(trips):
+            dep, arr = _seconds(trips["departure"]), _seconds(trips["arrival"])
+            j = np.searchsorted(dep, ts, side="right") - 1
+            on_trip = (j >= 0) & (ts < arr[np.clip(j, 0, None)])
+            occ = np.where(
+                on_trip, trips["occupancy_pct"].to_numpy(float)[np.clip(j, 0, None)], 0.0
+            )
+        else:
+            on_trip = np.zeros(n, dtype=bool)
+        unknown = ~on_trip & (out["speed_kmh"].to_numpy() > 5.0)
+        counts.dropped["moving_without_trip_rows"] += int(unknown.sum())
+        out["occupancy_pct"] = np.where(unknown, np.nan, occ)
+    return out
+
+
+# --- 2. aggregate ----------------------------------------------------------------------------
+def aggregate(fused: pd.DataFrame, start: pd.Timestamp, end: pd.Timestamp) -> pd.DataFrame:
+    """Step 2: the fused table as 1-min values on the full grid [start, end) (NaN: no data).
+
+    The minute labelled t holds y measured *by* t — the mean of the room-temperature samples in
+    (t − 1 min, t] — and the means of u and d over [t, t + 1 min), so y(t) never overlaps the
+    interval of u(t) and d(t) (the convention of :mod:`trainclimate.data.trajectory`). Column
+    ``regular`` is 1 for minutes [t, t + 1 min) entirely in regular mode, 0 otherwise, NaN
+    without data.
+    """
+    frame = fused.drop(columns="mode").set_index("time")
+    frame["regular"] = (fused["mode"].to_numpy() == "regular").astype(float)
+    grid = pd.date_range(start, end, freq="1min", inclusive="left")
+    acting = [c for c in frame.columns if c not in Y_NAMES]
+    means = frame[acting].groupby(frame.index.floor("1min")).mean()
+    means["regular"] = np.floor(means["regular"])  # all samples regular → 1
+    measured = frame[list(Y_NAMES)].groupby(frame.index.ceil("1min")).mean()
+    return means.reindex(grid).join(measured.reindex(grid))[[*SIGNALS, "regular"]]
+
+
+# --- 3. segment ------------------------------------------------------------------------------
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, end) index pairs of the runs of True in ``mask``."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
+
+
+def segment(
+    minutes: pd.DataFrame, settings: PipelineSettings, counts: Counts
+) -> list[pd.DataFrame]:
+    """Step 3: the gap-free regular-mode pieces of a 1-min table, at least ``min_minutes`` long."""
+    values = minutes[list(SIGNALS)].to_numpy(dtype=float)
+    regular = minutes["regular"].to_numpy()
+    complete = np.isfinite(values).all(axis=1)
+    valid = complete & (regular == 1)
+    # short interior gaps (missing data, not a known other mode) are interpolated
+    fillable = ~valid & (regular != 0)
+    for a, b in _runs(fillable):
+        if (
+            b - a <= settings.max_fill_min
+            and a > 0
+            and b < len(valid)
+            and valid[a - 1]
+            and valid[b]
+        ):
+            for j in range(values.shape[1]):
+                col = values[:, j]
+                if not np.all(np.isfinite(col[a:b])):
+                    col[a:b] = np.interp(np.arange(a, b), [a - 1, b], [col[a - 1], col[b]])
+            valid[a:b] = True
+            counts.repaired["short_gap_minutes"] += b - a
+    filled = minutes.copy()
+    filled[list(SIGNALS)] = values
+    pieces = []
+    for a, b in _runs(valid):
+        if b - a >= settings.min_minutes:
+            pieces.append(filled.iloc[a:b])
+        else:
+            counts.dropped["too_short_minutes"] += b - a
+    return pieces
+
+
+def _trajectory(frame: pd.DataFrame, meta: dict, sampling_min: int) -> Trajectory:
+    return Trajectory(
+        time=pd.DatetimeIndex(frame.index),
+        y=frame[list(Y_NAMES)].to_numpy(float),
+        u=frame[list(U_NAMES)].to_numpy(float),
+        d=frame[list(D_NAMES)].to_numpy(float),
+        sampling_min=sampling_min,
+        **meta,
+    )
+
+
+# --- 4. down-sample --------------------------------------------------------------------------
+def downsample(piece: pd.DataFrame, step_min: int) -> pd.DataFrame:
+    """Step 4: a 1-min piece as blocks of ``step_min`` aligned to the clock, each complete.
+
+    y is the 1-min value at the block's start; u and d the block's means.
+    """
+    minute = _seconds(piece.index) // 60
+    first = int(-(-minute[0] // step_min) * step_min)  # first aligned minute in the piece
+    n_blocks = int((minute[-1] + 1 - first) // step_min)
+    if n_blocks <= 0:
+        return piece.iloc[:0]
+    offset = int(first - minute[0])
+    block = piece.iloc[offset : offset + n_blocks * step_min]
+    means = block[list(SIGNALS)].to_numpy(float).reshape(n_blocks, step_min, -1).mean(axis=1)
+    out = pd.DataFrame(means, columns=list(SIGNALS), index=block.index[::step_min])
+    out[list(Y_NAMES)] = block[list(Y_NAMES)].to_numpy(float)[::step_min]
+    return out
+
+
+def process_coach_day(
+    sources: dict[str, pd.DataFrame | None],
+    *,
+    start: pd.Timestamp,
+    end: pd.Timestamp,
+    meta: dict,
+    settings: PipelineSettings | None = None,
+) -> tuple[dict[int, list[Trajectory]], Counts]:
+    """Steps 0–4 for one coach and day: canonical ``sources`` (``hvac``, ``weather``,
+    ``trips``; a missing one None) covering [start, end) → trajectories by sampling time.
+
+    ``meta`` holds ``campaign``, ``train`` and ``coach``.
+    """
+    settings = settings or PipelineSettings()
+    counts = Counts()
+    out: dict[int, list[Trajectory]] = {s: [] for s in settings.sampling_min}
+    hvac = sources.get("hvac")
+    if hvac is None or not len(hvac):
+        return out, counts
+    cleaned = {
+        name: None if frame is None else clean(frame, name, counts, settings)
+        for name, frame in sources.items()
+    }
+    fused = fuse(cleaned["hvac"], cleaned.get("weather"), cleaned.get("trips"), settings, counts)
+    fused = fused[(fused["time"] >= start) & (fused["time"] < end)]
+    if not len(fused):
+        return out, counts
+    pieces = segment(aggregate(fused, start, end), settings, counts)
+    for piece in pieces:
+        for step in settings.sampling_min:
+            sampled = piece if step == 1 else downsample(piece, step)
+            if step == 1 or len(sampled) >= settings.min_points:
+                out[step].append(_trajectory(sampled, meta, step))
+    return out, counts
+
+
+# --- the whole dataset -----------------------------------------------------------------------
+@dataclass
+class DatasetSummary:
+    """What :func:`build_dataset` produced: Table I, the counts and the files."""
+
+    table: list[dict]
+    dropped_rows: dict[str, int]
+    repaired_rows: dict[str, int]
+    unreadable_files: list[str]
+    coach_days: int
+    raw_rows: int
+    files: dict[str, str]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _coach_day_window(day: str) -> tuple[pd.Timestamp, pd.Timestamp]:
+    """The coach-day [03:00 local, 03:00 local next day) in UTC (the loggers' day files)."""
+    start = pd.Timestamp(f"{day} 03:00", tz="Europe/Zurich")
+    nxt = pd.Timestamp(day) + pd.Timedelta(days=1)
+    end = pd.Timestamp(f"{nxt:%Y-%m-%d} 03:00", tz="Europe/Zurich")
+    return start.tz_convert("UTC"), end.tz_convert("UTC")
+
+
+def _campaign_order(name: str) -> tuple[int, str]:
+    """Known campaigns in their chronological order (as in the paper's Table I), others after."""
+    known = list(FORMATS)
+    return (known.index(name) if name in known else len(known), name)
+
+
+def discover(raw: Path) -> tuple[dict[tuple[str, str, str, str], list[Path]], list[str]]:
+    """Group raw files by (campaign directory, train, coach, day); names outside the layout
+    are returned as warnings."""
+    groups: dict[tuple[str, str, str, str], list[Path]] = defaultdict(list)
+    skipped = []
+    for path in sorted(raw.rglob("*.csv")):
+        parsed = parse_log_name(path)
+        if parsed is None or len(path.relative_to(raw).parts) < 3:
+            skipped.append(str(path))
+            continue
+        campaign = path.relative_to(raw).parts[-3]
+        groups[(campaign, *parsed)].append(path)
+    return dict(sorted(groups.items())), skipped
+
+
+def build_dataset(
+    raw: str | Path,
+    out: str | Path,
+    settings: PipelineSettings | None = None,
+    *,
+    progress: Callable[[int], None] | None = None,
+) -> DatasetSummary:
+    """Run the pipeline over every raw file under ``raw``; write one Parquet file per sampling
+    time (``trajectories_<S>min.parquet``) and ``dataset.json`` under ``out``.
+
+    Coach-days are processed one at a time in a fixed order, so memory is bounded and the
+    output byte-identical for the same input. Unreadable files are named in a warning and
+    counted; :class:`PipelineError` if nothing usable was found.
+    """
+    settings = settings or PipelineSettings()
+    raw, out = Path(raw), Path(out)
+    if not raw.is_dir():
+        raise PipelineError(f"raw log directory not found: {raw}")
+    groups, skipped = discover(raw)
+    for path in skipped:
+        log.warning("skipped %s: not named <campaign>/<source>/<train>_<coach>_<day>.csv", path)
+    if not groups:
+        raise PipelineError(f"no raw log files under {raw}")
+    total = Counts()
+    unreadable: list[str] = []
+    raw_rows = 0
+    stats: dict[tuple[str, int], list[int]] = defaultdict(lambda: [0, 0])
+    campaigns_seen: list[str] = []
+    paths = {s: out / f"trajectories_{s}min.parquet" for s in settings.sampling_min}
+    writers = {s: TrajectoryWriter(p) for s, p in paths.items()}
+    try:
+        for (campaign_dir, train, coach, day), files in groups.items():
+            sources: dict[str, pd.DataFrame | None] = {"hvac": None, "weather": None, "trips": None}
+            campaign = campaign_dir
+            for path in files:
+                try:
+                    table = read_source(path)
+                except (FormatError, OSError, UnicodeDecodeError, ValueError) as exc:
+                    unreadable.append(str(path))
+                    log.warning("unreadable raw file %s: %s", path, str(exc).splitlines()[0])
+                    continue
+                if sources.get(table.source) is not None:
+                    log.warning(
+                        "ignored %s: a second %s file for the coach-day", path, table.source
+                    )
+                    continue
+                sources[table.source] = table.frame
+                campaign = table.campaign
+                total.dropped.update(table.dropped)
+                raw_rows += len(table.frame) + sum(table.dropped.values())
+            start, end = _coach_day_window(day)
+            meta = {"campaign": campaign, "train": train, "coach": coach}
+            result, counts = process_coach_day(
+                sources, start=start, end=end, meta=meta, settings=settings
+            )
+            total.update(counts)
+            if campaign not in campaigns_seen:
+                campaigns_seen.append(campaign)
+            for step, trajectories in result.items():
+                writers[step].write(trajectories)
+                stats[(campaign, step)][0] += len(trajectories)
+                stats[(campaign, step)][1] += sum(len(t) for t in trajectories)
+            if progress:
+                progress(1)
+    finally:
+        for writer in writers.values():
+            writer.close()
+    if not any(n for n, _ in stats.values()):
+        raise PipelineError(
+            f"no usable trajectory in {raw}: {len(groups)} coach-day(s), "
+            f"{len(unreadable)} unreadable file(s), nothing in regular mode long enough"
+        )
+    table = [
+        {
+            "campaign": c,
+            "sampling_min": s,
+            "trajectories": stats[(c, s)][0],
+            "mean_points": round(stats[(c, s)][1] / stats[(c, s)][0], 1) if stats[(c, s)][0] else 0,
+        }
+        for c in sorted(campaigns_seen, key=_campaign_order)
+        for s in settings.sampling_min
+    ]
+    summary = DatasetSummary(
+        table=table,
+        dropped_rows={k: int(v) for k, v in sorted(total.dropped.items())},
+        repaired_rows={k: int(v) for k, v in sorted(total.repaired.items())},
+        unreadable_files=unreadable,
+        coach_days=len(groups),
+        raw_rows=raw_rows,
+        files={f"{s}min": str(p) for s, p in paths.items()},
+    )
+    (out / "dataset.json").write_text(
+        json.dumps({**summary.to_dict(), "settings": asdict(settings)}, indent=2) + "\n"
+    )
+    return summary
