@@ -149,11 +149,27 @@ def cmd_simulate(args: argparse.Namespace) -> None:
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
-    from trainclimate.bench import bench_simulator
+    from trainclimate import bench
 
+    if args.target == "pipeline":
+        data = bench.bench_pipeline()
+        _emit(
+            args,
+            data,
+            lambda d: (
+                f"pipeline: {d['rows_per_s']:,.0f} raw rows/s "
+                f"({d['runs'][-1]['ratio_to_parse_only']:.2f}× plain CSV parsing); peak memory "
+                f"{d['runs'][0]['peak_rss_mb']:.0f} MB → {d['peak_rss_mb']:.0f} MB for "
+                f"{d['size_ratio']:.0f}× the data; "
+                f"fleet-year at 1 min ≈ {d['fleet_year_1min_hours_estimate']:.1f} h"
+            ),
+        )
+        return
     if args.coaches < 1 or args.days <= 0:
         raise UsageError("--coaches must be ≥ 1 and --days positive")
-    data = bench_simulator(coaches=args.coaches, days=args.days, loop_coaches=args.loop_coaches)
+    data = bench.bench_simulator(
+        coaches=args.coaches, days=args.days, loop_coaches=args.loop_coaches
+    )
 
     def human(d: dict) -> str:
         return (
@@ -274,7 +290,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--file", default=None, help="validate and print a parameter file")
 
     p = add("bench", cmd_bench, "run a benchmark")
-    p.add_argument("target", choices=("simulator",))
+    p.add_argument("target", choices=("simulator", "pipeline"))
     p.add_argument("--coaches", type=int, default=100)
     p.add_argument("--days", type=float, default=1.0)
     p.add_argument(

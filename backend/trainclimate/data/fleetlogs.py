@@ -28,7 +28,7 @@ batches (as columns of one vectorised fleet), so memory is bounded by the batch,
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -133,7 +133,7 @@ class Defects:
     @classmethod
     def none(cls) -> Defects:
         """A clean export (for tests of the pipeline's fidelity)."""
-        return cls(*(0.0,) * 13)
+        return cls(*(0.0,) * len(fields(cls)))
 
 
 def _add_defects(

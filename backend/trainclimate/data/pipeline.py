@@ -6,7 +6,7 @@ For each coach and day (bounded memory, whatever the fleet's size):
    (repaired ``out_of_order``), drop duplicated times (``duplicate``), rows with an empty
    required field (``missing_value``), physically impossible values (``out_of_range``) and sensor
    spikes — readings more than ``spike_k`` from the rolling median of their
-   ``spike_window_min`` neighbourhood (``spike``).
+   ``spike_window_min`` neighbourhood, widened to five samples for slow logs (``spike``).
 1. **Fuse** the three sources into one table at the HVAC's timestamps (:func:`fuse`): the weather
    is interpolated in time (never across a gap longer than ``max_weather_gap_min``), the heading θ
    comes from the train's successive positions, the solar projections are
@@ -138,7 +138,11 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
     if SPIKE_COLUMNS[source] and len(frame):
         indexed = frame.set_index(key)
         spike = np.zeros(len(frame), dtype=bool)
-        window = pd.Timedelta(minutes=settings.spike_window_min)
+        # at least two samples either side: the winter weather comes every 10 min, and a 5-min
+        # window would hold each reading alone, so no spike could ever be found there
+        ts = _seconds(indexed.index)
+        period = float(np.median(np.diff(ts))) if len(ts) > 1 else 0.0
+        window = pd.Timedelta(seconds=max(settings.spike_window_min * 60.0, 5.0 * period))
         for col in SPIKE_COLUMNS[source]:
             median = indexed[col].rolling(window, center=True, min_periods=1).median()
             spike |= (np.abs(indexed[col] - median) > settings.spike_k).to_numpy()
@@ -177,7 +181,7 @@ def fuse(
     an empty ``trips`` table means no trip that day (occupancy 0 while standing).
     """
     counts = counts or Counts()
-    out = pd.DataFrame({"time": hvac["time"].to_numpy(), "mode": hvac["mode"].to_numpy()})
+    out = pd.DataFrame({"time": hvac["time"].array, "mode": hvac["mode"].to_numpy()})
     for col in ("t_ref_c", *Y_NAMES, "speed_kmh"):
         out[col] = hvac[col].to_numpy(dtype=float)
     ts = _seconds(out["time"])

@@ -90,7 +90,7 @@ class Trajectory:
     @property
     def id(self) -> str:
         """``campaign/coach/start`` (start as UTC ``YYYYmmddTHHMM``) — unique per sampling time."""
-        return f"{self.campaign}/{self.coach}/{self.time[0]:%Y%m%dT%H%M}"
+        return f"{self.campaign}/{self.coach}/{self.time[0].tz_convert('UTC'):%Y%m%dT%H%M}"
 
     def frame(self) -> pd.DataFrame:
         """The trajectory as a long-format table (the Parquet layout)."""

@@ -1,0 +1,140 @@
+"""The seeded raw-log generator and the dataset built from it: layout, accounting, determinism."""
+
+import dataclasses
+
+import pandas as pd
+import pytest
+
+from trainclimate.data import fleetlogs
+from trainclimate.data.formats import WINTER_FORMAT, read_source
+from trainclimate.data.pipeline import build_dataset
+from trainclimate.data.trajectory import read_trajectories
+
+CAMPAIGN = fleetlogs.WINTER_SPRING
+#: On 2022-02-22 coach 124A stands in the depot all day and 44A is in service.
+SMALL = dict(campaigns=(CAMPAIGN,), max_days=1, max_coaches=2)
+
+
+@pytest.fixture(scope="module")
+def raw(tmp_path_factory):
+    root = tmp_path_factory.mktemp("fleet")
+    summary = fleetlogs.generate(root / "raw", **SMALL)
+    return root, summary
+
+
+@pytest.fixture(scope="module")
+def built(raw):
+    root, _ = raw
+    return build_dataset(root / "raw", root / "out")
+
+
+def csv_files(root):
+    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*.csv"))
+
+
+def data_lines(path):
+    return [line for line in path.read_text(encoding="utf-8").splitlines()[1:] if line.strip()]
+
+
+def test_defects_none_sets_every_rate_to_zero():
+    clean = fleetlogs.Defects.none()
+    assert all(getattr(clean, f.name) == 0.0 for f in dataclasses.fields(clean))
+    assert fleetlogs.Defects().duplicate_row == 0.002
+
+
+def test_a_plan_is_drawn_from_its_coach_days_seed():
+    rates = fleetlogs.Defects()
+    plan = fleetlogs.plan_day(CAMPAIGN, 1, 0, rates)
+    assert plan == fleetlogs.plan_day(CAMPAIGN, 1, 0, rates)
+    assert plan.seed != fleetlogs.plan_day(CAMPAIGN, 1, 1, rates).seed
+    assert (plan.coach, plan.train, plan.day) == ("44A", "44", "2022-02-22")
+    assert plan.in_service and not fleetlogs.plan_day(CAMPAIGN, 0, 0, rates).in_service
+    assert plan.start < plan.first_departure < plan.last_arrival < plan.end
+    # a coach-day runs 03:00 to 03:00 local time: 23 h over the spring DST change
+    dst = CAMPAIGN.days.index("2022-03-26")
+    short = fleetlogs.plan_day(CAMPAIGN, 0, dst, rates)
+    assert short.start == pd.Timestamp("2022-03-26 02:00", tz="UTC")
+    assert short.end - short.start == pd.Timedelta(hours=23)
+    normal = fleetlogs.plan_day(CAMPAIGN, 0, dst + 1, rates)
+    assert normal.end - normal.start == pd.Timedelta(hours=24)
+
+
+def test_generation_writes_one_file_per_source_coach_and_day(raw):
+    root, summary = raw
+    assert (summary.coach_days, summary.coach_days_logged, summary.files) == (2, 2, 6)
+    assert csv_files(root / "raw") == [
+        f"winter-spring/{source}/{name}_2022-02-22.csv"
+        for source in ("hvac", "trips", "weather")
+        for name in ("124_124A", "44_44A")
+    ]
+    for source in ("hvac", "trips", "weather"):
+        path = root / "raw" / "winter-spring" / source / "44_44A_2022-02-22.csv"
+        first = path.read_text(encoding="utf-8").splitlines()[0]
+        assert first == ";".join(WINTER_FORMAT.header[source])
+    total = sum(len(data_lines(p)) for p in (root / "raw").rglob("*.csv"))
+    assert summary.rows == total
+    # the parked coach makes no trip; the HVAC logs a sample a minute, the weather every 10 min
+    assert data_lines(root / "raw/winter-spring/trips/124_124A_2022-02-22.csv") == []
+    hvac = read_source(root / "raw/winter-spring/hvac/124_124A_2022-02-22.csv").frame
+    assert set(hvac["mode"]) == {"off"}
+    times = pd.DatetimeIndex(hvac["time"])
+    assert times.min() >= pd.Timestamp("2022-02-22 02:00", tz="UTC")
+    assert times.max() <= pd.Timestamp("2022-02-23 01:59", tz="UTC")
+    assert (times.second == 0).all()
+    weather = read_source(root / "raw/winter-spring/weather/44_44A_2022-02-22.csv").frame
+    assert (pd.DatetimeIndex(weather["time"]).minute % 10 == 0).all()
+
+
+def test_the_build_accounts_for_every_raw_row_and_defect(raw, built):
+    root, _ = raw
+    files = sorted((root / "raw").rglob("*.csv"))
+    assert built.unreadable_files == [] and built.coach_days == 2
+    assert built.raw_rows == sum(len(data_lines(p)) for p in files)
+    # independent counts: the generator's garbage lines are the only unparseable rows, and a
+    # duplicate is a row repeating a time already logged
+    garbage = sum(line.startswith("### logger restart") for p in files for line in data_lines(p))
+    repeats = 0
+    for p in files:
+        frame = read_source(p).frame
+        key = "departure" if "departure" in frame else "time"
+        repeats += len(frame) - frame[key].nunique()
+    assert built.dropped_rows.get("unparseable", 0) == garbage
+    assert built.dropped_rows["duplicate"] == repeats > 0
+
+
+def test_only_the_in_service_coach_gives_trajectories_all_in_regular_mode(raw, built):
+    root, _ = raw
+    assert [(r["campaign"], r["sampling_min"]) for r in built.table] == [
+        ("winter-spring", 1),
+        ("winter-spring", 5),
+        ("winter-spring", 10),
+    ]
+    for row in built.table:
+        found = read_trajectories(root / "out" / f"trajectories_{row['sampling_min']}min.parquet")
+        assert row["trajectories"] == len(found) >= 1
+        assert row["mean_points"] == round(sum(map(len, found)) / len(found), 1)
+        assert {t.coach for t in found} == {"44A"}
+    hvac = read_source(root / "raw/winter-spring/hvac/44_44A_2022-02-22.csv").frame
+    mode = hvac.drop_duplicates("time").set_index("time")["mode"]
+    minutes = pd.DatetimeIndex(
+        [t for traj in read_trajectories(root / "out" / "trajectories_1min.parquet")
+         for t in traj.time]
+    )  # fmt: skip
+    logged = minutes[minutes.isin(mode.index)]
+    assert (mode[logged] == "regular").all()
+    # the minutes without a logged row are the short gaps the pipeline filled
+    assert len(minutes) - len(logged) <= built.repaired_rows.get("short_gap_minutes", 0)
+
+
+def test_the_same_seed_writes_the_same_files_and_the_same_dataset(raw, built, tmp_path):
+    root, summary = raw
+    again = fleetlogs.generate(tmp_path / "raw", **SMALL)
+    assert again == summary
+    assert csv_files(tmp_path / "raw") == csv_files(root / "raw")
+    for name in csv_files(root / "raw"):
+        assert (tmp_path / "raw" / name).read_bytes() == (root / "raw" / name).read_bytes(), name
+    rebuilt = build_dataset(tmp_path / "raw", tmp_path / "out")
+    assert rebuilt.table == built.table and rebuilt.dropped_rows == built.dropped_rows
+    for step in (1, 5, 10):
+        name = f"trajectories_{step}min.parquet"
+        assert (tmp_path / "out" / name).read_bytes() == (root / "out" / name).read_bytes()
