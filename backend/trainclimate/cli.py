@@ -18,6 +18,8 @@ import numpy as np
 import pandas as pd
 
 from trainclimate.data.pipeline import PipelineError
+from trainclimate.predict import METHODS, PredictorDataError
+from trainclimate.predict.artifact import ArtifactError
 from trainclimate.sim.params import CoachParams, ParamsError, load_params
 from trainclimate.sim.scenarios import SCENARIOS, ScenarioError
 from trainclimate.sim.weather import WeatherError
@@ -213,8 +215,11 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
         summary = pipeline.build_dataset(raw, out, progress=bar.update)
     data = {**summary.to_dict(), "raw": str(raw), "out": str(out)}
     if generated is not None:
-        data["generated"] = {"files": generated.files, "rows": generated.rows,
-                             "coach_days": generated.coach_days}  # fmt: skip
+        data["generated"] = {
+            "files": generated.files,
+            "rows": generated.rows,
+            "coach_days": generated.coach_days,
+        }
 
     def human(d: dict) -> str:
         lines = [f"{'campaign':<15}{'sampling':>9}{'#T':>7}{'#D':>8}"]
@@ -228,6 +233,94 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
         if d["unreadable_files"]:
             lines.append(f"unreadable files: {len(d['unreadable_files'])} (see warnings)")
         lines.append(f"trajectories written under {d['out']}")
+        return "\n".join(lines)
+
+    _emit(args, data, human)
+
+
+def _dataset_dir(args: argparse.Namespace) -> Path:
+    """``--data DIR`` or the default dataset (built once, with a progress bar)."""
+    if args.data:
+        path = Path(args.data)
+        if not (path / "dataset.json").exists() and not any(path.glob("trajectories_*min.parquet")):
+            raise UsageError(f"--data: {path} holds no dataset (run `trainclimate dataset build`)")
+        return path
+    from trainclimate.data.cache import default_dataset
+
+    bars: dict[str, object] = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if stage not in bars:
+            for bar in bars.values():
+                bar.close()
+            bars[stage] = _progress(total, f"default dataset: {stage}", "coach-day")
+        bar = bars[stage]
+        bar.update(done - bar.n)
+
+    try:
+        return default_dataset(progress)
+    finally:
+        for bar in bars.values():
+            bar.close()
+
+
+def _check_predictor_args(args: argparse.Namespace) -> None:
+    if args.rho < 1 or args.horizon < 1:
+        raise UsageError("--rho and --horizon must be at least 1")
+    if args.sampling_min not in (1, 5, 10):
+        raise UsageError("--sampling-min must be 1, 5 or 10 (the dataset's sampling times)")
+
+
+def _mae_human(d: dict) -> str:
+    steps = " ".join(f"{m:.3f}" for m in d["mae_per_step_c"])
+    return (
+        f"{d['method']} predictor, {d['sampling_min']} min, ρ = {d['rho']}, T = {d['horizon']}: "
+        f"MAE per step (K, mean over decks) {steps}; mean {d['mae_mean_c']:.4f} K on "
+        f"{', '.join(d['validation_coaches'])} ({d['validation_windows']} windows)"
+    )
+
+
+def cmd_predictor_evaluate(args: argparse.Namespace) -> None:
+    from trainclimate.predict.evaluate import evaluate
+
+    _check_predictor_args(args)
+    _, data = evaluate(args.method, args.sampling_min, args.rho, args.horizon, _dataset_dir(args))
+    _emit(args, data, _mae_human)
+
+
+def cmd_predictor_fit(args: argparse.Namespace) -> None:
+    from trainclimate.predict.artifact import save_predictor
+    from trainclimate.predict.evaluate import evaluate
+
+    _check_predictor_args(args)
+    predictor, result = evaluate(
+        args.method, args.sampling_min, args.rho, args.horizon, _dataset_dir(args)
+    )
+    path = save_predictor(predictor, args.out, validation=result)
+    data = {**result, "out": str(path)}
+    _emit(args, data, lambda d: _mae_human(d) + f"\nmodel written: {d['out']}")
+
+
+def cmd_predictor_study(args: argparse.Namespace) -> None:
+    from trainclimate.predict import study
+
+    data_dir = _dataset_dir(args)
+    with _progress(study.n_runs(), "sensitivity studies", "fit") as bar:
+        results = study.run_studies(data_dir, progress=bar.update)
+    data = {"studies": results, "summary": study.summary_rows(results)}
+    if args.html:
+        data["html"] = str(study.write_report(results, args.html).resolve())
+
+    def human(d: dict) -> str:
+        lines = [f"{'study':<9}{'S':>4}{'ρ':>4}{'T':>4}" + "".join(f"{m:>17}" for m in METHODS)]
+        for r in d["summary"]:
+            lines.append(
+                f"{r['study']:<9}{r['sampling_min']:>4}{r['rho']:>4}{r['horizon']:>4}"
+                + "".join(f"{r[f'{m}_mean_mae_c']:>17.4f}" for m in METHODS)
+                + f"  best: {r['best']}"
+            )
+        if "html" in d:
+            lines.append(f"report written: {d['html']}")
         return "\n".join(lines)
 
     _emit(args, data, human)
@@ -314,6 +407,31 @@ def build_parser() -> argparse.ArgumentParser:
         "--campaign", action="append", choices=("winter-spring", "summer"), help="repeatable"
     )
 
+    predictor = sub.add_parser("predictor", help="fit and evaluate the prediction models")
+    psub = predictor.add_subparsers(dest="predictor_command", required=True, parser_class=_Parser)
+
+    def add_predictor(name: str, func, help_: str, setting: bool = True) -> argparse.ArgumentParser:
+        p = psub.add_parser(name, help=help_, description=help_)
+        p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+        p.add_argument("--data", default=None, help="dataset directory (default: built once)")
+        p.set_defaults(func=func)
+        if setting:
+            p.add_argument(
+                "--method", choices=("transient", "subspace", "arx"), default="transient"
+            )
+            p.add_argument("--sampling-min", type=int, default=5, help="1, 5 or 10 (default 5)")
+            p.add_argument("--rho", type=int, default=12, help="lead-in samples (default 12)")
+            p.add_argument("--horizon", type=int, default=12, help="prediction steps (default 12)")
+        return p
+
+    add_predictor("evaluate", cmd_predictor_evaluate, "MAE per step on the held-out coaches")
+    p = add_predictor("fit", cmd_predictor_fit, "fit on the training coaches and save the model")
+    p.add_argument("--out", required=True, help="model file to write (.npz)")
+    p = add_predictor(
+        "study", cmd_predictor_study, "the paper's three sensitivity studies", setting=False
+    )
+    p.add_argument("--html", default=None, help="write the report with Plotly figures here")
+
     p = add("demo", cmd_demo, "simulate winter-day and write an HTML report")
     p.add_argument("--out", default="out/demo", help="output directory")
     p.add_argument("--coaches", type=int, default=3)
@@ -327,7 +445,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "coach-params" and not (args.default or args.file):
             raise UsageError("coach-params needs --default or --file FILE")
         args.func(args)
-    except (UsageError, ScenarioError, WeatherError, ParamsError, PipelineError) as exc:
+    except (
+        UsageError,
+        ScenarioError,
+        WeatherError,
+        ParamsError,
+        PipelineError,
+        PredictorDataError,
+        ArtifactError,
+    ) as exc:
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"trainclimate: error: {message}", file=sys.stderr)
         return 2

@@ -202,8 +202,10 @@ def _spike(text: str, fmt: ExportFormat, rng: np.random.Generator) -> str:
 
 
 def _temperature_columns(fmt: ExportFormat, source: str) -> set[str]:
-    names = {"hvac": ("t_room_up_c", "t_room_mid_c", "t_room_low_c", "t_ref_c"),
-             "weather": ("t_amb_c",)}.get(source, ())  # fmt: skip
+    names = {
+        "hvac": ("t_room_up_c", "t_room_mid_c", "t_room_low_c", "t_ref_c"),
+        "weather": ("t_amb_c",),
+    }.get(source, ())
     return {fmt.columns[source][n] for n in names}
 
 
@@ -520,8 +522,9 @@ def generate(
         sun_cache: dict[str, pd.DataFrame] = {}
         for b in range(0, len(plans), batch_size):
             batch = plans[b : b + batch_size]
-            _simulate_and_write(batch, campaign, weather, params, rates, rule, out, sun_cache,
-                                summary)  # fmt: skip
+            _simulate_and_write(
+                batch, campaign, weather, params, rates, rule, out, sun_cache, summary
+            )
             if progress:
                 progress(len(batch))
     return summary

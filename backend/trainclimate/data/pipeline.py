@@ -373,6 +373,7 @@ class DatasetSummary:
     unreadable_files: list[str]
     coach_days: int
     raw_rows: int
+    #: the Parquet file of each sampling time, relative to the output directory
     files: dict[str, str]
 
     def to_dict(self) -> dict:
@@ -497,7 +498,7 @@ def build_dataset(
         unreadable_files=unreadable,
         coach_days=len(groups),
         raw_rows=raw_rows,
-        files={f"{s}min": str(p) for s, p in paths.items()},
+        files={f"{s}min": p.name for s, p in paths.items()},
     )
     (out / "dataset.json").write_text(
         json.dumps({**summary.to_dict(), "settings": asdict(settings)}, indent=2) + "\n"

@@ -144,8 +144,9 @@ class TrajectoryWriter:
         frames = [t.frame() for t in trajectories]
         if not frames:
             return
-        table = pa.Table.from_pandas(pd.concat(frames, ignore_index=True), schema=_SCHEMA,
-                                     preserve_index=False)  # fmt: skip
+        table = pa.Table.from_pandas(
+            pd.concat(frames, ignore_index=True), schema=_SCHEMA, preserve_index=False
+        )
         self._writer.write_table(table)
         self.count += len(frames)
         self.points += table.num_rows

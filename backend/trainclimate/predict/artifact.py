@@ -1,0 +1,90 @@
+"""Saved predictor models: Ĥ with everything needed to use and trust it.
+
+One ``.npz`` file (numpy's zip of arrays; read without pickle) holding ``H`` and a JSON metadata
+string: the method, ρ, T, the sampling time, the signals' names and units in the order Ĥ expects
+them, the SHA-256 of the training data, its size, the validation MAE per step, when and by which
+version it was made. The controller and the service load it with :func:`load_predictor`.
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from trainclimate import __version__
+from trainclimate.data.trajectory import D_NAMES, U_NAMES, UNITS, Y_NAMES
+from trainclimate.predict import METHODS, MultistepPredictor
+
+FORMAT = "trainclimate-predictor/1"
+
+
+class ArtifactError(ValueError):
+    """A model file that cannot be used (missing, corrupt, or of another format)."""
+
+
+def metadata(predictor: MultistepPredictor, validation: dict | None = None) -> dict:
+    """The metadata saved beside Ĥ."""
+    return {
+        "format": FORMAT,
+        "method": predictor.method,
+        "rho": predictor.rho,
+        "horizon": predictor.horizon,
+        "sampling_min": predictor.sampling_min,
+        "signals": {
+            "y": [{"name": n, "unit": UNITS[n]} for n in Y_NAMES],
+            "u": [{"name": n, "unit": UNITS[n]} for n in U_NAMES],
+            "d": [{"name": n, "unit": UNITS[n]} for n in D_NAMES],
+        },
+        "h_layout": "y_f (3T) = H @ [z_p (9 rho: y,u,d per step, oldest first); u_f (T); d_f (5T)]",
+        "training": {
+            "data_sha256": predictor.data_hash,
+            "trajectories": predictor.n_trajectories,
+            "hankel_columns": predictor.n_columns,
+        },
+        "validation": validation or {},
+        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "trainclimate_version": __version__,
+    }
+
+
+def save_predictor(
+    predictor: MultistepPredictor, path: str | Path, validation: dict | None = None
+) -> Path:
+    """Write a fitted predictor (and its validation figures) to ``path`` (``.npz``)."""
+    H = predictor.require_fit()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = json.dumps(metadata(predictor, validation))
+    with path.open("wb") as fh:
+        np.savez(fh, H=H, metadata=np.array(meta))
+    return path
+
+
+def load_predictor(path: str | Path) -> MultistepPredictor:
+    """A predictor ready to :meth:`~MultistepPredictor.predict`, from a file written by
+    :func:`save_predictor`; its metadata is in ``.metadata``. Raises :class:`ArtifactError`."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            H = np.array(data["H"], dtype=float)
+            meta = json.loads(str(data["metadata"]))
+    except FileNotFoundError:
+        raise ArtifactError(f"model file not found: {path}") from None
+    except (OSError, ValueError, KeyError) as exc:
+        raise ArtifactError(f"{path} is not a trainclimate model file: {exc}") from None
+    if meta.get("format") != FORMAT or meta.get("method") not in METHODS:
+        raise ArtifactError(f"{path}: unsupported model format {meta.get('format')!r}")
+    predictor = METHODS[meta["method"]](int(meta["rho"]), int(meta["horizon"]))
+    if H.shape != (3 * predictor.horizon, predictor.n_inputs) or not np.all(np.isfinite(H)):
+        expected = (3 * predictor.horizon, predictor.n_inputs)
+        raise ArtifactError(f"{path}: H has shape {H.shape}, expected {expected}, all finite")
+    predictor.H = H
+    predictor.sampling_min = meta.get("sampling_min")
+    predictor.data_hash = meta["training"]["data_sha256"]
+    predictor.n_trajectories = meta["training"]["trajectories"]
+    predictor.n_columns = meta["training"]["hankel_columns"]
+    predictor.metadata = meta
+    return predictor
