@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import time
@@ -83,37 +84,81 @@ def _replicate(src: Path, dst: Path, copies: int, campaign: str = "") -> int:
     return n
 
 
-_PIPELINE_CHILD = """
-import json, resource, sys, time
-from trainclimate.data.pipeline import build_dataset
-t0 = time.perf_counter()
-s = build_dataset(sys.argv[1], sys.argv[2])
-dt = time.perf_counter() - t0
-print(json.dumps({"seconds": dt, "raw_rows": s.raw_rows, "coach_days": s.coach_days,
-                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
-"""
-
-_PARSE_CHILD = """
-import json, sys, time
-from pathlib import Path
-import pandas as pd
-from trainclimate.data.formats import FORMATS
-t0 = time.perf_counter()
-rows = 0
-for path in sorted(Path(sys.argv[1]).rglob("*.csv")):
-    head = path.read_bytes()[:200]
-    sep = ";" if b";" in head else ","
-    try:
-        rows += len(pd.read_csv(path, sep=sep, dtype=str, on_bad_lines="skip"))
-    except Exception:
-        pass
-print(json.dumps({"seconds": time.perf_counter() - t0, "rows": rows}))
-"""
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def _child(code: str, *args: str) -> dict:
+def run_pipeline(raw: str, out: str) -> dict:
+    """(In a child process) the pipeline on ``raw``: time, rows, peak memory."""
+    from trainclimate.data.pipeline import build_dataset
+
+    t0 = time.perf_counter()
+    summary = build_dataset(raw, out)
+    return {
+        "seconds": time.perf_counter() - t0,
+        "raw_rows": summary.raw_rows,
+        "coach_days": summary.coach_days,
+        "peak_rss_mb": _peak_rss_mb(),
+    }
+
+
+def run_parse_only(raw: str) -> dict:
+    """(In a child process) the baseline: only parse every CSV file under ``raw`` with pandas."""
+    import pandas as pd
+
+    t0 = time.perf_counter()
+    rows = 0
+    for path in sorted(Path(raw).rglob("*.csv")):
+        sep = ";" if b";" in path.read_bytes()[:200] else ","
+        try:
+            rows += len(pd.read_csv(path, sep=sep, dtype=str, on_bad_lines="skip"))
+        except (ValueError, UnicodeDecodeError):
+            continue  # the unreadable files the pipeline also skips
+    return {"seconds": time.perf_counter() - t0, "rows": rows}
+
+
+def run_fit(path: str, mode: str, scale: str, rho: str, horizon: str) -> dict:
+    """(In a child process) a Transient Predictor fit on the trajectories of ``path`` repeated
+    ``scale`` times (``streaming``), or the baseline ``one_shot``: the whole transposed Hankel
+    matrix materialised and factored in one QR."""
+    import itertools
+
+    import scipy.linalg as sla
+
+    from trainclimate.data.trajectory import read_trajectories
+    from trainclimate.predict import TransientPredictor
+    from trainclimate.predict.base import Z_SCALE
+    from trainclimate.predict.hankel import column_chunks
+
+    scale, rho, horizon = int(scale), int(rho), int(horizon)
+    trajs = read_trajectories(path)
+    before = _peak_rss_mb()
+    t0 = time.perf_counter()
+    if mode == "streaming":
+        repeated = itertools.chain.from_iterable(itertools.repeat(trajs, scale))
+        columns = TransientPredictor(rho, horizon).fit(repeated).n_columns
+    else:
+        zt = np.concatenate(list(column_chunks(trajs, rho + horizon)))
+        zt /= np.tile(Z_SCALE, rho + horizon)
+        columns = len(zt)
+        sla.qr(zt, mode="r", overwrite_a=True)
+    return {
+        "mode": mode,
+        "scale": scale,
+        "columns": columns,
+        "seconds": time.perf_counter() - t0,
+        "peak_rss_mb": _peak_rss_mb(),
+        "rss_before_fit_mb": before,
+    }
+
+
+def _child(name: str, *args: str) -> dict:
+    """Run ``name(*args)`` of this module in a fresh Python process; its JSON result."""
     out = subprocess.run(
-        [sys.executable, "-c", code, *args], check=True, capture_output=True, text=True
+        [sys.executable, "-m", "trainclimate.bench", name, *args],
+        check=True,
+        capture_output=True,
+        text=True,
     )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -142,8 +187,8 @@ def bench_pipeline(days: int = 4, copies: tuple[int, int] = (2, 20)) -> dict:
         for n in copies:
             raw = tmp / f"raw{n}"
             _replicate(tmp / "seed", raw, n)
-            run = _child(_PIPELINE_CHILD, str(raw), str(tmp / f"out{n}"))
-            base = _child(_PARSE_CHILD, str(raw))
+            run = _child("run_pipeline", str(raw), str(tmp / f"out{n}"))
+            base = _child("run_parse_only", str(raw))
             run["rows_per_s"] = run["raw_rows"] / run["seconds"]
             run["parse_only_rows_per_s"] = base["rows"] / base["seconds"]
             run["ratio_to_parse_only"] = run["rows_per_s"] / run["parse_only_rows_per_s"]
@@ -151,7 +196,7 @@ def bench_pipeline(days: int = 4, copies: tuple[int, int] = (2, 20)) -> dict:
         # a fleet-year of 1-min logs, as the issue sizes it: the winter campaign's format alone
         raw = tmp / "winter"
         _replicate(tmp / "seed", raw, copies[1], campaign="winter-spring")
-        winter = _child(_PIPELINE_CHILD, str(raw), str(tmp / "out-winter"))
+        winter = _child("run_pipeline", str(raw), str(tmp / "out-winter"))
     small, large = runs
     return {
         "rows_per_s": large["rows_per_s"],
@@ -168,3 +213,53 @@ def bench_pipeline(days: int = 4, copies: tuple[int, int] = (2, 20)) -> dict:
         "winter_1min_run": winter,
         "machine": machine(),
     }
+
+
+def bench_predictor(
+    scales: tuple[int, ...] = (1, 10, 100),
+    data_dir: str | Path | None = None,
+    rho: int = 60,
+    horizon: int = 30,
+    progress=None,
+) -> dict:
+    """Transient Predictor fit time and peak memory at 1-min sampling, ρ = 60, T = 30.
+
+    The streaming fit runs on the full 1-min dataset (every trajectory of both campaigns) and on
+    the same trajectories repeated 10× and 100× (as many more Hankel columns); the baseline, at
+    1×, materialises the whole transposed Hankel matrix and factors it in one QR. Each run is a
+    fresh process reporting its own peak resident memory (which includes the loaded
+    trajectories and libraries, ``rss_before_fit_mb``).
+    """
+    from trainclimate.data.cache import default_dataset
+
+    path = Path(data_dir or default_dataset()) / "trajectories_1min.parquet"
+    runs = []
+    for mode, scale in [("one_shot", 1), *(("streaming", s) for s in scales)]:
+        runs.append(_child("run_fit", str(path), mode, str(scale), str(rho), str(horizon)))
+        if progress:
+            progress(1)
+    one_shot = runs[0]
+    streaming = {r["scale"]: r for r in runs[1:]}
+    first = streaming[scales[0]]
+    return {
+        "rho": rho,
+        "horizon": horizon,
+        "rows": 9 * (rho + horizon),
+        "fit_seconds": first["seconds"],
+        "columns": first["columns"],
+        "runs": runs,
+        "streaming_vs_one_shot_time": first["seconds"] / one_shot["seconds"],
+        "one_shot_extra_mb": one_shot["peak_rss_mb"] - one_shot["rss_before_fit_mb"],
+        "streaming_extra_mb": {
+            s: r["peak_rss_mb"] - r["rss_before_fit_mb"] for s, r in streaming.items()
+        },
+        "seconds_per_million_columns": {
+            s: r["seconds"] / r["columns"] * 1e6 for s, r in streaming.items()
+        },
+        "machine": machine(),
+    }
+
+
+if __name__ == "__main__":  # child processes of the benchmarks: python -m trainclimate.bench NAME …
+    _children = {"run_pipeline": run_pipeline, "run_parse_only": run_parse_only, "run_fit": run_fit}
+    print(json.dumps(_children[sys.argv[1]](*sys.argv[2:])))

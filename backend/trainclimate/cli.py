@@ -153,6 +153,21 @@ def cmd_simulate(args: argparse.Namespace) -> None:
 def cmd_bench(args: argparse.Namespace) -> None:
     from trainclimate import bench
 
+    if args.target == "predictor":
+        scales = tuple(int(x) for x in args.scales.split(","))
+        with _progress(len(scales) + 1, "predictor fits", "fit") as bar:
+            data = bench.bench_predictor(scales, args.data, progress=bar.update)
+        _emit(
+            args,
+            data,
+            lambda d: "\n".join(
+                f"{r['mode']:>9} ×{r['scale']:<4} {r['columns']:>10,} columns "
+                f"{r['seconds']:8.1f} s  peak {r['peak_rss_mb']:7.0f} MB "
+                f"(+{r['peak_rss_mb'] - r['rss_before_fit_mb']:.0f} MB for the fit)"
+                for r in d["runs"]
+            ),
+        )
+        return
     if args.target == "pipeline":
         data = bench.bench_pipeline()
         _emit(
@@ -383,7 +398,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--file", default=None, help="validate and print a parameter file")
 
     p = add("bench", cmd_bench, "run a benchmark")
-    p.add_argument("target", choices=("simulator", "pipeline"))
+    p.add_argument("target", choices=("simulator", "pipeline", "predictor"))
+    p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
+    p.add_argument("--data", default=None, help="predictor: dataset directory")
     p.add_argument("--coaches", type=int, default=100)
     p.add_argument("--days", type=float, default=1.0)
     p.add_argument(

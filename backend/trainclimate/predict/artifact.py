@@ -9,6 +9,7 @@ version it was made. The controller and the service load it with :func:`load_pre
 from __future__ import annotations
 
 import json
+import zipfile
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -73,18 +74,26 @@ def load_predictor(path: str | Path) -> MultistepPredictor:
             meta = json.loads(str(data["metadata"]))
     except FileNotFoundError:
         raise ArtifactError(f"model file not found: {path}") from None
-    except (OSError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         raise ArtifactError(f"{path} is not a trainclimate model file: {exc}") from None
+    if not isinstance(meta, dict):
+        raise ArtifactError(f"{path}: the metadata is not a JSON object")
     if meta.get("format") != FORMAT or meta.get("method") not in METHODS:
         raise ArtifactError(f"{path}: unsupported model format {meta.get('format')!r}")
-    predictor = METHODS[meta["method"]](int(meta["rho"]), int(meta["horizon"]))
+    try:
+        predictor = METHODS[meta["method"]](int(meta["rho"]), int(meta["horizon"]))
+        training = meta["training"]
+        data_hash, n_trajectories = training["data_sha256"], training["trajectories"]
+        n_columns = training["hankel_columns"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ArtifactError(f"{path}: incomplete model metadata ({exc!r})") from None
     if H.shape != (3 * predictor.horizon, predictor.n_inputs) or not np.all(np.isfinite(H)):
         expected = (3 * predictor.horizon, predictor.n_inputs)
         raise ArtifactError(f"{path}: H has shape {H.shape}, expected {expected}, all finite")
     predictor.H = H
     predictor.sampling_min = meta.get("sampling_min")
-    predictor.data_hash = meta["training"]["data_sha256"]
-    predictor.n_trajectories = meta["training"]["trajectories"]
-    predictor.n_columns = meta["training"]["hankel_columns"]
+    predictor.data_hash = data_hash
+    predictor.n_trajectories = n_trajectories
+    predictor.n_columns = n_columns
     predictor.metadata = meta
     return predictor

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from trainclimate.data.trajectory import Trajectory, read_trajectories
-from trainclimate.predict import METHODS, MultistepPredictor
+from trainclimate.predict import METHODS, MultistepPredictor, PredictorDataError
 from trainclimate.predict.hankel import NY, NZ, stacked, windows
 
 
@@ -57,7 +57,7 @@ def mae_per_step(predictor: MultistepPredictor, trajectories: Sequence[Trajector
     depth = predictor.rho + predictor.horizon
     w = validation_windows(trajectories, depth)
     if not len(w):
-        raise ValueError(f"no validation trajectory has the {depth} samples of one window")
+        raise PredictorDataError(f"no validation trajectory has the {depth} samples of one window")
     y_true = w.reshape(len(w), depth, NZ)[:, predictor.rho :, :NY]
     return np.abs(predictor.predict_windows(w) - y_true).mean(axis=0)
 
@@ -82,7 +82,7 @@ def load_split(data_dir: str | Path, sampling_min: int):
     """The trajectories of one sampling time under ``data_dir``, split by coach."""
     path = Path(data_dir) / f"trajectories_{sampling_min}min.parquet"
     if not path.exists():
-        raise FileNotFoundError(f"no {sampling_min}-min trajectories in {data_dir} ({path.name})")
+        raise PredictorDataError(f"no {sampling_min}-min trajectories in {data_dir} ({path.name})")
     return split_by_coach(read_trajectories(path))
 
 

@@ -21,7 +21,7 @@ from collections.abc import Iterable
 import numpy as np
 import scipy.linalg as sla
 
-from trainclimate.predict.base import MultistepPredictor, future_columns, unscale_h
+from trainclimate.predict.base import COLLINEAR_TOL, MultistepPredictor, future_columns, unscale_h
 from trainclimate.predict.hankel import NY, NZ, TrajectoryLike
 
 
@@ -37,6 +37,14 @@ class TransientPredictor(MultistepPredictor):
         depth = rho + T
         L = self._factor(trajectories, depth, np.arange(NZ * depth))  # Algorithm 1, step 1
         y_rows, u_cols, d_cols = future_columns(rho, T)
+        # A future output that the rows before it explain exactly (noise-free data) leaves a
+        # round-off pivot; as a regressor of later steps it adds nothing, so its column is
+        # dropped from them rather than dividing round-off by round-off.
+        norms = np.linalg.norm(L, axis=1)
+        for k in y_rows:
+            if abs(L[k, k]) <= COLLINEAR_TOL * norms[k]:
+                L[k + 1 :, k] = 0.0
+                L[k, k] = 1.0
         L0 = L.copy()
         for j in range(T):  # step 2: the future outputs' block-diagonal terms
             start = NZ * (rho + j)
