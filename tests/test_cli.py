@@ -124,7 +124,18 @@ def test_weather_csv_drives_the_run(capsys, tmp_path):
     ("argv", "needle"),
     [
         (["simulate", "--scenario", "nope"], "unknown scenario 'nope'"),
-        (["simulate", "--scenario", "winter-day", "--controller", "ddpc"], "not available yet"),
+        (
+            [
+                "simulate",
+                "--scenario",
+                "winter-day",
+                "--controller",
+                "ddpc",
+                "--predictor",
+                "no.npz",
+            ],
+            "model file not found",
+        ),
         (["simulate", "--scenario", "winter-day", "--hours", "-1"], "--hours must be positive"),
         (["simulate", "--scenario", "winter-day", "--hours", "0.001"], "shorter than two"),
         (["simulate", "--scenario", "winter-day", "--coaches", "0"], "--coaches"),

@@ -25,7 +25,6 @@ from trainclimate.sim.scenarios import SCENARIOS, ScenarioError
 from trainclimate.sim.weather import WeatherError
 
 CONTROLLERS = ("rule", "ddpc", "edge")
-AVAILABLE_CONTROLLERS = ("rule",)
 
 
 class UsageError(Exception):
@@ -90,32 +89,44 @@ def cmd_coach_params(args: argparse.Namespace) -> None:
 
 
 def run_simulation(args: argparse.Namespace, record_flows: bool = False):
-    """Build and run the simulation an argparse namespace asks for; returns the result."""
+    """Build and run the simulation an argparse namespace asks for: (scenario, result, tick
+    summary or None)."""
+    from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick_summary
     from trainclimate.sim import scenarios
     from trainclimate.sim.simulator import FleetSimulator
     from trainclimate.sim.weather import load_weather_csv
 
     scenario = scenarios.get(args.scenario)
-    if args.controller not in AVAILABLE_CONTROLLERS:
-        raise UsageError(
-            f"controller {args.controller!r} is not available yet (it arrives with the DDPC "
-            f"controller); available: {', '.join(AVAILABLE_CONTROLLERS)}"
-        )
     weather = load_weather_csv(args.weather_csv) if args.weather_csv else None
     base = load_params(args.coach_params) if args.coach_params else None
     env, params = scenarios.build(
         scenario, n_coaches=args.coaches, hours=args.hours, weather=weather, base_params=base
     )
+    predictor = _predictor(args) if args.controller == "ddpc" else None
+    controllers = build_controllers(args.controller, env.n_coaches, predictor)
     sim = FleetSimulator(
         params, env, seed=scenario.seed, record_flows=record_flows or args.out is not None
     )
-    with _progress(sim.n_steps, f"simulate {scenario.name}") as bar:
-        chunk = 360
+    forecast = "perfect" if args.controller == "edge" else args.forecast
+    loop = ClosedLoop(sim, controllers, forecast=forecast, seed=scenario.seed)
+    with _progress(sim.n_steps, f"simulate {scenario.name} ({args.controller})") as bar:
         while sim.k < sim.n_steps:
             before = sim.k
-            sim.run(steps=chunk)
+            sim.run(loop, steps=360)
             bar.update(sim.k - before)
-    return scenario, sim.result()
+    ticks = tick_summary(loop.log) if args.controller != "rule" else None
+    return scenario, sim.result(), ticks
+
+
+def _predictor(args: argparse.Namespace):
+    """``--predictor FILE`` or the cached default model (fitted once on the default dataset)."""
+    from trainclimate.predict.artifact import load_predictor
+
+    if getattr(args, "predictor", None):
+        return load_predictor(args.predictor)
+    from trainclimate.control.models import default_predictor
+
+    return default_predictor()
 
 
 def cmd_simulate(args: argparse.Namespace) -> None:
@@ -125,8 +136,10 @@ def cmd_simulate(args: argparse.Namespace) -> None:
         raise UsageError("--coaches must be at least 1")
     if args.hours is not None and args.hours <= 0:
         raise UsageError("--hours must be positive")
-    scenario, result = run_simulation(args)
+    scenario, result, ticks = run_simulation(args)
     data = {"scenario": scenario.name, "controller": args.controller, **fleet_kpis(result)}
+    if ticks is not None:
+        data["controller_ticks"] = ticks
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -150,52 +163,64 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     _emit(args, data, human)
 
 
+def _bench_simulator_text(d: dict) -> str:
+    return (
+        f"simulator: {d['coach_days_per_s']:.1f} coach-days/s for {d['coaches']} coaches × "
+        f"{d['days']:g} day(s) at dt = {d['dt_s']:g} s; per-coach loop "
+        f"{d['loop_coach_days_per_s']:.2f} coach-days/s; speed-up {d['speedup_vs_loop']:.0f}×"
+    )
+
+
+def _bench_pipeline_text(d: dict) -> str:
+    return (
+        f"pipeline: {d['rows_per_s']:,.0f} raw rows/s "
+        f"({d['runs'][-1]['ratio_to_parse_only']:.2f}× plain CSV parsing); peak memory "
+        f"{d['runs'][0]['peak_rss_mb']:.0f} MB → {d['peak_rss_mb']:.0f} MB for "
+        f"{d['size_ratio']:.0f}× the data; "
+        f"fleet-year at 1 min ≈ {d['fleet_year_1min_hours_estimate']:.1f} h"
+    )
+
+
+def _bench_predictor_text(d: dict) -> str:
+    return "\n".join(
+        f"{r['mode']:>9} ×{r['scale']:<4} {r['columns']:>10,} columns "
+        f"{r['seconds']:8.1f} s  peak {r['peak_rss_mb']:7.0f} MB "
+        f"(+{r['peak_rss_mb'] - r['rss_before_fit_mb']:.0f} MB for the fit)"
+        for r in d["runs"]
+    )
+
+
+def _bench_controller_text(d: dict) -> str:
+    return (
+        f"OCP solve (ρ = {d['rho']}, T = {d['horizon']}), median: fast "
+        f"{d['fast_median_ms']:.3f} ms (p99 {d['fast_p99_ms']:.3f}), cvxpy DPP "
+        f"{d['cvxpy_dpp_median_ms']:.1f} ms, cvxpy rebuilt {d['cvxpy_naive_median_ms']:.1f} ms "
+        f"({d['naive_over_fast']:.0f}× the fast path)\n"
+        f"whole controller step {d['controller_step_median_ms']:.3f} ms median; "
+        f"fleet tick of 1000 coaches {d['fleet_1000_tick_s']:.2f} s"
+    )
+
+
 def cmd_bench(args: argparse.Namespace) -> None:
     from trainclimate import bench
 
-    if args.target == "predictor":
-        scales = tuple(int(x) for x in args.scales.split(","))
+    if args.target == "simulator":
+        if args.coaches < 1 or args.days <= 0:
+            raise UsageError("--coaches must be ≥ 1 and --days positive")
+        data = bench.bench_simulator(args.coaches, args.days, args.loop_coaches)
+        _emit(args, data, _bench_simulator_text)
+    elif args.target == "pipeline":
+        _emit(args, bench.bench_pipeline(), _bench_pipeline_text)
+    elif args.target == "predictor":
+        try:
+            scales = tuple(int(x) for x in args.scales.split(","))
+        except ValueError:
+            raise UsageError("--scales takes integers separated by commas, e.g. 1,10,100") from None
         with _progress(len(scales) + 1, "predictor fits", "fit") as bar:
             data = bench.bench_predictor(scales, args.data, progress=bar.update)
-        _emit(
-            args,
-            data,
-            lambda d: "\n".join(
-                f"{r['mode']:>9} ×{r['scale']:<4} {r['columns']:>10,} columns "
-                f"{r['seconds']:8.1f} s  peak {r['peak_rss_mb']:7.0f} MB "
-                f"(+{r['peak_rss_mb'] - r['rss_before_fit_mb']:.0f} MB for the fit)"
-                for r in d["runs"]
-            ),
-        )
-        return
-    if args.target == "pipeline":
-        data = bench.bench_pipeline()
-        _emit(
-            args,
-            data,
-            lambda d: (
-                f"pipeline: {d['rows_per_s']:,.0f} raw rows/s "
-                f"({d['runs'][-1]['ratio_to_parse_only']:.2f}× plain CSV parsing); peak memory "
-                f"{d['runs'][0]['peak_rss_mb']:.0f} MB → {d['peak_rss_mb']:.0f} MB for "
-                f"{d['size_ratio']:.0f}× the data; "
-                f"fleet-year at 1 min ≈ {d['fleet_year_1min_hours_estimate']:.1f} h"
-            ),
-        )
-        return
-    if args.coaches < 1 or args.days <= 0:
-        raise UsageError("--coaches must be ≥ 1 and --days positive")
-    data = bench.bench_simulator(
-        coaches=args.coaches, days=args.days, loop_coaches=args.loop_coaches
-    )
-
-    def human(d: dict) -> str:
-        return (
-            f"simulator: {d['coach_days_per_s']:.1f} coach-days/s for {d['coaches']} coaches × "
-            f"{d['days']:g} day(s) at dt = {d['dt_s']:g} s; per-coach loop "
-            f"{d['loop_coach_days_per_s']:.2f} coach-days/s; speed-up {d['speedup_vs_loop']:.0f}×"
-        )
-
-    _emit(args, data, human)
+        _emit(args, data, _bench_predictor_text)
+    else:
+        _emit(args, bench.bench_controller(), _bench_controller_text)
 
 
 def cmd_dataset_build(args: argparse.Namespace) -> None:
@@ -346,7 +371,7 @@ def cmd_demo(args: argparse.Namespace) -> None:
     from trainclimate.analysis.summary import fleet_kpis
 
     results = {}
-    for controller in AVAILABLE_CONTROLLERS:
+    for controller in CONTROLLERS:
         ns = argparse.Namespace(
             scenario="winter-day",
             controller=controller,
@@ -355,8 +380,10 @@ def cmd_demo(args: argparse.Namespace) -> None:
             weather_csv=None,
             coach_params=None,
             out=None,
+            predictor=None,
+            forecast="perfect",
         )
-        scenario, results[controller] = run_simulation(ns, record_flows=True)
+        scenario, results[controller], _ = run_simulation(ns, record_flows=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = write_simulation_report(results, scenario, out / "winter-day.html")
@@ -392,13 +419,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--weather-csv", default=None, help="measured weather (time,t_amb_c,ghi_w_m2)")
     p.add_argument("--coach-params", default=None, help="coach parameter JSON file")
     p.add_argument("--out", default=None, help="write the full time series (Parquet)")
+    p.add_argument("--predictor", default=None, help="ddpc: model file (default: cached model)")
+    p.add_argument(
+        "--forecast",
+        choices=("perfect", "persistence", "noisy"),
+        default="perfect",
+        help="ddpc: disturbance forecast (default perfect)",
+    )
 
     p = add("coach-params", cmd_coach_params, "print coach parameters (the file format)")
     p.add_argument("--default", action="store_true", help="the default parameters")
     p.add_argument("--file", default=None, help="validate and print a parameter file")
 
     p = add("bench", cmd_bench, "run a benchmark")
-    p.add_argument("target", choices=("simulator", "pipeline", "predictor"))
+    p.add_argument("target", choices=("simulator", "pipeline", "predictor", "controller"))
     p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
     p.add_argument("--data", default=None, help="predictor: dataset directory")
     p.add_argument("--coaches", type=int, default=100)

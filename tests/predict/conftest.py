@@ -1,7 +1,6 @@
 """Shared data of the predictor tests: white-noise trajectories and a small fleet dataset.
 
-No test here may build the default dataset (≈ 2.5 min): every test runs with
-``$TRAINCLIMATE_HOME`` in a temporary directory and ``default_dataset`` replaced by a failure.
+(The suite-wide guard in tests/conftest.py keeps every test away from the default dataset.)
 """
 
 from types import SimpleNamespace
@@ -9,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from trainclimate.data import cache, fleetlogs
+from trainclimate.data import fleetlogs
 from trainclimate.data.pipeline import build_dataset
 from trainclimate.predict.base import Z_SCALE
 
@@ -17,17 +16,6 @@ from trainclimate.predict.base import Z_SCALE
 #: others in service. Measured: ≈ 11.5 s to generate and build on one core; enough for ρ = T = 6
 #: at 5 min (1335 Hankel columns from 30 training trajectories, 11 held-out ones of 66A and 66B).
 SMALL_FLEET = {"max_days": 2, "max_coaches": 4}
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _no_default_dataset(tmp_path_factory):
-    def refuse(*args, **kwargs):
-        raise AssertionError("a predictor test asked for the default dataset")
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("TRAINCLIMATE_HOME", str(tmp_path_factory.mktemp("home")))
-        mp.setattr(cache, "default_dataset", refuse)
-        yield
 
 
 def white_noise_trajectories(seed, lengths, sampling_min=None):

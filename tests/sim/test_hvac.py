@@ -97,6 +97,18 @@ def test_economiser_substates():
     assert fresh(hvac.SLUMBER_VENTILATION, 25, 22, 15) == (1.0, hvac.OUTSIDE)
 
 
+def test_mixed_state_economiser_opens_only_above_the_setpoint():
+    """Continuous at T_ref: no free cooling while the coach is at or below its setpoint (the
+    heaters may still run in the mixed state); fully open 1 K above it."""
+    f_min = fresh(hvac.HEATING, 21.0, 22, 15)[0]
+    assert fresh(hvac.MIXED, 22.0, 22, 15)[0] == pytest.approx(f_min)
+    assert fresh(hvac.MIXED, 22.01, 22, 15)[0] == pytest.approx(f_min + 0.01 * (1 - f_min))
+    assert fresh(hvac.MIXED, 22.5, 22, 15)[0] == pytest.approx(f_min + 0.5 * (1 - f_min))
+    assert fresh(hvac.MIXED, 23.0, 22, 15) == (pytest.approx(1.0), hvac.OUTSIDE)
+    # no economiser when outside is not cooler than the coach by the band
+    assert fresh(hvac.MIXED, 22.5, 22, 22)[0] == pytest.approx(f_min)
+
+
 def test_floor_wall_heating_only_in_preheating_and_heating():
     q_max = CoachParams().q_fw_max_w
     states = np.array(

@@ -175,7 +175,9 @@ def fresh_air_fraction(
     - cooling: recirculated, or — when outside is cooler by ``economiser_band_k`` — an economiser
       damper opening linearly from the minimum at T_ref − 0.5 K to all outside air at
       T_ref + 0.5 K (mixed air between);
-    - mixed state: as cooling when the coach is above T_ref, as heating otherwise;
+    - mixed state: as heating at or below T_ref; above it the economiser damper opens from the
+      minimum at T_ref to all outside air at T_ref + 1 K (continuous at T_ref: the heaters may
+      still run in the mixed state, and free cooling must not fight them);
     - slumber ventilation: all outside air; slumber heating / cooling: the minimum.
     """
     t_avg = t_room_c.mean(axis=1)
@@ -183,8 +185,13 @@ def fresh_air_fraction(
     f_pax = minimum_fresh_fraction(passengers, p, base=False)
     band = p.economiser_band_k
     heat_f = np.where(t_amb_c > t_avg + band, 1.0, f_min)
+    economiser = t_amb_c < t_avg - band
     opening = np.clip(t_avg - (t_ref_c - 0.5), 0.0, 1.0)
-    cool_f = np.where(t_amb_c < t_avg - band, f_min + (1.0 - f_min) * opening, f_min)
+    cool_f = np.where(economiser, f_min + (1.0 - f_min) * opening, f_min)
+    # in the mixed state the heaters may still run: the damper opens only above T_ref (closed at
+    # T_ref, fully open at T_ref + 1 K), so free cooling never fights the heating
+    mixed_opening = np.clip(t_avg - t_ref_c, 0.0, 1.0)
+    mixed_cool_f = np.where(economiser, f_min + (1.0 - f_min) * mixed_opening, f_min)
     f = first_true(
         [
             (state == OFF) | (state == SLUMBER_OFF),
@@ -194,7 +201,7 @@ def fresh_air_fraction(
             state == MIXED,
             state == SLUMBER_VENTILATION,
         ],
-        [0.0, f_pax, heat_f, cool_f, np.where(t_avg > t_ref_c, cool_f, heat_f), 1.0],
+        [0.0, f_pax, heat_f, cool_f, np.where(t_avg > t_ref_c, mixed_cool_f, heat_f), 1.0],
         f_min,
     )
     label = first_true([f >= 1.0 - 1e-9, f <= f_min + 1e-9], [OUTSIDE, RECIRCULATED], MIXED_AIR)

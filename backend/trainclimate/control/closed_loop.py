@@ -1,0 +1,242 @@
+"""The DDPC layer in the loop with the simulator (paper, Section IV.B and Figure 4).
+
+:class:`ClosedLoop` is a setpoint policy for :class:`~trainclimate.sim.simulator.FleetSimulator`:
+the simulator keeps its own 10-s step (the HVAC's PID and the physics), and every ``tick_s``
+(5 min) each coach's controller gets the samples the fleet's telemetry would give it, by the
+same convention as the training data (:mod:`trainclimate.data.trajectory`):
+
+- y(t): the mean of the coach's sensor readings in the minute up to t;
+- u(t): the setpoint applied over [t, t + Δ) (its mean over the interval);
+- d(t) = [T_amb, Q_Gt, Q_Gs, P, V]: their means over [t, t + Δ) — known afterwards, so the
+  current interval's comes from the forecast, as do the T intervals after it.
+
+The controller only acts in regular mode (the mode its model was trained on); any other mode,
+and the lead-in after it, run the rule-based architecture (T_ref = T_rule). Between ticks T_ref is
+held, kept within the driver's limit T_rule ± 2 K of the simulator's current T_rule.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from trainclimate.control.coach_model import CoachModel
+from trainclimate.control.controller import BandEdgeController, DDPCController, StepResult
+from trainclimate.control.forecast import (
+    Forecaster,
+    NoisyForecast,
+    PerfectForecast,
+    PersistenceForecast,
+)
+from trainclimate.control.ocp import OCPSettings
+from trainclimate.predict.base import MultistepPredictor
+from trainclimate.sim.rule import MODE_REGULAR
+from trainclimate.sim.simulator import FleetSimulator
+
+#: Driver/operator limit around T_rule (K), also the HVAC interface's.
+U_BAND_K = 2.0
+
+
+@dataclass
+class TickLog:
+    """Every tick of every coach: time index, and the step's result fields."""
+
+    step: list[int] = field(default_factory=list)
+    coach: list[int] = field(default_factory=list)
+    results: list[StepResult] = field(default_factory=list)
+
+    def sources(self, coach: int) -> list[str]:
+        return [r.source for c, r in zip(self.coach, self.results, strict=True) if c == coach]
+
+
+def interval_means(sim: FleetSimulator, steps_per_tick: int) -> np.ndarray:
+    """d over every tick interval of the run, (ticks, coaches, 5): T_amb, Q_Gt, Q_Gs, P, V."""
+    env = sim.env
+    fields = (env.t_amb_c, env.q_roof_w_m2, env.q_side_w_m2, env.occupancy_pct, env.speed_kmh)
+    s = len(env.time)
+    n_ticks = -(-s // steps_per_tick)
+    pad = n_ticks * steps_per_tick - s
+    out = []
+    for f in fields:
+        arr = np.concatenate([f, np.repeat(f[-1:], pad, axis=0)]) if pad else np.asarray(f)
+        out.append(arr.reshape(n_ticks, steps_per_tick, -1).mean(axis=1))
+    return np.stack(out, axis=-1)
+
+
+class ClosedLoop:
+    """A setpoint policy running one controller per coach (see the module docstring).
+
+    ``controllers[c]`` the controller of coach c, or None for a coach under the rule-based
+    architecture (the deactivated coach of a pair); ``forecast`` ``perfect``, ``persistence`` or
+    ``noisy``; ``tick_s`` the controller's period.
+    """
+
+    def __init__(
+        self,
+        sim: FleetSimulator,
+        controllers: list[DDPCController | None],
+        *,
+        forecast: str = "perfect",
+        tick_s: float = 300.0,
+        seed: int = 0,
+        on_tick: Callable[[int, int, StepResult], None] | None = None,
+    ):
+        n = sim.env.n_coaches
+        if len(controllers) != n:
+            raise ValueError(f"{len(controllers)} controllers for {n} coaches")
+        self.sim = sim
+        self.controllers = controllers
+        self.steps_per_tick = round(tick_s / sim.dt_s)
+        if abs(self.steps_per_tick * sim.dt_s - tick_s) > 1e-9:
+            raise ValueError("the controller period must be a multiple of the simulator's step")
+        self.tick_s = tick_s
+        self.d_true = interval_means(sim, self.steps_per_tick)
+        self.forecasters = [self._forecaster(forecast, c, seed) for c in range(n)]
+        self.held = np.full(n, np.nan)
+        self.history = [_History() for _ in range(n)]
+        self.log = TickLog()
+        self.on_tick = on_tick
+
+    def _forecaster(self, kind: str, coach: int, seed: int) -> Forecaster:
+        def truth(tick: int, steps: int) -> np.ndarray:
+            idx = np.clip(np.arange(tick, tick + steps), 0, len(self.d_true) - 1)
+            return self.d_true[idx, coach]
+
+        if kind == "perfect":
+            return PerfectForecast(truth)
+        if kind == "persistence":
+            return PersistenceForecast()
+        if kind == "noisy":
+            return NoisyForecast(truth, seed=seed + coach)
+        raise ValueError(f"unknown forecast {kind!r} (perfect, persistence, noisy)")
+
+    def __call__(self, k: int, sim: FleetSimulator) -> np.ndarray:
+        if k % self.steps_per_tick == 0:
+            self._tick(k, sim)
+        rule = sim.t_rule(k)
+        regular = sim.env.mode[k] == MODE_REGULAR
+        held = np.where(np.isfinite(self.held) & regular, self.held, rule)
+        return np.clip(held, rule - U_BAND_K, rule + U_BAND_K)
+
+    def _tick(self, k: int, sim: FleetSimulator) -> None:
+        tick = k // self.steps_per_tick
+        spt = self.steps_per_tick
+        rec = sim.result()
+        env = sim.env
+        t_now = float(env.time[k].timestamp())
+        minute = max(1, round(60.0 / sim.dt_s))
+        for c, controller in enumerate(self.controllers):
+            hist = self.history[c]
+            if controller is None:
+                continue
+            if k == 0:
+                continue
+            interval = slice(k - spt, k)
+            regular = bool(np.all(env.mode[interval, c] == MODE_REGULAR)) and (
+                env.mode[k, c] == MODE_REGULAR
+            )
+            if not regular:
+                hist.clear()
+                self.held[c] = np.nan
+                continue
+            # close the interval just ended, then add the new sample
+            if hist.times:
+                hist.u.append(float(rec.t_ref_c[interval, c].mean()))
+                hist.d.append(self.d_true[tick - 1, c])
+            y_now = rec.t_room_meas_c[k - minute : k, c].mean(axis=0)
+            hist.add(t_now, y_now, controller.rho)
+            T = controller.horizon
+            fc = self.forecasters[c].forecast(tick - 1, T + 1, self.d_true[tick - 1, c])
+            t_rule = controller_rule(sim, fc[:, 0])
+            u_prev = hist.u[-1] if hist.u else float(sim.t_rule(k)[c])
+            result = controller.step(
+                now_s=t_now,
+                sample_times_s=np.array(hist.times),
+                y=np.array(hist.y),
+                u=np.array(hist.u),
+                d=np.vstack([*hist.d, fc[0]]) if hist.d else fc[:1],
+                d_future=fc[1:],
+                t_rule=t_rule,
+                u_prev=u_prev,
+            )
+            self.held[c] = result.t_ref_c
+            self.log.step.append(k)
+            self.log.coach.append(c)
+            self.log.results.append(result)
+            if self.on_tick:
+                self.on_tick(k, c, result)
+
+
+def controller_rule(sim: FleetSimulator, t_amb_forecast: np.ndarray) -> np.ndarray:
+    """T_rule(k|t), k = 0 … T, from the forecast ambient temperature (the rule curve)."""
+    return np.asarray(sim.rule(np.asarray(t_amb_forecast, dtype=float)), dtype=float)
+
+
+class _History:
+    """A coach's recent samples at the controller's ticks (kept to ρ + 1)."""
+
+    def __init__(self) -> None:
+        self.clear()
+
+    def clear(self) -> None:
+        self.times: list[float] = []
+        self.y: list[np.ndarray] = []
+        self.u: list[float] = []
+        self.d: list[np.ndarray] = []
+
+    def add(self, time_s: float, y: np.ndarray, keep: int) -> None:
+        self.times.append(time_s)
+        self.y.append(y)
+        excess = len(self.times) - (keep + 1)
+        if excess > 0:
+            del self.times[:excess], self.y[:excess]
+            del self.u[: max(0, len(self.u) - keep)], self.d[: max(0, len(self.d) - keep)]
+
+
+def build_controllers(
+    kind: str,
+    n: int,
+    predictor: MultistepPredictor | None = None,
+    settings: OCPSettings | None = None,
+    *,
+    sampling_min: float = 5.0,
+) -> list[DDPCController | None]:
+    """One controller per coach: ``rule`` (none: T_ref = T_rule), ``ddpc`` (needs a predictor)
+    or ``edge`` (the band-edge reference). The coaches share one coach model."""
+    if kind == "rule":
+        return [None] * n
+    model = CoachModel(dt_s=sampling_min * 60.0)
+    if kind == "ddpc":
+        if predictor is None:
+            raise ValueError("the ddpc controller needs a prediction model")
+        return [
+            DDPCController(predictor, settings, sampling_min=sampling_min, model=model)
+            for _ in range(n)
+        ]
+    if kind == "edge":
+        rho = predictor.rho if predictor is not None else 12
+        horizon = predictor.horizon if predictor is not None else 6
+        return [
+            BandEdgeController(
+                settings, sampling_min=sampling_min, rho=rho, horizon=horizon, model=model
+            )
+            for _ in range(n)
+        ]
+    raise ValueError(f"unknown controller {kind!r} (rule, ddpc, edge)")
+
+
+def tick_summary(log: TickLog) -> dict:
+    """Counts of the ticks by reason and the controller's solve and step times."""
+    reasons: dict[str, int] = {}
+    for r in log.results:
+        reasons[r.reason] = reasons.get(r.reason, 0) + 1
+    solved = [r.solve_time_s for r in log.results if r.source == "ddpc"]
+    steps = [r.step_time_s for r in log.results]
+    return {
+        "ticks": len(log.results),
+        "reasons": dict(sorted(reasons.items())),
+        "median_solve_ms": float(np.median(solved) * 1e3) if solved else None,
+        "median_step_ms": float(np.median(steps) * 1e3) if steps else None,
+    }

@@ -1,0 +1,140 @@
+"""The controller's model of a coach: the simulator's thermal block, linear and in discrete time.
+
+The coach block of :mod:`trainclimate.sim.thermal` (the paper's Eq. (1) with every heat flow) is
+affine in the nine temperatures for a given train speed V, except the ground radiation (T⁴ above
+20 °C). So, over a step of Δt with the drivers held,
+
+    x(k+1) = A_d(V) x(k) + B_d(V) [T_amb; q(k)]
+
+with x = [T_room; T_inv; T_chassis] (°C) and q the external heat into each of the nine nodes (W):
+solar gains, passengers, ground radiation, and whatever enters the rooms unmeasured (the HVAC's
+heating and cooling, extra outside air, the doors). In regular mode the HVAC always supplies the
+minimum of fresh air — the base share plus 20 m³/h per passenger
+(:func:`~trainclimate.sim.hvac.minimum_fresh_fraction`) — so the model ventilates at that minimum:
+the base share is part of A_c, the passengers' share a known input held over the step. A_c and
+the T_amb column are read off the simulator's own
+:func:`~trainclimate.sim.thermal.derivative` (exact: it is affine), and the step is discretised
+exactly (zero-order hold) with the matrix exponential of the augmented system. The outer
+convection depends on V, so the model is tabulated on a grid of speeds and the nearest is used.
+The ground radiation is evaluated at the current state and held over the step.
+
+This model serves the open-loop prediction of T_opt (HVAC off, paper Section III.C) and the state
+estimator of the unmeasured inventory and chassis temperatures (:mod:`.estimator`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+from trainclimate.sim import hvac, thermal
+from trainclimate.sim.params import AIR_CP_J_KG_K, STEFAN_BOLTZMANN, CoachParams, stack
+
+N = thermal.N_STATES
+#: Train speeds (km/h) at which the discrete model is tabulated.
+SPEED_GRID_KMH = np.array([0.0, 10.0, 20.0, 30.0, 45.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0])
+
+
+def _drivers(p: CoachParams, t_amb: float, speed: float, **kw) -> thermal.Drivers:
+    """Drivers of one coach; ``fresh`` the fresh-air fraction of the supply air (default 0)."""
+    one = np.ones(1)
+    return thermal.Drivers(
+        q_act_w=kw.get("q_act", np.zeros((1, 6))),
+        t_amb_c=one * t_amb,
+        speed_kmh=one * speed,
+        q_roof_w_m2=one * kw.get("q_roof", 0.0),
+        q_side_w_m2=one * kw.get("q_side", 0.0),
+        passengers=kw.get("passengers", np.zeros((1, 3))),
+        door_open=np.zeros(1),
+        fresh_air_kg_s=hvac.fresh_air_mass_flow(np.array([kw.get("fresh", 0.0)]), p),
+    )
+
+
+class CoachModel:
+    """The discrete linear coach model for one parameter set and step ``dt_s`` (seconds).
+
+    ``params`` one coach's :class:`CoachParams` (default: the fleet's default coach — the
+    controller does not know each coach's own).
+    """
+
+    def __init__(self, params: CoachParams | None = None, dt_s: float = 300.0):
+        self.params = params or CoachParams()
+        self.p = stack([self.params])
+        self.dt_s = float(dt_s)
+        self.inv_cap = 1.0 / thermal.capacities(self.p)[0]
+        self.S = self._gain_map()
+        # W/K into each room per unit occupancy fraction: 20 m³/h of outside air per passenger
+        pax = self.params.seats.sum() * self.params.fresh_air_per_passenger_m3_h
+        extra = pax / self.params.supply_air_m3_h
+        self.vent_w_k = hvac.fresh_air_mass_flow(np.array([extra]), self.p)[0] * AIR_CP_J_KG_K
+        self.A_d = np.empty((len(SPEED_GRID_KMH), N, N))
+        self.B_d = np.empty((len(SPEED_GRID_KMH), N, 1 + N))
+        for i, speed in enumerate(SPEED_GRID_KMH):
+            A_c, b_amb = self.continuous(speed)
+            M = np.zeros((2 * N + 1, 2 * N + 1))
+            M[:N, :N] = A_c
+            M[:N, N] = b_amb
+            M[:N, N + 1 :] = np.diag(self.inv_cap)
+            E = sla.expm(M * self.dt_s)
+            self.A_d[i], self.B_d[i] = E[:N, :N], E[:N, N:]
+
+    def continuous(self, speed_kmh: float) -> tuple[np.ndarray, np.ndarray]:
+        """(A_c, b_amb): dx/dt = A_c x + b_amb T_amb + C⁻¹ q, read off the simulator (1/s)."""
+        p, inv = self.p, self.inv_cap[None, :]
+        f0 = thermal.derivative(np.zeros((1, N)), _drivers(p, 0.0, speed_kmh), p, inv)[0]
+        A_c = np.empty((N, N))
+        for j in range(N):
+            e = np.zeros((1, N))
+            e[0, j] = 1.0
+            A_c[:, j] = thermal.derivative(e, _drivers(p, 0.0, speed_kmh), p, inv)[0] - f0
+        b_amb = thermal.derivative(np.zeros((1, N)), _drivers(p, 1.0, speed_kmh), p, inv)[0] - f0
+        return A_c, b_amb
+
+    def _grid(self, speed_kmh: float) -> int:
+        return int(np.argmin(np.abs(SPEED_GRID_KMH - abs(float(speed_kmh)))))
+
+    def _gain_map(self) -> np.ndarray:
+        """S (9 × 3): heat into each node (W) per unit of [Q_Gt (W/m²), Q_Gs (W/m²), P (%)] —
+        solar on the roof, walls and windows, 100 W per passenger — read off the simulator."""
+        p = self.p
+        base = thermal.held_flows(_drivers(p, 0.0, 0.0), p) @ thermal.INCIDENCE
+        cols = []
+        for kw in ({"q_roof": 1.0}, {"q_side": 1.0}, {"passengers": p.seats / 100.0}):
+            cols.append((thermal.held_flows(_drivers(p, 0.0, 0.0, **kw), p) @ thermal.INCIDENCE)[0])
+        return np.column_stack(cols) - base[0][:, None]
+
+    def ground_w(self, x: np.ndarray, t_amb_c: float) -> float:
+        """Ground radiation into the lower chassis (W) at state x (paper, Section II.C.4)."""
+        p = self.params
+        if t_amb_c <= p.ground_threshold_c:
+            return 0.0
+        t_g = float(thermal.ground_temperature_c(np.array(t_amb_c), p)) + thermal.KELVIN
+        t_c = x[8] + thermal.KELVIN
+        return p.ground_emissivity * STEFAN_BOLTZMANN * p.ground_area_m2 * (t_g**4 - t_c**4)
+
+    def known_heat_w(self, x: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """External heat into each node (W, (9,)) from the disturbance sample
+        d = [T_amb, Q_Gt, Q_Gs, P, V] at state x: solar gains, passengers, ground radiation and
+        the passengers' share of the minimum fresh air."""
+        q = self.S @ np.asarray(d[1:4], dtype=float)
+        q[8] += self.ground_w(x, float(d[0]))
+        q[:3] += self.vent_w_k * (float(d[3]) / 100.0) * (float(d[0]) - x[:3])
+        return q
+
+    def step(self, x: np.ndarray, d: np.ndarray, q_extra_w: np.ndarray | None = None) -> np.ndarray:
+        """x one step later under disturbance sample ``d`` held over the step, plus optional
+        unmeasured heat ``q_extra_w`` (W, (9,)) into the nodes."""
+        i = self._grid(d[4])
+        q = self.known_heat_w(x, d)
+        if q_extra_w is not None:
+            q = q + q_extra_w
+        return self.A_d[i] @ x + self.B_d[i, :, 0] * d[0] + self.B_d[i, :, 1:] @ q
+
+    def free_run(self, x0: np.ndarray, d_seq: np.ndarray) -> np.ndarray:
+        """States after each step of an open-loop run with the HVAC off, (len(d_seq), 9)."""
+        out = np.empty((len(d_seq), N))
+        x = np.asarray(x0, dtype=float)
+        for k, d in enumerate(np.asarray(d_seq, dtype=float)):
+            x = self.step(x, d)
+            out[k] = x
+        return out

@@ -1,0 +1,329 @@
+"""The DDPC layer's optimal control problem, the paper's Eq. (10).
+
+Decision variables u(0|t) … u(T|t), the predicted outputs y(1|t) … y(T|t) and one slack ε(k|t) per
+deck and step. With the multistep model (3), z_p holding the measured past and u(0|t):
+
+    min  J = J_y + σ J_u + τ J_ε + γ J_Δu                                              (9)
+    J_y  = Σ_{k=0..T} ‖y(k|t) − T_opt(k|t) 1₃‖²       (y(0|t) = the measured y(t))
+    J_u  = Σ_{k=0..T} (u(k|t) − T_opt(k|t))²
+    J_ε  = Σ_{k=1..T} ‖ε(k|t)‖²
+    J_Δu = (u(0|t) − u(t−1))² + Σ_{k=1..T} (u(k|t) − u(k−1|t))²
+    s.t. y_f = Ĥ [z_p; u_f; d_f]                                                       (3)
+         |y(k|t) − T_rule(k|t)| ≤ T_max + ε(k|t),  ε(k|t) ≥ 0,   k = 1 … T            (4), (5)
+         |u(k|t) − T_rule(k|t)| ≤ u_band,                       k = 0 … T            (6)
+         |u(0|t) − u(t−1)| ≤ ΔT_max,  |u(k|t) − u(k−1|t)| ≤ ΔT_max,  k = 1 … T       (7)
+
+Two implementations that must agree (tested on hundreds of random instances):
+
+- :class:`DDPCProblem` (the production path): y eliminated through the model, y_f = c + G u with
+  c the known part of Ĥ's input and G Ĥ's columns of u(0|t) … u(T|t), so the QP in
+  x = [u; ε] has P and A fixed by the predictor and the settings. They are built once and
+  handed to OSQP once; each step updates only the vectors q, l, u and warm-starts from the last
+  solution.
+- :class:`ReferenceProblem`: the readable formulation in cvxpy, DPP-compliant — y kept as a
+  variable, everything that changes per step a ``cp.Parameter`` — so cvxpy compiles it once;
+  ``rebuild=True`` builds and compiles it anew at every solve (the naive path, for the benchmark).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from trainclimate.predict.base import MultistepPredictor
+from trainclimate.predict.hankel import NU, NY, NZ
+
+
+@dataclass(frozen=True)
+class OCPSettings:
+    """Weights and bounds of the problem (paper, Eq. (4)–(9)).
+
+    ``sigma``, ``tau``, ``gamma``: weights of J_u, J_ε, J_Δu (J_y has weight 1); ``t_max`` the
+    comfort half-band T_max (K); ``du_max`` the rate limit ΔT_max (K per step); ``u_band`` the
+    limit on |u − T_rule| (K, the driver's ±2 K); ``time_limit_s`` the solver's time budget.
+    """
+
+    sigma: float = 1.0
+    tau: float = 100.0
+    gamma: float = 1.0
+    t_max: float = 1.0
+    du_max: float = 0.5
+    u_band: float = 2.0
+    time_limit_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("sigma", "tau", "gamma"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"OCP weight {name} must be positive and finite")
+        for name in ("t_max", "du_max", "u_band", "time_limit_s"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"OCP bound {name} must be positive and finite")
+
+
+@dataclass
+class Solution:
+    """The optimum: ``u`` (T+1,) u(0|t) … u(T|t); ``y`` (T, 3) and ``eps`` (T, 3) for k = 1 … T;
+    ``objective`` J including its constant terms; ``status`` (``"solved"`` when optimal, else the
+    solver's word); ``solve_time_s`` the solver's own time; ``iterations``."""
+
+    u: np.ndarray
+    y: np.ndarray
+    eps: np.ndarray
+    objective: float
+    status: str
+    solve_time_s: float = 0.0
+    iterations: int = 0
+
+    @property
+    def solved(self) -> bool:
+        return self.status == "solved"
+
+
+class _Condensed:
+    """What both implementations share: the model split into its known part and its u part,
+    and the per-step data of the problem."""
+
+    def __init__(self, predictor: MultistepPredictor, settings: OCPSettings):
+        H = predictor.require_fit()
+        self.rho, self.T = predictor.rho, predictor.horizon
+        self.settings = settings
+        self.predictor = predictor
+        rho, T = self.rho, self.T
+        self.u0_col = NZ * (rho - 1) + NY  # u(t) inside z_p
+        uf = NZ * rho + np.arange(T)
+        self.G = np.column_stack([H[:, self.u0_col], H[:, uf]])  # (3T, T+1)
+        self.H_known = H.copy()
+        self.H_known[:, self.u0_col] = 0.0
+        self.H_known[:, uf] = 0.0
+
+    def data(self, y_past, u_past, d_past, d_future, t_rule, t_opt, u_prev):
+        """Checked arrays and the known part c of the predicted outputs."""
+        rho, T = self.rho, self.T
+        u_past = np.asarray(u_past, dtype=float).reshape(-1, NU)
+        if u_past.shape != (rho - 1, NU):
+            raise ValueError(f"u_past must have shape ({rho - 1}, 1), got {u_past.shape}")
+        t_rule = np.asarray(t_rule, dtype=float).ravel()
+        t_opt = np.asarray(t_opt, dtype=float).ravel()
+        for name, arr in (("t_rule", t_rule), ("t_opt", t_opt)):
+            if arr.shape != (T + 1,):
+                raise ValueError(f"{name} must have length {T + 1} (k = 0 … T), got {arr.shape}")
+        u_prev = float(u_prev)
+        # u(t) = u(0|t) is a decision: a placeholder here, zeroed in H_known
+        u_all = np.vstack([u_past, [[0.0]]])
+        x = self.predictor.regressor(y_past, u_all, d_past, np.zeros((T, NU)), d_future)
+        if not np.all(np.isfinite(x)) or not np.all(np.isfinite(t_rule)) or not np.isfinite(u_prev):
+            raise ValueError("the problem data hold NaN or infinite values")
+        if not np.all(np.isfinite(t_opt)):
+            raise ValueError("t_opt holds NaN or infinite values")
+        c = self.H_known @ x
+        y0 = np.asarray(y_past, dtype=float)[-1]
+        return c, y0, t_rule, t_opt, u_prev
+
+    def constant(self, c, y0, t_opt, u_prev) -> float:
+        """The constant terms of J: ‖c − r‖² + ‖y(t) − T_opt(0) 1‖² + σ‖T_opt‖² + γ u(t−1)²."""
+        s = self.settings
+        r = np.repeat(t_opt[1:], NY)
+        return float(
+            np.sum((c - r) ** 2)
+            + np.sum((y0 - t_opt[0]) ** 2)
+            + s.sigma * np.sum(t_opt**2)
+            + s.gamma * u_prev**2
+        )
+
+
+def _difference(n: int) -> np.ndarray:
+    """D with (D u)_0 = u_0 and (D u)_k = u_k − u_{k−1}: the changes of J_Δu and (7)."""
+    return np.eye(n) - np.eye(n, k=-1)
+
+
+class DDPCProblem:
+    """The production path: the condensed QP solved by OSQP, built once per predictor/settings.
+
+    ``DDPCProblem(predictor, settings).solve(y_past, u_past, d_past, d_future, t_rule, t_opt,
+    u_prev)`` per the contract: ``y_past`` (ρ×3), ``d_past`` (ρ×5) the measured samples
+    t−ρ+1 … t; ``u_past`` (ρ−1 × 1) the inputs applied t−ρ+1 … t−1; ``d_future`` (T×5) the
+    forecast t+1 … t+T; ``t_rule``, ``t_opt`` (T+1,) for k = 0 … T; ``u_prev`` = u(t−1).
+    """
+
+    def __init__(self, predictor: MultistepPredictor, settings: OCPSettings | None = None):
+        import osqp
+
+        self.settings = settings or OCPSettings()
+        self._m = _Condensed(predictor, self.settings)
+        s, G, T = self.settings, self._m.G, self._m.T
+        n_u, n_e = T + 1, NY * T
+        D = _difference(n_u)
+        P_u = G.T @ G + s.sigma * np.eye(n_u) + s.gamma * D.T @ D
+        P = sp.block_diag([2.0 * P_u, 2.0 * s.tau * sp.eye(n_e)], format="csc")
+        I_e, Z_ue = sp.eye(n_e), sp.csc_matrix((n_u, n_e))
+        A = sp.vstack(
+            [
+                sp.hstack([G, -I_e]),  # comfort, upper: y − ε ≤ T_rule + T_max
+                sp.hstack([G, I_e]),  # comfort, lower: y + ε ≥ T_rule − T_max
+                sp.hstack([sp.csc_matrix((n_e, n_u)), I_e]),  # ε ≥ 0
+                sp.hstack([sp.eye(n_u), Z_ue]),  # |u − T_rule| ≤ u_band
+                sp.hstack([sp.csc_matrix(D), Z_ue]),  # rate limits
+            ],
+            format="csc",
+        )
+        self._P, self._D = P, D
+        self._solver = osqp.OSQP()
+        n_rows = A.shape[0]
+        self._solver.setup(
+            P=sp.triu(P, format="csc"),
+            q=np.zeros(n_u + n_e),
+            A=A,
+            l=np.full(n_rows, -np.inf),
+            u=np.full(n_rows, np.inf),
+            verbose=False,
+            eps_abs=1e-7,
+            eps_rel=1e-7,
+            polishing=True,
+            warm_starting=True,
+            time_limit=s.time_limit_s,
+            max_iter=20000,
+        )
+
+    @property
+    def rho(self) -> int:
+        return self._m.rho
+
+    @property
+    def horizon(self) -> int:
+        return self._m.T
+
+    def solve(self, y_past, u_past, d_past, d_future, t_rule, t_opt, u_prev) -> Solution:
+        """Solve Eq. (10) for one time step (see the class docstring for the arguments)."""
+        m, s = self._m, self.settings
+        T = m.T
+        c, y0, t_rule, t_opt, u_prev = m.data(
+            y_past, u_past, d_past, d_future, t_rule, t_opt, u_prev
+        )
+        r = np.repeat(t_opt[1:], NY)
+        rule3 = np.repeat(t_rule[1:], NY)
+        b = np.zeros(T + 1)
+        b[0] = u_prev
+        q = np.concatenate(
+            [2.0 * (m.G.T @ (c - r) - s.sigma * t_opt - s.gamma * self._D.T @ b), np.zeros(NY * T)]
+        )
+        inf = np.full(NY * T, np.inf)
+        lower = np.concatenate(
+            [-inf, rule3 - s.t_max - c, np.zeros(NY * T), t_rule - s.u_band, b - s.du_max]
+        )
+        upper = np.concatenate([rule3 + s.t_max - c, inf, inf, t_rule + s.u_band, b + s.du_max])
+        self._solver.update(q=q, l=lower, u=upper)
+        res = self._solver.solve(raise_error=False)
+        status = "solved" if res.info.status == "solved" else str(res.info.status)
+        x = np.asarray(res.x, dtype=float)
+        if x.shape != (4 * T + 1,) or not np.all(np.isfinite(x)):
+            x = np.full(4 * T + 1, np.nan)
+            status = status if status != "solved" else "no solution"
+        u, eps = x[: T + 1], x[T + 1 :]
+        y = c + m.G @ u
+        objective = float(0.5 * x @ (self._P @ x) + q @ x) + m.constant(c, y0, t_opt, u_prev)
+        return Solution(
+            u=u,
+            y=y.reshape(T, NY),
+            eps=eps.reshape(T, NY),
+            objective=objective,
+            status=status,
+            solve_time_s=float(res.info.run_time),
+            iterations=int(res.info.iter),
+        )
+
+
+class ReferenceProblem:
+    """The readable cvxpy formulation of Eq. (10), DPP-compliant (compiled once), solved with
+    Clarabel (an interior-point method: accurate, the reference). ``rebuild=True`` constructs
+    and compiles the problem at every :meth:`solve` (the naive path)."""
+
+    def __init__(
+        self,
+        predictor: MultistepPredictor,
+        settings: OCPSettings | None = None,
+        *,
+        rebuild: bool = False,
+        solver: str = "CLARABEL",
+    ):
+        self.settings = settings or OCPSettings()
+        self._m = _Condensed(predictor, self.settings)
+        self.rebuild = rebuild
+        self.solver = solver
+        if not rebuild:
+            self._problem, self._params, self._vars = self._build()
+
+    def _build(self):
+        import cvxpy as cp
+
+        m, s = self._m, self.settings
+        T = m.T
+        u, y, eps = cp.Variable(T + 1), cp.Variable(NY * T), cp.Variable(NY * T)
+        p = {
+            "c": cp.Parameter(NY * T),
+            "r": cp.Parameter(NY * T),
+            "t_opt": cp.Parameter(T + 1),
+            "rule3": cp.Parameter(NY * T),
+            "t_rule": cp.Parameter(T + 1),
+            "u_prev": cp.Parameter(),
+        }
+        du = cp.hstack([u[0] - p["u_prev"], cp.diff(u)])
+        cost = (
+            cp.sum_squares(y - p["r"])
+            + s.sigma * cp.sum_squares(u - p["t_opt"])
+            + s.tau * cp.sum_squares(eps)
+            + s.gamma * cp.sum_squares(du)
+        )
+        constraints = [
+            y == p["c"] + m.G @ u,  # (3)
+            y - p["rule3"] <= s.t_max + eps,  # (4)
+            p["rule3"] - y <= s.t_max + eps,
+            eps >= 0,  # (5)
+            cp.abs(u - p["t_rule"]) <= s.u_band,  # (6)
+            cp.abs(du) <= s.du_max,  # (7)
+        ]
+        problem = cp.Problem(cp.Minimize(cost), constraints)
+        return problem, p, (u, y, eps)
+
+    def solve(self, y_past, u_past, d_past, d_future, t_rule, t_opt, u_prev) -> Solution:
+        """Same arguments and result as :meth:`DDPCProblem.solve`."""
+        import cvxpy as cp
+
+        m, T = self._m, self._m.T
+        c, y0, t_rule, t_opt, u_prev = m.data(
+            y_past, u_past, d_past, d_future, t_rule, t_opt, u_prev
+        )
+        if self.rebuild:
+            problem, p, (u, y, eps) = self._build()
+        else:
+            problem, p, (u, y, eps) = self._problem, self._params, self._vars
+        p["c"].value = c
+        p["r"].value = np.repeat(t_opt[1:], NY)
+        p["t_opt"].value = t_opt
+        p["rule3"].value = np.repeat(t_rule[1:], NY)
+        p["t_rule"].value = t_rule
+        p["u_prev"].value = u_prev
+        t0 = time.perf_counter()
+        try:
+            problem.solve(solver=self.solver)
+            status = problem.status
+        except cp.SolverError as exc:
+            status = f"solver error: {exc}"
+        elapsed = time.perf_counter() - t0
+        if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or u.value is None:
+            nan = np.full((T, NY), np.nan)
+            return Solution(
+                np.full(T + 1, np.nan), nan, nan.copy(), float("nan"), str(status), elapsed
+            )
+        # J_y's k = 0 term (the measured y(t)) is the one constant outside cvxpy's objective
+        objective = float(problem.value) + float(np.sum((y0 - t_opt[0]) ** 2))
+        return Solution(
+            u=np.asarray(u.value, dtype=float),
+            y=np.asarray(y.value, dtype=float).reshape(T, NY),
+            eps=np.asarray(eps.value, dtype=float).reshape(T, NY),
+            objective=objective,
+            status="solved" if status == cp.OPTIMAL else str(status),
+            solve_time_s=elapsed,
+        )
