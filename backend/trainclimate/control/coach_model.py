@@ -79,15 +79,18 @@ class CoachModel:
             self.A_d[i], self.B_d[i] = E[:N, :N], E[:N, N:]
 
     def continuous(self, speed_kmh: float) -> tuple[np.ndarray, np.ndarray]:
-        """(A_c, b_amb): dx/dt = A_c x + b_amb T_amb + C⁻¹ q, read off the simulator (1/s)."""
+        """(A_c, b_amb): dx/dt = A_c x + b_amb T_amb + C⁻¹ q with the base share of fresh air,
+        read off the simulator (1/s)."""
         p, inv = self.p, self.inv_cap[None, :]
-        f0 = thermal.derivative(np.zeros((1, N)), _drivers(p, 0.0, speed_kmh), p, inv)[0]
-        A_c = np.empty((N, N))
-        for j in range(N):
-            e = np.zeros((1, N))
-            e[0, j] = 1.0
-            A_c[:, j] = thermal.derivative(e, _drivers(p, 0.0, speed_kmh), p, inv)[0] - f0
-        b_amb = thermal.derivative(np.zeros((1, N)), _drivers(p, 1.0, speed_kmh), p, inv)[0] - f0
+        base = float(self.params.fresh_air_base_fraction)
+
+        def f(x: np.ndarray, t_amb: float) -> np.ndarray:
+            drv = _drivers(p, t_amb, speed_kmh, fresh=base)
+            return thermal.derivative(x[None, :], drv, p, inv)[0]
+
+        f0 = f(np.zeros(N), 0.0)
+        A_c = np.column_stack([f(np.eye(N)[j], 0.0) - f0 for j in range(N)])
+        b_amb = f(np.zeros(N), 1.0) - f0
         return A_c, b_amb
 
     def _grid(self, speed_kmh: float) -> int:

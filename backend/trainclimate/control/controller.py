@@ -174,6 +174,10 @@ class DDPCController:
             rule0 = float(np.asarray(t_rule, dtype=float).ravel()[0])
         except (TypeError, ValueError, IndexError):
             rule0 = float("nan")
+        try:  # this is the last resort: it must not raise on a u(t−1) of the wrong type either
+            u_prev = float(u_prev)
+        except (TypeError, ValueError):
+            u_prev = float("nan")
         if not np.isfinite(rule0):
             # nothing safe to compute: hold the last setpoint (the HVAC keeps what it has)
             held = float(u_prev) if np.isfinite(u_prev) else float("nan")

@@ -5,10 +5,11 @@ on the controller's discrete coach model (:mod:`.coach_model`) with the state au
 heat that enters each room unmeasured — the HVAC's output, the ventilation air, the doors, which
 the controller never sees — modelled as a random walk:
 
-    x(k+1) = A_d x(k) + B_d [T_amb; q_known(k) + E q_u(k)],   q_u(k+1) = q_u(k) + w(k)
+    x(k+1) = A_d x(k) + B_d [T_amb; q_known(k) + Λ_hvac q_u(k)],   q_u(k+1) = q_u(k) + w(k)
     y(k)   = [I₃ 0] x(k) + v(k)
 
-(E puts q_u into the three room nodes). Process noise: 0.02 K per step on the temperatures (model
+(Λ_hvac, the HVAC columns of the heat distribution, spreads q_u over rooms and structure as the
+plant spreads the HVAC's heat). Process noise: 0.02 K per step on the temperatures (model
 error) and 2 kW per step on q_u (the HVAC can change its output that fast); measurement noise:
 0.06 K (the sensors' 0.05 K noise and 0.1 K quantisation). Its accuracy against the simulator's
 true states is measured in the tests and documented in docs/controller.md.
@@ -46,11 +47,15 @@ class StateEstimator:
         self.C[:, :3] = np.eye(3)
         self.x = np.full(n, np.nan)
         self.P = np.eye(n)
+        # q_u is the HVAC's output per deck, spread over rooms and structure like the HVAC's heat:
+        # by the HVAC columns of Λ (rows room up, mid, low, chassis up, mid, low)
+        spread = np.zeros((N, NQ))
+        spread[[0, 1, 2, 6, 7, 8], :] = model.params.distribution[:, :NQ]
         self._F = []
         for i in range(len(model.A_d)):
             F = np.eye(n)
             F[:N, :N] = model.A_d[i]
-            F[:N, N:] = model.B_d[i, :, 1:4]  # q_u enters the room nodes
+            F[:N, N:] = model.B_d[i, :, 1:] @ spread
             self._F.append(F)
 
     @property

@@ -44,9 +44,10 @@ class OCPSettings:
     ``sigma``, ``tau``, ``gamma``: weights of J_u, J_ε, J_Δu (J_y has weight 1); ``t_max`` the
     comfort half-band T_max (K); ``du_max`` the rate limit ΔT_max (K per step); ``u_band`` the
     limit on |u − T_rule| (K, the driver's ±2 K); ``time_limit_s`` the solver's time budget.
+    The default weights come from a closed-loop sweep over the five scenarios (docs/controller.md).
     """
 
-    sigma: float = 1.0
+    sigma: float = 3.0
     tau: float = 100.0
     gamma: float = 1.0
     t_max: float = 1.0
@@ -218,6 +219,10 @@ class DDPCProblem:
         res = self._solver.solve(raise_error=False)
         status = "solved" if res.info.status == "solved" else str(res.info.status)
         x = np.asarray(res.x, dtype=float)
+        # without an (approximate) optimum OSQP's x is an unfinished iterate or an
+        # infeasibility certificate (~1e9): report no solution, as the reference does
+        if res.info.status not in ("solved", "solved inaccurate"):
+            x = np.full(4 * T + 1, np.nan)
         if x.shape != (4 * T + 1,) or not np.all(np.isfinite(x)):
             x = np.full(4 * T + 1, np.nan)
             status = status if status != "solved" else "no solution"

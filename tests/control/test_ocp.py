@@ -1,0 +1,289 @@
+"""The optimal control problem (paper, Eq. (3)–(10)): the OSQP fast path against the cvxpy
+reference on hundreds of random instances, the cost with its constants, the constraints and the
+prediction model, checked independently of the implementation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trainclimate.control import DDPCProblem, OCPSettings, ReferenceProblem
+from trainclimate.sim.rule import RuleCurve
+
+RHO, T = 12, 6
+#: the weights and bounds the instances run under: the default, energy-leaning and
+#: comfort-leaning weights, and the conservative scenario's tighter comfort bound (t_max < 1)
+SETTINGS = (
+    OCPSettings(),
+    OCPSettings(sigma=0.2, tau=1000.0, gamma=5.0),
+    OCPSettings(sigma=3.0, tau=30.0, gamma=0.3, t_max=0.5),
+    OCPSettings(sigma=1.0, tau=100.0, gamma=1.0, t_max=0.5, du_max=0.3),
+)
+PER_SETTING = 80  # 320 instances in all
+RULE = RuleCurve()
+
+
+def random_instance(rng, trajectories, s: OCPSettings) -> dict:
+    """One problem: a window of the simulated coaches' data, moved to a winter (T_rule 22 °C) or
+    summer (T_rule from the rule curve at 20–36 °C outside) setting, with the room off its
+    reference by up to 4 K, past inputs in the ±u_band band and u(t−1) anywhere from inside the
+    band to its edges and just beyond them."""
+    traj = trajectories[rng.integers(len(trajectories))]
+    start = rng.integers(0, len(traj.y) - (RHO + T) + 1)
+    y_past = traj.y[start : start + RHO].copy()
+    d_past = traj.d[start : start + RHO].copy()
+    d_future = traj.d[start + RHO : start + RHO + T].copy()
+    if rng.random() < 0.5:  # winter: the rule's flat part
+        shift = rng.uniform(-8.0, 14.0) - d_past[-1, 0]
+        d_past[:, 0] += shift
+        d_future[:, 0] += shift
+        t_rule = np.full(T + 1, 22.0)
+    else:  # summer: the rule's slope, T_amb drifting over the horizon
+        shift = rng.uniform(20.0, 36.0) - d_past[-1, 0]
+        d_past[:, 0] += shift
+        d_future[:, 0] += shift + np.arange(1, T + 1) * rng.uniform(-0.3, 0.3)
+        t_rule = RULE(np.concatenate([[d_past[-1, 0]], d_future[:, 0]]))
+    # the room near its reference, or (a quarter of the time) 2–4 K off it, as after a door stood
+    # open or at start-up
+    off = rng.normal(0.0, 0.5) if rng.random() < 0.75 else rng.choice([-1, 1]) * rng.uniform(2, 4)
+    y_past += t_rule[0] - y_past[-1].mean() + off
+    walk = np.cumsum(rng.uniform(-s.du_max, s.du_max, RHO - 1))
+    u_past = np.clip(t_rule[0] + rng.uniform(-1, 1) + walk - walk[-1], *(t_rule[0] + [-2, 2]))
+    edge = rng.choice([-1.0, 1.0]) * s.u_band
+    u_prev = t_rule[0] + rng.choice(
+        [
+            rng.uniform(-s.u_band, s.u_band),  # inside the band
+            edge,  # at its edge
+            edge * (1.0 - 0.02),  # just inside
+            edge + np.sign(edge) * 0.8 * s.du_max,  # just beyond (still feasible)
+        ]
+    )
+    u_past[-1] = u_prev
+    t_opt = t_rule + rng.choice(
+        [-s.t_max, s.t_max, rng.uniform(-s.t_max, s.t_max)], size=T + 1, p=[0.4, 0.4, 0.2]
+    )
+    return {
+        "y_past": y_past,
+        "u_past": u_past[:, None],
+        "d_past": d_past,
+        "d_future": d_future,
+        "t_rule": t_rule,
+        "t_opt": t_opt,
+        "u_prev": float(u_prev),
+    }
+
+
+@pytest.fixture(scope="module")
+def solved(predictor, trajectories):
+    """(settings, instance, fast solution, reference solution) for 320 random instances."""
+    rng = np.random.default_rng(20240815)
+    out = []
+    for s in SETTINGS:
+        fast, ref = DDPCProblem(predictor, s), ReferenceProblem(predictor, s)
+        for _ in range(PER_SETTING):
+            inst = random_instance(rng, trajectories, s)
+            out.append((s, inst, fast.solve(**inst), ref.solve(**inst)))
+    return out
+
+
+def papers_cost(s: OCPSettings, inst: dict, u, y, eps) -> float:
+    """J = J_y + σ J_u + τ J_ε + γ J_Δu (paper, Eq. (9)), y(0|t) the measured y(t)."""
+    t_opt = inst["t_opt"]
+    y_all = np.vstack([inst["y_past"][-1], y])  # k = 0 … T
+    J_y = np.sum((y_all - t_opt[:, None]) ** 2)
+    J_u = np.sum((u - t_opt) ** 2)
+    J_eps = np.sum(eps**2)
+    J_du = (u[0] - inst["u_prev"]) ** 2 + np.sum(np.diff(u) ** 2)
+    return float(J_y + s.sigma * J_u + s.tau * J_eps + s.gamma * J_du)
+
+
+def by_hand(predictor, inst: dict, u: np.ndarray) -> np.ndarray:
+    """Ĥ [z_p; u_f; d_f] built by the contract's ordering, u(0|t) the last u inside z_p."""
+    u_all = np.concatenate([inst["u_past"].ravel(), [u[0]]])
+    z_p = np.concatenate(
+        [np.concatenate([inst["y_past"][i], [u_all[i]], inst["d_past"][i]]) for i in range(RHO)]
+    )
+    x = np.concatenate([z_p, u[1:], inst["d_future"].ravel()])
+    return (predictor.H @ x).reshape(T, 3)
+
+
+def test_every_instance_is_solved(solved):
+    assert len(solved) >= 300
+    assert [f.status for _, _, f, _ in solved] == ["solved"] * len(solved)
+    assert [r.status for _, _, _, r in solved] == ["solved"] * len(solved)
+
+
+def test_fast_path_matches_the_reference(solved):
+    # measured on these 320 instances: objective rel. difference ≤ 4.6e-9, |Δu| ≤ 7.1e-4 K —
+    # the larger differences are Clarabel's (default tolerances), see the next test
+    for s, inst, fast, ref in solved:
+        assert fast.objective == pytest.approx(ref.objective, rel=1e-4, abs=1e-8), (s, inst)
+        np.testing.assert_allclose(fast.u, ref.u, atol=1e-3, rtol=0)
+        np.testing.assert_allclose(fast.y, ref.y, atol=1e-3, rtol=0)
+        np.testing.assert_allclose(fast.eps, ref.eps, atol=1e-3, rtol=0)
+
+
+def precise_optimum(predictor, s: OCPSettings, inst: dict) -> np.ndarray:
+    """u* of Eq. (10) written afresh in cvxpy (y an affine function of u through Ĥ, built by
+    hand) and solved by Clarabel to 1e-12."""
+    import cvxpy as cp
+
+    u, eps = cp.Variable(T + 1), cp.Variable((T, 3))
+    base = by_hand(predictor, inst, np.zeros(T + 1))
+    cols = np.column_stack(
+        [(by_hand(predictor, inst, np.eye(T + 1)[j]) - base).ravel() for j in range(T + 1)]
+    )
+    y = cp.reshape(base.ravel() + cols @ u, (T, 3), order="C")
+    t_opt, rule = inst["t_opt"], inst["t_rule"]
+    du = cp.hstack([u[0] - inst["u_prev"], cp.diff(u)])
+    cost = (
+        cp.sum_squares(y - np.repeat(t_opt[1:, None], 3, axis=1))
+        + s.sigma * cp.sum_squares(u - t_opt)
+        + s.tau * cp.sum_squares(eps)
+        + s.gamma * cp.sum_squares(du)
+    )
+    rule3 = np.repeat(rule[1:, None], 3, axis=1)
+    constraints = [
+        cp.abs(y - rule3) <= s.t_max + eps,
+        eps >= 0,
+        cp.abs(u - rule) <= s.u_band,
+        cp.abs(du) <= s.du_max,
+    ]
+    cp.Problem(cp.Minimize(cost), constraints).solve(
+        solver="CLARABEL", tol_gap_abs=1e-12, tol_gap_rel=1e-12, tol_feas=1e-12
+    )
+    return np.asarray(u.value)
+
+
+def test_fast_path_is_accurate_where_the_two_differ_most(predictor, solved):
+    """Where OSQP and Clarabel differ most, a tight independent solve sides with OSQP
+    (measured: OSQP within 3e-8 K of it, Clarabel up to 7e-4 K off)."""
+    worst = sorted(solved, key=lambda row: -np.max(np.abs(row[2].u - row[3].u)))[:5]
+    for s, inst, fast, _ in worst:
+        np.testing.assert_allclose(fast.u, precise_optimum(predictor, s, inst), atol=1e-6, rtol=0)
+
+
+def test_the_instances_exercise_every_constraint(solved):
+    """The comparison means something: slacks, band and rate limits are active in many."""
+    slack = band = rate = edge_start = 0
+    for s, inst, fast, _ in solved:
+        slack += fast.eps.max() > 1e-3
+        band += np.max(np.abs(fast.u - inst["t_rule"])) > s.u_band - 1e-4
+        du = np.diff(np.concatenate([[inst["u_prev"]], fast.u]))
+        rate += np.max(np.abs(du)) > s.du_max - 1e-4
+        edge_start += abs(abs(inst["u_prev"] - inst["t_rule"][0]) - s.u_band) < 1e-9
+    # measured: slack in 280, band in 11, rate limit in 312 of 320; u(t−1) at the edge in 92
+    n = len(solved)
+    assert min(slack, rate, edge_start) > n // 10 and band > n // 50
+
+
+def test_rebuilt_reference_agrees(predictor, solved):
+    """The naive path (cvxpy build and compile at every solve) gives the same optimum."""
+    for s in SETTINGS:
+        naive = ReferenceProblem(predictor, s, rebuild=True)
+        for _, inst, _, ref in [row for row in solved if row[0] is s][:8]:
+            sol = naive.solve(**inst)
+            assert sol.status == "solved"
+            assert sol.objective == pytest.approx(ref.objective, rel=1e-6, abs=1e-9)
+            np.testing.assert_allclose(sol.u, ref.u, atol=1e-5, rtol=0)
+
+
+def test_objective_is_the_papers_cost_with_its_constants(solved):
+    for s, inst, fast, ref in solved:
+        assert fast.objective == pytest.approx(
+            papers_cost(s, inst, fast.u, fast.y, fast.eps), rel=1e-9, abs=1e-9
+        )
+        assert ref.objective == pytest.approx(
+            papers_cost(s, inst, ref.u, ref.y, ref.eps), rel=1e-6, abs=1e-8
+        )
+
+
+def test_solution_satisfies_the_constraints(solved):
+    tol = 1e-5
+    for s, inst, fast, _ in solved:
+        rule = inst["t_rule"]
+        y, u, eps = fast.y, fast.u, fast.eps
+        assert y.shape == (T, 3) and u.shape == (T + 1,) and eps.shape == (T, 3)
+        # (4): |y(k|t) − T_rule(k|t)| ≤ T_max + ε(k|t), k = 1 … T, per deck
+        assert np.all(np.abs(y - rule[1:, None]) <= s.t_max + eps + tol)
+        assert np.all(eps >= -tol)  # (5)
+        assert np.all(np.abs(u - rule) <= s.u_band + tol)  # (6), k = 0 … T
+        du = np.diff(np.concatenate([[inst["u_prev"]], u]))
+        assert np.all(np.abs(du) <= s.du_max + tol)  # (7)
+        # the slack is the least that makes (4) hold: ε = max(0, |y − T_rule| − T_max)
+        need = np.maximum(np.abs(y - rule[1:, None]) - s.t_max, 0.0)
+        np.testing.assert_allclose(eps, need, atol=1e-5)
+
+
+def test_outputs_follow_the_prediction_model(predictor, solved):
+    for _, inst, fast, _ in solved:
+        np.testing.assert_allclose(fast.y, by_hand(predictor, inst, fast.u), atol=1e-9, rtol=0)
+        # and the predictor's own API says the same
+        u_past = np.concatenate([inst["u_past"].ravel(), [fast.u[0]]])
+        pred = predictor.predict(
+            inst["y_past"], u_past, inst["d_past"], fast.u[1:], inst["d_future"]
+        )
+        np.testing.assert_allclose(fast.y, pred, atol=1e-9, rtol=0)
+
+
+def test_optimum_heads_for_t_opt_when_nothing_binds(predictor, trajectories):
+    """With T_opt at the band's lower edge and u(t−1) = T_rule, the plan moves down at the rate
+    limit first: u(0|t) = u(t−1) − ΔT_max."""
+    rng = np.random.default_rng(3)
+    inst = random_instance(rng, trajectories, OCPSettings())
+    inst["t_rule"] = np.full(T + 1, 22.0)
+    inst["t_opt"] = np.full(T + 1, 21.0)
+    inst["y_past"] += 22.0 - inst["y_past"][-1].mean()
+    inst["u_prev"] = 22.0
+    inst["u_past"][-1] = 22.0
+    sol = DDPCProblem(predictor, OCPSettings(gamma=0.01)).solve(**inst)
+    assert sol.solved
+    assert sol.u[0] == pytest.approx(21.5, abs=1e-5)
+    assert np.all(sol.u <= 22.0 + 1e-6)
+
+
+def test_infeasible_problem_is_reported_by_both(predictor, trajectories):
+    """u(t−1) 3 K above T_rule: the rate limit and the ±2 K band cannot both hold."""
+    rng = np.random.default_rng(4)
+    inst = random_instance(rng, trajectories, OCPSettings())
+    inst["u_prev"] = float(inst["t_rule"][0] + 3.0)
+    fast = DDPCProblem(predictor).solve(**inst)
+    ref = ReferenceProblem(predictor).solve(**inst)
+    assert fast.status == "primal infeasible"
+    assert ref.status == "infeasible"
+    assert not fast.solved and not ref.solved
+    # no optimum: the fast path returns no numbers that could be mistaken for one
+    assert np.all(np.isnan(fast.u)) and np.all(np.isnan(ref.u))
+    # and the next, feasible, solve of the same (warm-started) problem is fine again
+    inst["u_prev"] = float(inst["t_rule"][0])
+    prob = DDPCProblem(predictor)
+    prob.solve(**{**inst, "u_prev": inst["u_prev"] + 3.0})
+    again = prob.solve(**inst)
+    assert again.solved
+    assert again.objective == pytest.approx(ReferenceProblem(predictor).solve(**inst).objective)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"u_past": np.full((RHO, 1), 22.0)}, "u_past must have shape"),
+        ({"t_rule": np.full(T, 22.0)}, "t_rule must have length 7"),
+        ({"t_opt": np.full(T + 2, 22.0)}, "t_opt must have length 7"),
+        ({"d_future": np.zeros((T - 1, 5))}, "d_future must have shape"),
+        ({"u_prev": float("nan")}, "NaN or infinite"),
+        ({"t_rule": np.full(T + 1, np.inf)}, "NaN or infinite"),
+        ({"t_opt": np.full(T + 1, np.nan)}, "t_opt holds NaN"),
+    ],
+)
+def test_bad_data_raises(predictor, trajectories, change, message):
+    inst = random_instance(np.random.default_rng(5), trajectories, OCPSettings())
+    inst.update(change)
+    for problem in (DDPCProblem(predictor), ReferenceProblem(predictor)):
+        with pytest.raises(ValueError, match=message):
+            problem.solve(**inst)
+
+
+def test_settings_are_validated():
+    for bad in ({"sigma": 0.0}, {"tau": -1.0}, {"gamma": np.nan}, {"t_max": 0.0}, {"du_max": -1}):
+        with pytest.raises(ValueError, match="must be positive and finite"):
+            OCPSettings(**bad)
