@@ -46,15 +46,16 @@ def test_heating_warms_up_then_controls(heating):
 
 def test_heating_goes_to_the_lower_band_edge(heating):
     """T_ref reaches T_rule − T_max within 0.1 K a few ticks after the lead-in and stays there
-    (measured: within 0.04 K from the 3rd DDPC tick on; the last hour's room mean 21.00 °C)."""
+    (measured with the default weights σ = 3, τ = 100, γ = 1: within 0.06 K from the 4th DDPC
+    tick on, 0.03 K from the 5th; the last hour's room mean 21.00 °C)."""
     result, loop = heating["ddpc"]
     ddpc = loop.log.results[RHO - 1 :]
     assert all(r.t_rule_c == 22.0 for r in ddpc)  # the rule's flat part all along
     for r in ddpc:
         np.testing.assert_allclose(r.t_opt_c[1:], 21.0, atol=1e-12)  # the lower edge
     t_ref = np.array([r.t_ref_c for r in ddpc])
-    assert t_ref[0] == pytest.approx(21.5)  # one ΔT_max step down from T_rule
-    assert np.all(np.abs(t_ref[3:] - 21.0) < 0.1)
+    assert 21.5 - 1e-9 <= t_ref[0] < 21.6  # down from T_rule, at most one ΔT_max step
+    assert np.all(np.abs(t_ref[4:] - 21.0) < 0.1)
     # the room follows: the last hour's mean room temperature is near the lower edge, inside
     last_hour = result.t_room_c[-360:, 0].mean()
     assert 20.9 < last_hour < 21.2
@@ -66,7 +67,7 @@ def test_heating_saves_energy_and_keeps_comfort(heating):
     e_ddpc, e_rule = float(ddpc.energy_kwh[0]), float(rule.energy_kwh[0])
     # measured: 39.5 vs 41.0 kWh over 3 h, of which 2 h under DDPC
     assert e_ddpc < e_rule - 1.0
-    assert coach_kpis(ddpc, 0)["avg_hourly_violation_k"] < 0.1  # measured 0.018
+    assert coach_kpis(ddpc, 0)["avg_hourly_violation_k"] < 0.1  # measured 0.015
 
 
 def test_rule_loop_is_the_rule(heating):
@@ -86,7 +87,7 @@ def cooling(predictor):
 
 def test_cooling_goes_toward_the_upper_band_edge(cooling):
     """(measured: T_opt at the upper edge at every DDPC tick; T_ref ≥ T_rule + 0.9 K from the
-    3rd DDPC tick on, T_rule + 0.95 K on average)."""
+    4th DDPC tick on, T_rule + 0.95 K on average)."""
     _, loop = cooling["ddpc"]
     ddpc = loop.log.results[RHO - 1 :]
     assert [r.reason for r in ddpc] == ["ok"] * len(ddpc)
@@ -96,19 +97,19 @@ def test_cooling_goes_toward_the_upper_band_edge(cooling):
         # the sun heats the parked coach: T_opt is the upper edge T_rule(k) + T_max
         assert np.all(r.t_opt_c[1:] > r.t_rule_c + 0.9)
     t_ref = np.array([r.t_ref_c for r in ddpc])
-    assert np.all(t_ref[3:] - rule0[3:] > 0.8)
+    assert np.all(t_ref[4:] - rule0[4:] > 0.8)
     assert np.all(t_ref - rule0 <= 1.0 + 0.1)
 
 
 def test_cooling_saves_energy_and_keeps_comfort(cooling):
     e_ddpc, e_rule = (float(cooling[k][0].energy_kwh[0]) for k in ("ddpc", "rule"))
-    assert e_ddpc < e_rule - 0.3  # measured: 11.72 vs 12.31 kWh
-    assert coach_kpis(cooling["ddpc"][0], 0)["avg_hourly_violation_k"] < 0.1  # measured 0.013
+    assert e_ddpc < e_rule - 0.3  # measured: 11.73 vs 12.31 kWh
+    assert coach_kpis(cooling["ddpc"][0], 0)["avg_hourly_violation_k"] < 0.1  # measured 0.011
 
 
 def test_conservative_bound_keeps_t_ref_closer_to_the_rule(predictor):
     """The conservative experiment's tighter bound T_max = 0.5 K holds T_ref near T_rule + 0.5
-    (measured: T_rule + 0.42 … 0.48 K from the 2nd DDPC tick on, violation 0.013 K)."""
+    (measured: T_rule + 0.41 … 0.51 K from the 3rd DDPC tick on, violation 0.014 K)."""
     settings = OCPSettings(t_max=0.5)
     result, loop = run(
         "parked-cooling-aug-conservative", "ddpc", predictor, hours=2.0, start="11:00",
@@ -116,7 +117,7 @@ def test_conservative_bound_keeps_t_ref_closer_to_the_rule(predictor):
     )  # fmt: skip
     ddpc = loop.log.results[RHO - 1 :]
     offset = np.array([r.t_ref_c - r.t_rule_c for r in ddpc])
-    assert np.all(offset[3:] > 0.3) and np.all(offset <= 0.5 + 0.1)
+    assert np.all(offset[4:] > 0.3) and np.all(offset <= 0.5 + 0.1)
     assert coach_kpis(result, 0, t_max_k=0.5)["avg_hourly_violation_k"] < 0.1
 
 
