@@ -10,12 +10,12 @@ with x = [T_room; T_inv; T_chassis] (°C) and q the external heat into each of t
 solar gains, passengers, ground radiation, and whatever enters the rooms unmeasured (the HVAC's
 heating and cooling, extra outside air, the doors). In regular mode the HVAC always supplies the
 minimum of fresh air — the base share plus 20 m³/h per passenger
-(:func:`~trainclimate.sim.hvac.minimum_fresh_fraction`) — so the model ventilates at that minimum:
-the base share is part of A_c, the passengers' share a known input held over the step. A_c and
-the T_amb column are read off the simulator's own
+(:func:`~trainclimate.sim.hvac.minimum_fresh_fraction`) — so the model ventilates at that minimum.
+A_c and the T_amb column are read off the simulator's own
 :func:`~trainclimate.sim.thermal.derivative` (exact: it is affine), and the step is discretised
 exactly (zero-order hold) with the matrix exponential of the augmented system. The outer
-convection depends on V, so the model is tabulated on a grid of speeds and the nearest is used.
+convection depends on the speed V and the ventilation on the occupancy P, so the model is
+tabulated on a grid of both and the nearest point is used.
 The ground radiation is evaluated at the current state and held over the step.
 
 This model serves the open-loop prediction of T_opt (HVAC off, paper Section III.C) and the state
@@ -28,11 +28,12 @@ import numpy as np
 import scipy.linalg as sla
 
 from trainclimate.sim import hvac, thermal
-from trainclimate.sim.params import AIR_CP_J_KG_K, STEFAN_BOLTZMANN, CoachParams, stack
+from trainclimate.sim.params import STEFAN_BOLTZMANN, CoachParams, stack
 
 N = thermal.N_STATES
-#: Train speeds (km/h) at which the discrete model is tabulated.
+#: Train speeds (km/h) and occupancies (% of seats) at which the discrete model is tabulated.
 SPEED_GRID_KMH = np.array([0.0, 10.0, 20.0, 30.0, 45.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0])
+OCCUPANCY_GRID_PCT = np.array([0.0, 10.0, 25.0, 50.0, 75.0, 100.0, 150.0])
 
 
 def _drivers(p: CoachParams, t_amb: float, speed: float, **kw) -> thermal.Drivers:
@@ -63,14 +64,11 @@ class CoachModel:
         self.dt_s = float(dt_s)
         self.inv_cap = 1.0 / thermal.capacities(self.p)[0]
         self.S = self._gain_map()
-        # W/K into each room per unit occupancy fraction: 20 m³/h of outside air per passenger
-        pax = self.params.seats.sum() * self.params.fresh_air_per_passenger_m3_h
-        extra = pax / self.params.supply_air_m3_h
-        self.vent_w_k = hvac.fresh_air_mass_flow(np.array([extra]), self.p)[0] * AIR_CP_J_KG_K
-        self.A_d = np.empty((len(SPEED_GRID_KMH), N, N))
-        self.B_d = np.empty((len(SPEED_GRID_KMH), N, 1 + N))
-        for i, speed in enumerate(SPEED_GRID_KMH):
-            A_c, b_amb = self.continuous(speed)
+        grid = [(v, occ) for v in SPEED_GRID_KMH for occ in OCCUPANCY_GRID_PCT]
+        self.A_d = np.empty((len(grid), N, N))
+        self.B_d = np.empty((len(grid), N, 1 + N))
+        for i, (speed, occupancy) in enumerate(grid):
+            A_c, b_amb = self.continuous(speed, occupancy)
             M = np.zeros((2 * N + 1, 2 * N + 1))
             M[:N, :N] = A_c
             M[:N, N] = b_amb
@@ -78,14 +76,15 @@ class CoachModel:
             E = sla.expm(M * self.dt_s)
             self.A_d[i], self.B_d[i] = E[:N, :N], E[:N, N:]
 
-    def continuous(self, speed_kmh: float) -> tuple[np.ndarray, np.ndarray]:
-        """(A_c, b_amb): dx/dt = A_c x + b_amb T_amb + C⁻¹ q with the base share of fresh air,
-        read off the simulator (1/s)."""
+    def continuous(self, speed_kmh: float, occupancy_pct: float = 0.0):
+        """(A_c, b_amb): dx/dt = A_c x + b_amb T_amb + C⁻¹ q at speed V (km/h) and occupancy P
+        (% of seats), with the minimum fresh air for P, read off the simulator (1/s)."""
         p, inv = self.p, self.inv_cap[None, :]
-        base = float(self.params.fresh_air_base_fraction)
+        passengers = occupancy_pct / 100.0 * p.seats
+        fresh = float(hvac.minimum_fresh_fraction(passengers, p, base=True)[0])
 
         def f(x: np.ndarray, t_amb: float) -> np.ndarray:
-            drv = _drivers(p, t_amb, speed_kmh, fresh=base)
+            drv = _drivers(p, t_amb, speed_kmh, fresh=fresh)
             return thermal.derivative(x[None, :], drv, p, inv)[0]
 
         f0 = f(np.zeros(N), 0.0)
@@ -93,8 +92,11 @@ class CoachModel:
         b_amb = f(np.zeros(N), 1.0) - f0
         return A_c, b_amb
 
-    def _grid(self, speed_kmh: float) -> int:
-        return int(np.argmin(np.abs(SPEED_GRID_KMH - abs(float(speed_kmh)))))
+    def grid_index(self, d: np.ndarray) -> int:
+        """The tabulated model nearest to the speed and occupancy of disturbance sample d."""
+        i = int(np.argmin(np.abs(SPEED_GRID_KMH - abs(float(d[4])))))
+        j = int(np.argmin(np.abs(OCCUPANCY_GRID_PCT - max(float(d[3]), 0.0))))
+        return i * len(OCCUPANCY_GRID_PCT) + j
 
     def _gain_map(self) -> np.ndarray:
         """S (9 × 3): heat into each node (W) per unit of [Q_Gt (W/m²), Q_Gs (W/m²), P (%)] —
@@ -117,17 +119,15 @@ class CoachModel:
 
     def known_heat_w(self, x: np.ndarray, d: np.ndarray) -> np.ndarray:
         """External heat into each node (W, (9,)) from the disturbance sample
-        d = [T_amb, Q_Gt, Q_Gs, P, V] at state x: solar gains, passengers, ground radiation and
-        the passengers' share of the minimum fresh air."""
+        d = [T_amb, Q_Gt, Q_Gs, P, V] at state x: solar gains, passengers, ground radiation."""
         q = self.S @ np.asarray(d[1:4], dtype=float)
         q[8] += self.ground_w(x, float(d[0]))
-        q[:3] += self.vent_w_k * (float(d[3]) / 100.0) * (float(d[0]) - x[:3])
         return q
 
     def step(self, x: np.ndarray, d: np.ndarray, q_extra_w: np.ndarray | None = None) -> np.ndarray:
         """x one step later under disturbance sample ``d`` held over the step, plus optional
         unmeasured heat ``q_extra_w`` (W, (9,)) into the nodes."""
-        i = self._grid(d[4])
+        i = self.grid_index(d)
         q = self.known_heat_w(x, d)
         if q_extra_w is not None:
             q = q + q_extra_w

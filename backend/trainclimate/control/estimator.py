@@ -84,7 +84,7 @@ class StateEstimator:
         """One step: predict over the interval just ended, under its disturbance ``d_prev``
         (T_amb, Q_Gt, Q_Gs, P, V held), then correct with the new measurement ``y``."""
         m = self.model
-        i = m._grid(d_prev[4])
+        i = m.grid_index(d_prev)
         temps = self.x[:N]
         q = m.known_heat_w(temps, d_prev)
         x_pred = self._F[i] @ self.x
