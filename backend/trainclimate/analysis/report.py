@@ -6,6 +6,7 @@ import html
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
@@ -226,3 +227,243 @@ def write_simulation_report(
     )
     path.write_text(page, encoding="utf-8")
     return path
+
+
+def experiment_figure(pair, title: str = "") -> go.Figure:
+    """The paper's experiment figure (Figures 8–11), from a :class:`PairResult`: the deactivated
+    coach (deck temperatures, T_ref, the T_rule ± 1 K band), the activated coach (the same), T_amb
+    and solar irradiance, and the cumulative energy of both with the 30-minute savings as bars;
+    excluded windows shaded, the counted period starting at the dashed line."""
+    from trainclimate.analysis.experiment import ACTIVATED, DEACTIVATED
+
+    result, comp = pair.result, pair.comparison
+    e = _every(result)
+    t = _local(result)
+    fig = make_subplots(
+        rows=4,
+        cols=1,
+        shared_xaxes=True,
+        vertical_spacing=0.05,
+        row_heights=[0.28, 0.28, 0.18, 0.26],
+        specs=[[{}], [{}], [{"secondary_y": True}], [{"secondary_y": True}]],
+        subplot_titles=(
+            "Deactivated DDPC (T_ref = T_rule)",
+            "Activated DDPC",
+            "Weather",
+            "Energy and 30-minute savings",
+        ),
+    )
+    for row, coach in ((1, DEACTIVATED), (2, ACTIVATED)):
+        rule = result.t_rule_c[e, coach]
+        for offset, name in ((1.0, "upper bound"), (-1.0, "lower bound")):
+            fig.add_trace(
+                go.Scatter(
+                    x=t,
+                    y=rule + offset,
+                    name=name,
+                    showlegend=row == 1,
+                    line={"color": "grey", "dash": "dot", "width": 1},
+                ),
+                row=row,
+                col=1,
+            )
+        for d, deck in enumerate(DECKS):
+            fig.add_trace(
+                go.Scatter(
+                    x=t,
+                    y=result.t_room_c[e, coach, d],
+                    name=f"T_room {deck}",
+                    showlegend=row == 1,
+                    line={"color": DECK_COLOURS[deck], "width": 1.2},
+                ),
+                row=row,
+                col=1,
+            )
+        fig.add_trace(
+            go.Scatter(
+                x=t,
+                y=result.t_ref_c[e, coach],
+                name="T_ref",
+                showlegend=row == 1,
+                line={"color": "black", "dash": "dash"},
+            ),
+            row=row,
+            col=1,
+        )
+        fig.update_yaxes(title_text="°C", row=row, col=1)
+    env = result.env
+    fig.add_trace(
+        go.Scatter(
+            x=t, y=env.t_amb_c[: len(result.time)][e, 0], name="T_amb", line={"color": "#9467bd"}
+        ),
+        row=3,
+        col=1,
+    )
+    fig.add_trace(
+        go.Scatter(
+            x=t,
+            y=env.ghi_w_m2[: len(result.time)][e, 0],
+            name="global irradiance",
+            line={"color": "#ff7f0e"},
+        ),
+        row=3,
+        col=1,
+        secondary_y=True,
+    )
+    fig.update_yaxes(title_text="T_amb (°C)", row=3, col=1)
+    fig.update_yaxes(
+        title_text="W/m²", row=3, col=1, secondary_y=True, tickmode="auto", rangemode="tozero"
+    )
+    dt_h = result.dt_s / 3600.0
+    for coach, name, colour in (
+        (DEACTIVATED, "energy, deactivated", "#7f7f7f"),
+        (ACTIVATED, "energy, activated", "#2ca02c"),
+    ):
+        cumulative = np.cumsum(np.nan_to_num(result.total_power_w[:, coach]) / 1e3 * dt_h)
+        fig.add_trace(
+            go.Scatter(x=t, y=cumulative[e], name=name, line={"color": colour}),
+            row=4,
+            col=1,
+        )
+    mids = comp.window_start + pd.Timedelta(minutes=comp.window_min / 2)
+    local_mids = mids.tz_convert(LOCAL_TZ).tz_localize(None)
+    savings = [np.nan if s is None else s for s in comp.savings_30min_pct]
+    fig.add_trace(
+        go.Bar(
+            x=local_mids,
+            y=savings,
+            name="30-min savings (%)",
+            marker_color="#17becf",
+            opacity=0.6,
+            width=comp.window_min * 60e3 * 0.8,
+        ),
+        row=4,
+        col=1,
+        secondary_y=True,
+    )
+    fig.update_yaxes(title_text="kWh", row=4, col=1)
+    fig.update_yaxes(
+        title_text="savings (%)",
+        row=4,
+        col=1,
+        secondary_y=True,
+        tickmode="auto",
+        showgrid=False,
+    )
+    for start, excluded in zip(comp.window_start, comp.excluded, strict=True):
+        if excluded:
+            a = start.tz_convert(LOCAL_TZ).tz_localize(None)
+            fig.add_vrect(
+                x0=a,
+                x1=a + pd.Timedelta(minutes=comp.window_min),
+                fillcolor="red",
+                opacity=0.12,
+                line_width=0,
+            )
+    counted = pair.counted_from.tz_convert(LOCAL_TZ).tz_localize(None)
+    fig.add_vline(x=counted, line_dash="dash", line_color="black")
+    fig.update_xaxes(title_text="local time (Europe/Zurich)", row=4, col=1)
+    fig.update_layout(title=title, height=1100, template="plotly_white")
+    return fig
+
+
+def summary_table_html(rows: list[dict]) -> str:
+    """The summary table in the paper's format (Table II) plus the KPIs beside it."""
+    head = (
+        "<tr><th>scenario</th><th>energy savings (%)</th><th>average hourly violation (K)</th>"
+        "<th>deactivated coach's violation (K)</th><th>band-edge savings (%)</th>"
+        "<th>share of band-edge (%)</th><th>energy act./deact. (kWh)</th>"
+        "<th>discomfort act. (K·h per deck)</th><th>excluded minutes</th>"
+        "<th>computational time ratio</th></tr>"
+    )
+
+    def num(v, fmt):
+        return "–" if v is None else format(v, fmt)
+
+    body = "".join(
+        f"<tr><td>{html.escape(r['scenario'])}</td><td>{num(r['savings_pct'], '.2f')}</td>"
+        f"<td>{r['avg_hourly_violation_k']:.4f}</td><td>{r['baseline_violation_k']:.4f}</td>"
+        f"<td>{num(r['edge_savings_pct'], '.2f')}</td><td>{num(r['share_of_edge_pct'], '.0f')}</td>"
+        f"<td>{r['energy_activated_kwh']:.1f} / {r['energy_deactivated_kwh']:.1f}</td>"
+        f"<td>{', '.join(f'{v:.3f}' for v in r['discomfort_kh'])}</td>"
+        f"<td>{r['excluded_minutes']:.0f}</td><td>{r['computational_time_ratio']:.1e}</td></tr>"
+        for r in rows
+    )
+    return f"<table border=1 cellpadding=4>{head}{body}</table>"
+
+
+def write_experiment_report(pair, path: str | Path) -> Path:
+    """A self-contained HTML page for one paired experiment: figure and summary."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = pair.to_dict()
+    scenario = pair.scenario
+    page = (
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>"
+        f"<title>{html.escape(scenario.name)} — paired experiment</title>"
+        "<style>body{font-family:sans-serif;max-width:1400px;margin:auto}</style></head><body>"
+        f"<h1>{html.escape(scenario.name)}: activated vs deactivated</h1>"
+        f"<p>{html.escape(scenario.description)}. {html.escape(pair.setup.note)}</p>"
+        + summary_table_html([data])
+        + experiment_figure(pair).to_html(full_html=False, include_plotlyjs=True)
+        + "</body></html>"
+    )
+    path.write_text(page, encoding="utf-8")
+    return path
+
+
+#: The paper's Table II (Section V): savings (%) and average hourly violation (K).
+PAPER_TABLE = {
+    "parked-cooling-oct": (28.03, 0.0173),
+    "parked-cooling-aug-conservative": (20.11, 0.0014),
+    "parked-cooling-aug-energy": (34.94, 0.0609),
+    "parked-heating-nov": (11.65, 0.0404),
+}
+
+
+def summary_markdown(rows: list[dict]) -> str:
+    """The summary in the paper's format, its figures beside ours, and the KPIs."""
+
+    def num(v, fmt):
+        return "–" if v is None else format(v, fmt)
+
+    lines = [
+        "| scenario | savings (%) | paper (%) | avg hourly violation (K) | paper (K) | "
+        "deactivated coach (K) | band-edge savings (%) | share of band-edge (%) | "
+        "energy act. / deact. (kWh) | discomfort act. (K·h/deck) | excluded (min) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        paper = PAPER_TABLE.get(r["scenario"])
+        lines.append(
+            f"| {r['scenario']} | {num(r['savings_pct'], '.2f')} | "
+            f"{num(paper and paper[0], '.2f')} | {r['avg_hourly_violation_k']:.4f} | "
+            f"{num(paper and paper[1], '.4f')} | {r['baseline_violation_k']:.4f} | "
+            f"{num(r['edge_savings_pct'], '.2f')} | {num(r['share_of_edge_pct'], '.0f')} | "
+            f"{r['energy_activated_kwh']:.1f} / {r['energy_deactivated_kwh']:.1f} | "
+            f"{sum(r['discomfort_kh']) / 3:.3f} | {r['excluded_minutes']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_summary(rows: list[dict], out: str | Path) -> dict[str, Path]:
+    """``summary.md`` and ``summary.html`` (the table in the paper's format, linked reports)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    md = out / "summary.md"
+    md.write_text(summary_markdown(rows), encoding="utf-8")
+    links = "".join(
+        f"<li><a href='{html.escape(Path(r['html']).name)}'>{html.escape(r['scenario'])}</a></li>"
+        for r in rows
+        if "html" in r
+    )
+    page = (
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>paired experiments</title>"
+        "<style>body{font-family:sans-serif;max-width:1400px;margin:auto}</style></head><body>"
+        "<h1>Paired experiments: summary</h1>"
+        + summary_table_html(rows)
+        + f"<ul>{links}</ul></body></html>"
+    )
+    page_path = out / "summary.html"
+    page_path.write_text(page, encoding="utf-8")
+    return {"markdown": md, "html": page_path}

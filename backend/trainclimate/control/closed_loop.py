@@ -47,8 +47,15 @@ class TickLog:
     coach: list[int] = field(default_factory=list)
     results: list[StepResult] = field(default_factory=list)
 
-    def sources(self, coach: int) -> list[str]:
-        return [r.source for c, r in zip(self.coach, self.results, strict=True) if c == coach]
+    def of_coach(self, coach: int) -> TickLog:
+        """The ticks of one coach."""
+        out = TickLog()
+        for k, c, r in zip(self.step, self.coach, self.results, strict=True):
+            if c == coach:
+                out.step.append(k)
+                out.coach.append(c)
+                out.results.append(r)
+        return out
 
 
 def interval_means(sim: FleetSimulator, steps_per_tick: int) -> np.ndarray:
@@ -71,6 +78,13 @@ class ClosedLoop:
     ``controllers[c]`` the controller of coach c, or None for a coach under the rule-based
     architecture (the deactivated coach of a pair); ``forecast`` ``perfect``, ``persistence`` or
     ``noisy``; ``tick_s`` the controller's period.
+
+    Field events, each an optional (steps, coaches) bool array: ``disconnected`` — the link to the
+    coach is lost: no telemetry reaches the controller and no command the HVAC, which falls back
+    to its own T_rule; ``overridden`` — the coach's commands are overwritten by T_rule (a
+    communication error) while its telemetry still arrives. ``active_from`` (coaches,) the step
+    before which a controller only gathers its lead-in and the coach runs on T_rule (the paper
+    activated the layer at a chosen time).
     """
 
     def __init__(
@@ -82,6 +96,9 @@ class ClosedLoop:
         tick_s: float = 300.0,
         seed: int = 0,
         on_tick: Callable[[int, int, StepResult], None] | None = None,
+        disconnected: np.ndarray | None = None,
+        overridden: np.ndarray | None = None,
+        active_from: np.ndarray | None = None,
     ):
         n = sim.env.n_coaches
         if len(controllers) != n:
@@ -98,6 +115,12 @@ class ClosedLoop:
         self.history = [_History() for _ in range(n)]
         self.log = TickLog()
         self.on_tick = on_tick
+        shape = sim.env.mode.shape
+        self.disconnected = np.zeros(shape, bool) if disconnected is None else disconnected
+        self.overridden = np.zeros(shape, bool) if overridden is None else overridden
+        self.active_from = np.zeros(n, int) if active_from is None else np.asarray(active_from)
+        if self.disconnected.shape != shape or self.overridden.shape != shape:
+            raise ValueError(f"event masks must have the shape (steps, coaches) = {shape}")
 
     def _forecaster(self, kind: str, coach: int, seed: int) -> Forecaster:
         def truth(tick: int, steps: int) -> np.ndarray:
@@ -116,8 +139,14 @@ class ClosedLoop:
         if k % self.steps_per_tick == 0:
             self._tick(k, sim)
         rule = sim.t_rule(k)
-        regular = sim.env.mode[k] == MODE_REGULAR
-        held = np.where(np.isfinite(self.held) & regular, self.held, rule)
+        applied = (
+            (sim.env.mode[k] == MODE_REGULAR)
+            & np.isfinite(self.held)
+            & (k >= self.active_from)
+            & ~self.disconnected[k]
+            & ~self.overridden[k]
+        )
+        held = np.where(applied, self.held, rule)
         return np.clip(held, rule - U_BAND_K, rule + U_BAND_K)
 
     def _tick(self, k: int, sim: FleetSimulator) -> None:
@@ -141,16 +170,19 @@ class ClosedLoop:
                 hist.clear()
                 self.held[c] = np.nan
                 continue
-            # close the interval just ended, then add the new sample
-            if hist.times:
-                hist.u.append(float(rec.t_ref_c[interval, c].mean()))
-                hist.d.append(self.d_true[tick - 1, c])
-            y_now = rec.t_room_meas_c[k - minute : k, c].mean(axis=0)
-            hist.add(t_now, y_now, controller.rho)
+            # close the interval just ended, then add the new sample — unless the link is down
+            if not self.disconnected[k, c]:
+                if hist.times:
+                    hist.u.append(float(rec.t_ref_c[interval, c].mean()))
+                    hist.d.append(self.d_true[tick - 1, c])
+                y_now = rec.t_room_meas_c[k - minute : k, c].mean(axis=0)
+                hist.add(t_now, y_now, controller.rho)
+            if not hist.times:
+                continue
             T = controller.horizon
             fc = self.forecasters[c].forecast(tick - 1, T + 1, self.d_true[tick - 1, c])
             t_rule = controller_rule(sim, fc[:, 0])
-            u_prev = hist.u[-1] if hist.u else float(sim.t_rule(k)[c])
+            u_prev = float(rec.t_ref_c[k - 1, c])  # what the HVAC applied last
             result = controller.step(
                 now_s=t_now,
                 sample_times_s=np.array(hist.times),
@@ -161,6 +193,8 @@ class ClosedLoop:
                 t_rule=t_rule,
                 u_prev=u_prev,
             )
+            if k < self.active_from[c]:
+                result.source, result.reason = "rule", "inactive"
             self.held[c] = result.t_ref_c
             self.log.step.append(k)
             self.log.coach.append(c)

@@ -33,6 +33,7 @@ from trainclimate.predict.base import MultistepPredictor
 #: Why a step gave the setpoint it gave.
 REASONS = {
     "ok": "DDPC optimum applied",
+    "inactive": "the layer is switched off for this coach (T_ref = T_rule)",
     "warmup": "fewer than ρ valid samples (lead-in)",
     "stale": "no new sample for two sampling periods",
     "missing_samples": "a gap in the last ρ samples",

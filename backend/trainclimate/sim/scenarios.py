@@ -159,7 +159,7 @@ def get(name: str) -> Scenario:
         raise ScenarioError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})") from None
 
 
-def _local_clock(day: pd.Timestamp, clock: str) -> pd.Timestamp:
+def local_clock(day: pd.Timestamp, clock: str) -> pd.Timestamp:
     """``"HH:MM"`` or ``"HH:MM+1"`` on the local calendar day of ``day`` → UTC timestamp."""
     hhmm, _, plus = clock.partition("+")
     local_day = day.tz_convert(LOCAL_TZ).normalize().tz_localize(None)
@@ -243,10 +243,10 @@ def build(
                 LINES[svc.lines[i % len(svc.lines)]],
                 times,
                 seed=scenario.seed + i,
-                first_departure=_local_clock(times[0], svc.first_departure),
-                last_arrival=_local_clock(times[0], svc.last_arrival),
+                first_departure=local_clock(times[0], svc.first_departure),
+                last_arrival=local_clock(times[0], svc.last_arrival),
                 layovers=[
-                    (_local_clock(times[0], a), _local_clock(times[0], b)) for a, b in svc.layovers
+                    (local_clock(times[0], a), local_clock(times[0], b)) for a, b in svc.layovers
                 ],
                 start_at_terminus=0 if i % 2 == 0 else -1,
             )

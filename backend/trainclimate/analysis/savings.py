@@ -1,0 +1,184 @@
+"""Activated against deactivated: energy per 30-minute window, savings, exclusions and comfort.
+
+The maths of the paper's Section V and Table II, on plain series, so the experiment reports and
+the service's pair-comparison API compute the same numbers from simulated or stored data:
+
+- the energy of each coach per window (default 30 min) from its electrical power;
+- the savings per window, 100 (1 − E_act / E_deact), undefined (None) in a window where the
+  deactivated coach used no energy, and overall over the counted windows;
+- windows where either coach was affected — connection lost, commands overwritten, data missing —
+  are excluded, and their minutes reported (the paper excluded the intervals affected by its
+  connection losses and communication errors);
+- the average hourly constraint violation in K (paper, Table II): the time integral of
+  max(0, |T_room − T_rule| − T_max) per deck, in K·h, divided by the hours counted, averaged over
+  the decks — for both coaches, over the time the comfort band applies (regular mode) — and the
+  BOPTEST-style thermal discomfort in K·h per deck.
+
+Savings are counted from ``start`` (the time the activated coach reaches steady state) to ``end``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from trainclimate.analysis.kpi import avg_hourly_violation_k, discomfort_kh
+
+
+@dataclass
+class CoachSeries:
+    """One coach's series on a uniform UTC grid.
+
+    ``time`` (n,) tz-aware; ``power_kw`` (n,) the HVAC's electrical power (each sample the mean
+    over its step; NaN where no data); ``t_room_c`` (n, 3); ``t_rule_c`` (n,); ``affected``
+    (n,) bool where the connection was lost or commands were overwritten; ``in_band`` (n,) bool
+    where the comfort band applies — regular mode; a coach in slumber or off has none (default:
+    everywhere).
+    """
+
+    time: pd.DatetimeIndex
+    power_kw: np.ndarray
+    t_room_c: np.ndarray
+    t_rule_c: np.ndarray
+    affected: np.ndarray
+    in_band: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.time)
+        self.power_kw = np.asarray(self.power_kw, dtype=float)
+        self.t_room_c = np.asarray(self.t_room_c, dtype=float).reshape(n, 3)
+        self.t_rule_c = np.asarray(self.t_rule_c, dtype=float)
+        self.affected = np.asarray(self.affected, dtype=bool) | ~np.isfinite(self.power_kw)
+        self.in_band = np.ones(n, bool) if self.in_band is None else np.asarray(self.in_band, bool)
+        shapes = {a.shape for a in (self.power_kw, self.t_rule_c, self.affected, self.in_band)}
+        if shapes != {(n,)}:
+            raise ValueError("a coach's series must all have the length of its time axis")
+
+
+@dataclass
+class Comparison:
+    """The result of :func:`compare` (JSON-ready through :meth:`to_dict`)."""
+
+    window_start: pd.DatetimeIndex
+    energy_activated_kwh: np.ndarray
+    energy_deactivated_kwh: np.ndarray
+    savings_30min_pct: list[float | None]
+    excluded: np.ndarray
+    savings_pct: float | None
+    energy_activated_total_kwh: float
+    energy_deactivated_total_kwh: float
+    excluded_minutes: float
+    affected_minutes: float
+    counted_hours: float
+    avg_hourly_violation_k: float
+    baseline_violation_k: float
+    discomfort_kh: list[float]
+    baseline_discomfort_kh: list[float]
+    window_min: float
+
+    def to_dict(self) -> dict:
+        return {
+            "savings_pct": self.savings_pct,
+            "savings_30min_pct": self.savings_30min_pct,
+            "window_start": [t.isoformat() for t in self.window_start],
+            "window_min": self.window_min,
+            "energy_activated_kwh": self.energy_activated_kwh.tolist(),
+            "energy_deactivated_kwh": self.energy_deactivated_kwh.tolist(),
+            "excluded_windows": self.excluded.tolist(),
+            "energy_activated_total_kwh": self.energy_activated_total_kwh,
+            "energy_deactivated_total_kwh": self.energy_deactivated_total_kwh,
+            "excluded_minutes": self.excluded_minutes,
+            "affected_minutes": self.affected_minutes,
+            "counted_hours": self.counted_hours,
+            "avg_hourly_violation_k": self.avg_hourly_violation_k,
+            "baseline_violation_k": self.baseline_violation_k,
+            "discomfort_kh": self.discomfort_kh,
+            "baseline_discomfort_kh": self.baseline_discomfort_kh,
+        }
+
+
+def savings_pct(e_activated_kwh: float, e_deactivated_kwh: float) -> float | None:
+    """100 (1 − E_act / E_deact) in %; None when the deactivated coach used no energy."""
+    if not e_deactivated_kwh > 0:
+        return None
+    return float(100.0 * (1.0 - e_activated_kwh / e_deactivated_kwh))
+
+
+def _step_s(time: pd.DatetimeIndex) -> float:
+    if len(time) < 2:
+        raise ValueError("a series needs at least two samples")
+    steps = np.diff(time.as_unit("ns").asi8)
+    if np.ptp(steps) != 0:
+        raise ValueError("the series must be on a uniform time grid")
+    return float(steps[0]) / 1e9
+
+
+def compare(
+    activated: CoachSeries,
+    deactivated: CoachSeries,
+    *,
+    start: pd.Timestamp | None = None,
+    end: pd.Timestamp | None = None,
+    window_min: float = 30.0,
+    t_max_k: float = 1.0,
+) -> Comparison:
+    """Energy per window, savings and comfort of an activated/deactivated pair (module docstring).
+
+    Both series share one time grid. Windows of ``window_min`` start at ``start`` (default: the
+    first sample) and the last incomplete one is dropped; ``end`` (default: the last sample) ends
+    the counted period. Violation and discomfort count the same period, minus affected samples.
+    """
+    time = activated.time
+    if len(deactivated.time) != len(time) or not (deactivated.time == time).all():
+        raise ValueError("the two coaches' series must share one time grid")
+    dt = _step_s(time)
+    start = time[0] if start is None else pd.Timestamp(start)
+    end = time[-1] + pd.Timedelta(seconds=dt) if end is None else pd.Timestamp(end)
+    rel = (time - start).total_seconds().to_numpy()
+    window_s = window_min * 60.0
+    n_windows = int(max(0.0, (end - start).total_seconds()) // window_s)
+    counted = (rel >= 0) & (rel < n_windows * window_s)
+    index = np.where(counted, (rel // window_s).astype(int), -1)
+
+    def per_window(values: np.ndarray) -> np.ndarray:
+        out = np.zeros(n_windows)
+        np.add.at(out, index[counted], values[counted])
+        return out
+
+    e_act = per_window(np.nan_to_num(activated.power_kw) * dt / 3600.0)
+    e_deact = per_window(np.nan_to_num(deactivated.power_kw) * dt / 3600.0)
+    affected = activated.affected | deactivated.affected
+    excluded = per_window(affected.astype(float)) > 0
+    included = ~excluded
+    per = [None if excluded[w] else savings_pct(e_act[w], e_deact[w]) for w in range(n_windows)]
+    overall = savings_pct(float(e_act[included].sum()), float(e_deact[included].sum()))
+
+    mask = counted & ~affected & activated.in_band & deactivated.in_band
+    d_act = discomfort_kh(activated.t_room_c, activated.t_rule_c, dt, t_max_k=t_max_k, mask=mask)
+    d_deact = discomfort_kh(
+        deactivated.t_room_c, deactivated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
+    )
+    return Comparison(
+        window_start=start + pd.to_timedelta(np.arange(n_windows) * window_s, unit="s"),
+        energy_activated_kwh=e_act,
+        energy_deactivated_kwh=e_deact,
+        savings_30min_pct=per,
+        excluded=excluded,
+        savings_pct=overall,
+        energy_activated_total_kwh=float(e_act[included].sum()),
+        energy_deactivated_total_kwh=float(e_deact[included].sum()),
+        excluded_minutes=float(excluded.sum() * window_min),
+        affected_minutes=float((counted & affected).sum() * dt / 60.0),
+        counted_hours=float(mask.sum() * dt / 3600.0),
+        avg_hourly_violation_k=avg_hourly_violation_k(
+            activated.t_room_c, activated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
+        ),
+        baseline_violation_k=avg_hourly_violation_k(
+            deactivated.t_room_c, deactivated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
+        ),
+        discomfort_kh=d_act.tolist(),
+        baseline_discomfort_kh=d_deact.tolist(),
+        window_min=window_min,
+    )
