@@ -134,7 +134,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
 
     if args.coaches < 1:
         raise UsageError("--coaches must be at least 1")
-    if args.hours is not None and args.hours <= 0:
+    if args.hours is not None and not (np.isfinite(args.hours) and args.hours > 0):
         raise UsageError("--hours must be positive")
     scenario, result, ticks = run_simulation(args)
     data = {"scenario": scenario.name, "controller": args.controller, **fleet_kpis(result)}
@@ -385,8 +385,10 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
     from trainclimate.sim import scenarios
 
     scenarios.get(args.scenario)  # an unknown name is a usage error before any work
-    if args.hours is not None and args.hours <= 0:
+    if args.hours is not None and not (np.isfinite(args.hours) and args.hours > 0):
         raise UsageError("--hours must be positive")
+    if not 0 <= args.coach_spread < 1:
+        raise UsageError("--coach-spread must lie in [0, 1)")
     pair = run_pair(
         args.scenario,
         _predictor(args),

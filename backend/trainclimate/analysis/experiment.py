@@ -228,7 +228,7 @@ def run_pair(
     loop = ClosedLoop(
         sim,
         [ddpc, None, edge],
-        forecast=forecast,
+        forecast=[forecast, "perfect", "perfect"],  # the reference knows the true future
         seed=scenario.seed,
         disconnected=disconnected,
         overridden=overridden,

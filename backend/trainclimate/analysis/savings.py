@@ -50,11 +50,12 @@ class CoachSeries:
         self.power_kw = np.asarray(self.power_kw, dtype=float)
         self.t_room_c = np.asarray(self.t_room_c, dtype=float).reshape(n, 3)
         self.t_rule_c = np.asarray(self.t_rule_c, dtype=float)
-        self.affected = np.asarray(self.affected, dtype=bool) | ~np.isfinite(self.power_kw)
+        self.affected = np.asarray(self.affected, dtype=bool)
         self.in_band = np.ones(n, bool) if self.in_band is None else np.asarray(self.in_band, bool)
         shapes = {a.shape for a in (self.power_kw, self.t_rule_c, self.affected, self.in_band)}
         if shapes != {(n,)}:
             raise ValueError("a coach's series must all have the length of its time axis")
+        self.affected = self.affected | ~np.isfinite(self.power_kw)
 
 
 @dataclass
@@ -128,7 +129,9 @@ def compare(
 
     Both series share one time grid. Windows of ``window_min`` start at ``start`` (default: the
     first sample) and the last incomplete one is dropped; ``end`` (default: the last sample) ends
-    the counted period. Violation and discomfort count the same period, minus affected samples.
+    the counted period; a window the series do not cover entirely (``start`` before the first
+    sample, ``end`` after the last) is excluded like an affected one. Violation and discomfort
+    count the same period, minus affected samples.
     """
     time = activated.time
     if len(deactivated.time) != len(time) or not (deactivated.time == time).all():
@@ -150,7 +153,11 @@ def compare(
     e_act = per_window(np.nan_to_num(activated.power_kw) * dt / 3600.0)
     e_deact = per_window(np.nan_to_num(deactivated.power_kw) * dt / 3600.0)
     affected = activated.affected | deactivated.affected
-    excluded = per_window(affected.astype(float)) > 0
+    # a window the series do not cover entirely has data missing, like an affected one
+    first, stop = time[0], time[-1] + pd.Timedelta(seconds=dt)
+    w_start = start + pd.to_timedelta(np.arange(n_windows) * window_s, unit="s")
+    uncovered = (w_start < first) | (w_start + pd.Timedelta(seconds=window_s) > stop)
+    excluded = (per_window(affected.astype(float)) > 0) | uncovered
     included = ~excluded
     per = [None if excluded[w] else savings_pct(e_act[w], e_deact[w]) for w in range(n_windows)]
     overall = savings_pct(float(e_act[included].sum()), float(e_deact[included].sum()))
@@ -161,7 +168,7 @@ def compare(
         deactivated.t_room_c, deactivated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
     )
     return Comparison(
-        window_start=start + pd.to_timedelta(np.arange(n_windows) * window_s, unit="s"),
+        window_start=w_start,
         energy_activated_kwh=e_act,
         energy_deactivated_kwh=e_deact,
         savings_30min_pct=per,

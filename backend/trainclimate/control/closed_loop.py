@@ -77,7 +77,7 @@ class ClosedLoop:
 
     ``controllers[c]`` the controller of coach c, or None for a coach under the rule-based
     architecture (the deactivated coach of a pair); ``forecast`` ``perfect``, ``persistence`` or
-    ``noisy``; ``tick_s`` the controller's period.
+    ``noisy``, for all coaches or one per coach; ``tick_s`` the controller's period.
 
     Field events, each an optional (steps, coaches) bool array: ``disconnected`` — the link to the
     coach is lost: no telemetry reaches the controller and no command the HVAC, which falls back
@@ -92,7 +92,7 @@ class ClosedLoop:
         sim: FleetSimulator,
         controllers: list[DDPCController | None],
         *,
-        forecast: str = "perfect",
+        forecast: str | list[str] = "perfect",
         tick_s: float = 300.0,
         seed: int = 0,
         on_tick: Callable[[int, int, StepResult], None] | None = None,
@@ -110,7 +110,10 @@ class ClosedLoop:
             raise ValueError("the controller period must be a multiple of the simulator's step")
         self.tick_s = tick_s
         self.d_true = interval_means(sim, self.steps_per_tick)
-        self.forecasters = [self._forecaster(forecast, c, seed) for c in range(n)]
+        kinds = [forecast] * n if isinstance(forecast, str) else list(forecast)
+        if len(kinds) != n:
+            raise ValueError(f"{len(kinds)} forecasts for {n} coaches")
+        self.forecasters = [self._forecaster(kind, c, seed) for c, kind in enumerate(kinds)]
         self.held = np.full(n, np.nan)
         self.history = [_History() for _ in range(n)]
         self.log = TickLog()

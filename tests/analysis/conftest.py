@@ -1,0 +1,110 @@
+"""Shared data of the paired-experiment tests: a fitted predictor and short pair runs.
+
+The predictor is the controller tests' (tests/control/conftest.py: a Transient Predictor at 5 min,
+ρ = 12, T = 6, fitted in ≈ 1.5 s on a short simulation of re-seeded scenario days). That conftest
+is not importable by name (no packages, ``--import-mode=importlib``), so its helper is loaded from
+its file. Never the default predictor: tests/conftest.py forbids the default dataset.
+
+Each pair run is done once per session (≈ 0.2 s per simulated hour) with the experiment module's
+simulator and closed loop wrapped, so a test also sees the tick log and the coaches' parameters
+that :class:`~trainclimate.analysis.experiment.PairResult` does not keep.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from trainclimate.analysis import experiment
+from trainclimate.analysis.experiment import Event, ExperimentSetup, run_pair
+from trainclimate.control.closed_loop import ClosedLoop
+from trainclimate.predict import TransientPredictor
+from trainclimate.predict.artifact import save_predictor
+from trainclimate.sim.simulator import FleetSimulator
+
+
+def _control_conftest():
+    path = Path(__file__).parents[1] / "control" / "conftest.py"
+    spec = importlib.util.spec_from_file_location("_trainclimate_control_conftest", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="session")
+def predictor():
+    control = _control_conftest()
+    trajectories = control.training_trajectories()
+    return TransientPredictor(control.RHO, control.HORIZON).fit(trajectories)
+
+
+@pytest.fixture(scope="session")
+def predictor_file(predictor, tmp_path_factory):
+    return save_predictor(predictor, tmp_path_factory.mktemp("model") / "transient.npz")
+
+
+def recorded_pair(name: str, predictor, **kwargs) -> SimpleNamespace:
+    """:func:`run_pair` with what it builds on the side: ``pair``; ``loop`` the ClosedLoop (its
+    ``log`` has every tick); ``params`` the three coaches' CoachParams."""
+    seen = SimpleNamespace(loops=[], params=[])
+
+    class Loop(ClosedLoop):
+        def __init__(self, *args, **kw):
+            super().__init__(*args, **kw)
+            seen.loops.append(self)
+
+    class Simulator(FleetSimulator):
+        def __init__(self, params, *args, **kw):
+            super().__init__(params, *args, **kw)
+            seen.params.append(list(params))
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(experiment, "ClosedLoop", Loop)
+        mp.setattr(experiment, "FleetSimulator", Simulator)
+        pair = run_pair(name, predictor, **kwargs)
+    assert len(seen.loops) == 1 and len(seen.params) == 1
+    return SimpleNamespace(pair=pair, loop=seen.loops[0], params=seen.params[0])
+
+
+@pytest.fixture(scope="session")
+def heating_3h(predictor):
+    """parked-heating-nov, 07:00–10:00 local: the layer on at 08:00 (after its 1-h lead-in),
+    counted from 08:45, two windows; its override (13:30) lies outside."""
+    return recorded_pair("parked-heating-nov", predictor, hours=3.0)
+
+
+@pytest.fixture(scope="session")
+def cooling_energy_3h(predictor):
+    """parked-cooling-aug-energy, 09:00–12:00 local, the energy-favouring weights."""
+    return recorded_pair("parked-cooling-aug-energy", predictor, hours=3.0)
+
+
+@pytest.fixture(scope="session")
+def heating_override(predictor):
+    """parked-heating-nov, 07:00–15:00 local, with the scenario's own command override
+    (activated coach, 13:30–14:00 local): counted from 08:45, twelve windows."""
+    return recorded_pair("parked-heating-nov", predictor, hours=8.0)
+
+
+#: A short run with a connection loss on each coach (local times; the run 07:00–10:30, the layer
+#: on at 08:00, counted from 08:45: windows 08:45, 09:15, 09:45, the last incomplete one dropped).
+LOSS_SETUP = ExperimentSetup(
+    events=(
+        Event("connection_loss", "activated", "09:00", 15.0),
+        Event("connection_loss", "deactivated", "09:50", 10.0),
+    ),
+)
+
+
+@pytest.fixture(scope="session")
+def heating_loss(predictor):
+    return recorded_pair("parked-heating-nov", predictor, hours=3.5, setup=LOSS_SETUP)
+
+
+@pytest.fixture(scope="session")
+def record_pair(predictor):
+    """:func:`recorded_pair` with the session's predictor (conftest is not importable)."""
+    return lambda name, **kwargs: recorded_pair(name, predictor, **kwargs)
