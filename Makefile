@@ -16,7 +16,7 @@ $(STAMP): requirements.lock pyproject.toml
 install: $(STAMP)
 
 test: $(STAMP)
-	$(BIN)/ruff check backend tests
+	$(BIN)/ruff check backend tests migrations
 	$(BIN)/python -m pytest -n 2 -q
 
 demo: $(STAMP)
@@ -26,8 +26,8 @@ bench: $(STAMP)
 	$(BIN)/trainclimate bench simulator
 
 lint: $(STAMP)
-	$(BIN)/ruff check backend tests
-	$(BIN)/ruff format --check backend tests
+	$(BIN)/ruff check backend tests migrations
+	$(BIN)/ruff format --check backend tests migrations
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

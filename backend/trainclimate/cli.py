@@ -8,8 +8,10 @@ code 2 and a one-line message on stderr.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -427,6 +429,78 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
     _emit(args, data, human)
 
 
+def _db_url(args: argparse.Namespace) -> str:
+    from trainclimate.service.settings import default_database_url
+
+    return args.db or os.environ.get("TRAINCLIMATE_DATABASE_URL") or default_database_url()
+
+
+def cmd_serve(args: argparse.Namespace) -> None:
+    import uvicorn
+
+    from trainclimate.service.app import create_app
+    from trainclimate.service.settings import Settings
+
+    if not (np.isfinite(args.speedup) and args.speedup > 0):
+        raise UsageError("--speedup must be positive")
+    settings = Settings(
+        database_url=_db_url(args),
+        fleet=args.fleet,
+        speedup=args.speedup,
+        predictor_path=args.predictor,
+    )
+    print(
+        f"trainclimate: serving on http://{args.host}:{args.port}/ "
+        f"(database {settings.database_url.split('://')[0]})",
+        file=sys.stderr,
+    )
+    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
+
+
+def cmd_token_create(args: argparse.Namespace) -> None:
+    from trainclimate.service.db import Database, migrate
+    from trainclimate.service.security import create_token
+
+    url = _db_url(args)
+    migrate(url)
+    db = Database(url)
+    try:
+        with db.transaction() as session:
+            token, user = create_token(session, args.role, args.name)
+            data = {"token": token, "name": user.name, "role": user.role}
+    finally:
+        db.dispose()
+    _emit(args, data, lambda d: d["token"])
+
+
+def cmd_gateway(args: argparse.Namespace) -> None:
+    from trainclimate.service.gateway import Gateway
+    from trainclimate.sim import scenarios
+
+    scenarios.get(args.scenario)
+    coaches = [c for c in args.coaches.split(",") if c]
+    if not coaches:
+        raise UsageError("--coaches needs at least one coach id")
+    active = [c for c in (args.active or coaches[0]).split(",") if c]
+    if not set(active) <= set(coaches):
+        raise UsageError("--active must name coaches of --coaches")
+    token = args.token or os.environ.get("TRAINCLIMATE_TOKEN")
+    if not token:
+        raise UsageError("--token (or TRAINCLIMATE_TOKEN) is required: an operator token")
+    gateway = Gateway(
+        args.server,
+        token,
+        coaches,
+        train_id=args.train or coaches[0].split("-")[0],
+        active=active,
+        scenario=args.scenario,
+        speedup=args.speedup,
+        hours=args.hours,
+    )
+    stats = gateway.run()
+    _emit(args, dataclasses.asdict(stats), lambda d: json.dumps(d))
+
+
 def cmd_demo(args: argparse.Namespace) -> None:
     from trainclimate.analysis.report import write_simulation_report
     from trainclimate.analysis.summary import fleet_kpis
@@ -572,6 +646,38 @@ def build_parser() -> argparse.ArgumentParser:
             )
         else:
             p.add_argument("--out", default="out/experiments", help="output directory")
+
+    p = add("serve", cmd_serve, "run the service (API, dashboard, control loop)")
+    p.add_argument(
+        "--db",
+        default=None,
+        help="database URL (default: $TRAINCLIMATE_DATABASE_URL, then a SQLite file)",
+    )
+    p.add_argument("--fleet", choices=("demo",), default=None, help="add the simulated demo fleet")
+    p.add_argument("--speedup", type=float, default=1.0, help="demo clock × real time")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--predictor", default=None, help="model file (default: the cached model)")
+    p.add_argument("--log-level", default="warning")
+
+    token = sub.add_parser("token", help="API tokens")
+    tsub = token.add_subparsers(dest="token_command", required=True, parser_class=_Parser)
+    p = tsub.add_parser("create", help="create a token (shown once)", description="create a token")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.add_argument("--role", required=True, choices=("viewer", "operator", "admin"))
+    p.add_argument("--name", default=None, help="user name (default: generated)")
+    p.add_argument("--db", default=None, help="database URL")
+    p.set_defaults(func=cmd_token_create)
+
+    p = add("gateway", cmd_gateway, "an onboard gateway emulator speaking the HTTP live feed")
+    p.add_argument("--server", required=True, help="the service's URL, e.g. http://127.0.0.1:8000")
+    p.add_argument("--coaches", required=True, help="coach ids, comma-separated (one train)")
+    p.add_argument("--active", default=None, help="coaches with the layer on (default: the first)")
+    p.add_argument("--train", default=None, help="train id (default: the first coach's prefix)")
+    p.add_argument("--token", default=None, help="an operator token (or $TRAINCLIMATE_TOKEN)")
+    p.add_argument("--scenario", default="parked-heating-nov", help="weather and operation")
+    p.add_argument("--speedup", type=float, default=60.0, help="clock × real time")
+    p.add_argument("--hours", type=float, default=None, help="how long (default: the scenario's)")
 
     p = add("demo", cmd_demo, "simulate winter-day and write an HTML report")
     p.add_argument("--out", default="out/demo", help="output directory")

@@ -1,9 +1,8 @@
 """Shared data of the paired-experiment tests: a fitted predictor and short pair runs.
 
-The predictor is the controller tests' (tests/control/conftest.py: a Transient Predictor at 5 min,
-ρ = 12, T = 6, fitted in ≈ 1.5 s on a short simulation of re-seeded scenario days). That conftest
-is not importable by name (no packages, ``--import-mode=importlib``), so its helper is loaded from
-its file. Never the default predictor: tests/conftest.py forbids the default dataset.
+The predictor is the controller tests' (:func:`support.small_predictor`: a Transient Predictor at
+5 min, ρ = 12, T = 6, fitted in ≈ 1.5 s on a short simulation of re-seeded scenario days). Never the
+default predictor: tests/conftest.py forbids the default dataset.
 
 Each pair run is done once per session (≈ 0.2 s per simulated hour) with the experiment module's
 simulator and closed loop wrapped, so a test also sees the tick log and the coaches' parameters
@@ -12,33 +11,21 @@ that :class:`~trainclimate.analysis.experiment.PairResult` does not keep.
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 
+from support import small_predictor
 from trainclimate.analysis import experiment
 from trainclimate.analysis.experiment import Event, ExperimentSetup, run_pair
 from trainclimate.control.closed_loop import ClosedLoop
-from trainclimate.predict import TransientPredictor
 from trainclimate.predict.artifact import save_predictor
 from trainclimate.sim.simulator import FleetSimulator
 
 
-def _control_conftest():
-    path = Path(__file__).parents[1] / "control" / "conftest.py"
-    spec = importlib.util.spec_from_file_location("_trainclimate_control_conftest", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="session")
 def predictor():
-    control = _control_conftest()
-    trajectories = control.training_trajectories()
-    return TransientPredictor(control.RHO, control.HORIZON).fit(trajectories)
+    return small_predictor()
 
 
 @pytest.fixture(scope="session")

@@ -8,6 +8,7 @@ version it was made. The controller and the service load it with :func:`load_pre
 
 from __future__ import annotations
 
+import io
 import json
 import zipfile
 from datetime import UTC, datetime
@@ -55,21 +56,34 @@ def save_predictor(
     predictor: MultistepPredictor, path: str | Path, validation: dict | None = None
 ) -> Path:
     """Write a fitted predictor (and its validation figures) to ``path`` (``.npz``)."""
-    H = predictor.require_fit()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    meta = json.dumps(metadata(predictor, validation))
-    with path.open("wb") as fh:
-        np.savez(fh, H=H, metadata=np.array(meta))
+    path.write_bytes(predictor_bytes(predictor, validation))
     return path
+
+
+def predictor_bytes(predictor: MultistepPredictor, validation: dict | None = None) -> bytes:
+    """A fitted predictor as the bytes of its model file (to store it in a database)."""
+    buffer = io.BytesIO()
+    meta = json.dumps(metadata(predictor, validation))
+    np.savez(buffer, H=predictor.require_fit(), metadata=np.array(meta))
+    return buffer.getvalue()
+
+
+def load_predictor_bytes(data: bytes) -> MultistepPredictor:
+    """:func:`load_predictor` from the bytes of a model file."""
+    return _load(io.BytesIO(data), "the stored model")
 
 
 def load_predictor(path: str | Path) -> MultistepPredictor:
     """A predictor ready to :meth:`~MultistepPredictor.predict`, from a file written by
     :func:`save_predictor`; its metadata is in ``.metadata``. Raises :class:`ArtifactError`."""
-    path = Path(path)
+    return _load(Path(path), str(path))
+
+
+def _load(source, path: str) -> MultistepPredictor:
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with np.load(source, allow_pickle=False) as data:
             H = np.array(data["H"], dtype=float)
             meta = json.loads(str(data["metadata"]))
     except FileNotFoundError:

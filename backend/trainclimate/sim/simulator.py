@@ -109,6 +109,9 @@ class Environment:
         return float((self.time[1] - self.time[0]).total_seconds())
 
 
+#: The PID memory that a simulator snapshot carries.
+_PID_STATE = ("integral", "deriv", "last_y", "output", "last_e")
+
 #: A setpoint policy: called at every step with the step index and the simulator, returns T_ref
 #: (N,) in °C. ``None`` means the rule-based architecture, T_ref = T_rule.
 SetpointPolicy = Callable[[int, "FleetSimulator"], np.ndarray]
@@ -323,6 +326,37 @@ class FleetSimulator:
         end = self.n_steps if steps is None else min(self.n_steps, self.k + steps)
         while self.k < end:
             self.step(None if policy is None else policy(self.k, self))
+
+    def snapshot(self) -> dict:
+        """The state that carries from one step to the next, as JSON-ready plain data (NaN as
+        None): temperatures, HVAC states, every PID's memory and the sensor noise generator."""
+        pid = {
+            name: [
+                [float(v) if np.isfinite(v) else None for v in row]
+                for row in getattr(self.pid, name)
+            ]
+            for name in _PID_STATE
+        }
+        return {
+            "T": self.T.tolist(),
+            "hvac_state": self.hvac_state.astype(int).tolist(),
+            "pid": pid,
+            "rng": self.rng.bit_generator.state,
+        }
+
+    def restore(self, state: dict) -> None:
+        """Continue from a :meth:`snapshot` (of a simulator with as many coaches)."""
+        T = np.asarray(state["T"], dtype=float)
+        if T.shape != self.T.shape:
+            raise ValueError(f"snapshot of {T.shape[0]} coaches for {self.T.shape[0]}")
+        self.T = T
+        self.hvac_state = np.asarray(state["hvac_state"], dtype=np.int8)
+        for name in _PID_STATE:
+            rows = state["pid"][name]
+            setattr(
+                self.pid, name, np.array([[np.nan if v is None else v for v in r] for r in rows])
+            )
+        self.rng.bit_generator.state = state["rng"]
 
     def result(self) -> SimulationResult:
         """What has been simulated so far."""

@@ -1,0 +1,123 @@
+"""The FastAPI application: the API, the dashboard's static files, and the loops behind them.
+
+At start (the lifespan): the Alembic migrations are applied, a predictor model is registered if
+the database has none (``--predictor FILE`` or the cached default model), the demo fleet is
+registered if asked for, and two threads start: the live fleet's loop and, with ``--fleet demo``,
+the demo fleet. They stop with the server.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
+from sqlalchemy import select
+from sqlalchemy.exc import OperationalError
+
+from trainclimate import __version__
+from trainclimate.service import api, demo
+from trainclimate.service.db import Database, migrate
+from trainclimate.service.loop import Scheduler
+from trainclimate.service.models import PredictorModel
+from trainclimate.service.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+def ensure_model(session, settings: Settings) -> None:
+    """Register a predictor model as version 1 (active) if the database has none."""
+    if session.scalar(select(PredictorModel.id).limit(1)) is not None:
+        return
+    from trainclimate.predict.artifact import load_predictor, predictor_bytes
+
+    if settings.predictor_path is not None:
+        predictor = load_predictor(settings.predictor_path)
+    else:
+        from trainclimate.control.models import default_predictor
+
+        log.warning("no model in the database: registering the default model (fitted once)")
+        predictor = default_predictor()
+    session.add(
+        PredictorModel(
+            version=1,
+            method=predictor.method,
+            rho=predictor.rho,
+            horizon=predictor.horizon,
+            sampling_min=predictor.sampling_min,
+            artifact=predictor_bytes(predictor, predictor.metadata.get("validation")),
+            info={k: predictor.metadata.get(k) for k in ("training", "validation", "created_utc")},
+            active=True,
+        )
+    )
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI):
+    settings: Settings = app.state.settings
+    migrate(settings.database_url)
+    db = Database(settings.database_url)
+    with db.transaction() as session:
+        ensure_model(session, settings)
+        if settings.fleet == "demo":
+            demo.register(session)
+    scheduler = Scheduler(db, settings)
+    app.state.db, app.state.scheduler = db, scheduler
+    stop = threading.Event()
+    threads = [threading.Thread(target=scheduler.run_live, args=(stop,), name="live-loop")]
+    if settings.fleet == "demo":
+        fleet = demo.DemoFleet(db, scheduler, settings.speedup)
+        threads.append(threading.Thread(target=fleet.run, args=(stop,), name="demo-fleet"))
+    for t in threads:
+        t.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        for t in threads:
+            t.join(timeout=10)
+        db.dispose()
+
+
+def _error(status: int):
+    def handler(_request: Request, exc: Exception) -> JSONResponse:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return JSONResponse({"detail": message}, status_code=status)
+
+    return handler
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The application for ``settings`` (default: from the environment)."""
+    settings = settings or Settings()
+    app = FastAPI(
+        title="trainclimate",
+        version=__version__,
+        summary="Data-driven predictive HVAC energy management for SBB Regio-Dosto coaches",
+        description=(
+            "Scheduled DDPC per coach, telemetry and setpoints in SQL, operator overrides, and "
+            "activated-vs-deactivated comparisons. Authenticate with `Authorization: Bearer "
+            "<token>` (`trainclimate token create`); reads need viewer, writes operator, user and "
+            "model management admin."
+        ),
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.include_router(api.router)
+    for exc, status in api.ERROR_STATUS.items():
+        app.add_exception_handler(exc, _error(status))
+    app.add_exception_handler(OperationalError, _error(503))
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST", "PUT", "DELETE"],
+            allow_headers=["Authorization", "Content-Type"],
+        )
+    if (settings.frontend_dir / "index.html").exists():
+        app.mount("/", StaticFiles(directory=settings.frontend_dir, html=True), name="frontend")
+    return app

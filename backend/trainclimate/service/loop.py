@@ -1,0 +1,270 @@
+"""The control loop: one tick per coach per sampling period, each issued exactly once.
+
+A fleet's clock drives its ticks: the demo fleet's simulated clock (advanced by
+:class:`~trainclimate.service.demo.DemoFleet`, which calls :meth:`Scheduler.tick_fleet` after each
+period it simulates), and for live coaches the newest telemetry time their gateways reported — real
+time in service (:meth:`Scheduler.run_live`).
+
+A tick for coach c at time t is *claimed* in the database: the coach's row is locked
+(``SELECT … FOR UPDATE SKIP LOCKED`` on PostgreSQL, so replicas sharing the database take
+different coaches) where its ``last_tick`` is before t, and the setpoint is inserted under the
+unique constraint (coach, tick) in the same transaction that advances ``last_tick``. So a tick is
+issued at most once, whatever crashes or replicas do; and since the lead-in comes from stored
+telemetry, a restarted loop carries on where it stopped.
+
+Per tick and coach (:meth:`Scheduler.decide`), in this order: an active override; the layer
+switched off for the coach (T_ref = T_rule); no telemetry for ``stale_periods`` periods (stale:
+T_rule); not in regular mode (T_rule); otherwise the DDPC step, which falls back to T_rule itself
+on any problem. One coach's failure never stops the others: its decision becomes a fallback.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+
+import numpy as np
+import pandas as pd
+from sqlalchemy import or_, select
+from sqlalchemy.exc import OperationalError
+from sqlalchemy.orm import Session
+
+from trainclimate.control import DDPCController, OCPSettings
+from trainclimate.control.coach_model import CoachModel
+from trainclimate.control.controller import StepResult
+from trainclimate.predict.artifact import load_predictor_bytes
+from trainclimate.service.db import Database
+from trainclimate.service.models import Coach, FleetClock, Override, PredictorModel, Setpoint
+from trainclimate.service.settings import Settings
+from trainclimate.service.telemetry import Samples, controller_samples, load_frames
+
+log = logging.getLogger(__name__)
+U_BAND_K = 2.0
+
+
+@dataclass
+class Decision:
+    """What a tick decided for one coach (a setpoint row's content)."""
+
+    t_ref_c: float | None
+    t_rule_c: float | None
+    source: str
+    reason: str
+    detail: str = ""
+    solve_time_ms: float | None = None
+    step_time_ms: float | None = None
+    predicted: dict | None = None
+    extra: dict = field(default_factory=dict)
+
+
+def floor_tick(time: datetime, period: timedelta) -> datetime:
+    """The last tick at or before ``time`` (ticks at multiples of the period since the epoch)."""
+    ts = pd.Timestamp(time)
+    return ts.floor(period).to_pydatetime()
+
+
+def _finite(value) -> float | None:
+    return float(value) if value is not None and np.isfinite(value) else None
+
+
+class Scheduler:
+    """Issues the ticks of every fleet (see the module docstring)."""
+
+    def __init__(self, db: Database, settings: Settings):
+        self.db = db
+        self.settings = settings
+        self.period = timedelta(minutes=settings.sampling_min)
+        self.period_s = self.period.total_seconds()
+        self.coach_model = CoachModel(dt_s=self.period_s)
+        self.ocp = OCPSettings()
+        self._controllers: dict[str, DDPCController] = {}
+        self._predictor = None
+        self._model_id: int | None = None
+        self._lock = threading.Lock()
+
+    # --- the model -------------------------------------------------------------------------
+    def refresh_model(self, session: Session) -> None:
+        """Use the active predictor model (rebuilding the controllers when it changed)."""
+        model = session.scalar(select(PredictorModel).where(PredictorModel.active.is_(True)))
+        model_id = model.id if model is not None else None
+        if model_id == self._model_id:
+            return
+        with self._lock:
+            self._predictor = load_predictor_bytes(model.artifact) if model is not None else None
+            self._model_id = model_id
+            self._controllers.clear()
+        log.info("controller model: %s", f"version {model.version}" if model else "none")
+
+    def controller(self, coach_id: str) -> DDPCController:
+        with self._lock:
+            ctl = self._controllers.get(coach_id)
+            if ctl is None:
+                ctl = DDPCController(
+                    self._predictor,
+                    self.ocp,
+                    sampling_min=self.settings.sampling_min,
+                    model=self.coach_model,
+                )
+                self._controllers[coach_id] = ctl
+            return ctl
+
+    def forget(self, coach_id: str) -> None:
+        """Drop a coach's controller state (after its layer was switched off and on)."""
+        with self._lock:
+            self._controllers.pop(coach_id, None)
+
+    # --- one tick ----------------------------------------------------------------------------
+    def decide(
+        self, coach: Coach, samples: Samples, override: Override | None, tick: datetime
+    ) -> Decision:
+        """The setpoint for one coach at one tick (see the module docstring for the order)."""
+        t_rule = _finite(samples.t_rule_now)
+        stale_after = tick - self.settings.stale_periods * self.period
+        fresh = samples.last_time_s is not None and samples.last_time_s > stale_after.timestamp()
+        if override is not None and t_rule is not None:
+            value = float(np.clip(override.t_ref_c, t_rule - U_BAND_K, t_rule + U_BAND_K))
+            return Decision(value, t_rule, "override", "override", f"override #{override.id}")
+        if t_rule is None or not fresh:
+            last = _finite(samples.u_prev)
+            detail = "no telemetry for two sampling periods"
+            t_ref = t_rule if t_rule is not None else last
+            return Decision(t_ref, t_rule, "fallback", "stale", detail)
+        if not coach.ddpc_active:
+            return Decision(t_rule, t_rule, "rule", "inactive", "the layer is off for this coach")
+        if not samples.regular:
+            return Decision(
+                t_rule, t_rule, "rule", "not_regular", "the HVAC is not in regular mode"
+            )
+        ctl = self.controller(coach.id)
+        T = ctl.horizon
+        d_now = samples.d_now if samples.d_now is not None else np.full(5, np.nan)
+        d = np.vstack([samples.d_past, d_now]) if len(samples.d_past) else d_now[None, :]
+        result = ctl.step(
+            now_s=tick.timestamp(),
+            sample_times_s=samples.times_s,
+            y=samples.y,
+            u=samples.u,
+            d=d[-len(samples.times_s) :],
+            d_future=np.tile(d_now, (T, 1)),  # persistence: no external forecast yet
+            t_rule=np.full(T + 1, t_rule),
+            u_prev=samples.u_prev if np.isfinite(samples.u_prev) else t_rule,
+        )
+        return _from_step(result)
+
+    def tick_fleet(self, fleet: str, tick: datetime, batch: int = 250) -> int:
+        """Issue tick ``tick`` to every coach of ``fleet`` that has not had it; returns how many
+        were issued here (0 if another replica or an earlier run did them)."""
+        issued = 0
+        window = (self._rho() + 2) * self.period + timedelta(minutes=1)
+        while True:
+            with self.db.transaction() as session:
+                self.refresh_model(session)
+                coaches = session.scalars(
+                    select(Coach)
+                    .where(Coach.fleet == fleet)
+                    .where(or_(Coach.last_tick.is_(None), Coach.last_tick < tick))
+                    .order_by(Coach.id)
+                    .limit(batch)
+                    .with_for_update(skip_locked=True)
+                ).all()
+                if not coaches:
+                    return issued
+                ids = [c.id for c in coaches]
+                frames = load_frames(session, ids, tick - window, tick)
+                overrides = active_overrides(session, ids, tick)
+                rows = []
+                for coach in coaches:
+                    try:
+                        frame = frames[coach.id]
+                        samples = controller_samples(frame, pd.Timestamp(tick), self.period_s)
+                        decision = self.decide(coach, samples, overrides.get(coach.id), tick)
+                    except Exception as exc:  # one coach's failure never stops the others
+                        log.exception("tick %s for coach %s failed", tick, coach.id)
+                        decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
+                    rows.append(_row(coach.id, tick, decision, self._model_id))
+                    coach.last_tick = tick
+                session.execute(Setpoint.__table__.insert(), rows)
+                issued += len(rows)
+
+    def _rho(self) -> int:
+        return self._predictor.rho if self._predictor is not None else 12
+
+    # --- the live fleet ----------------------------------------------------------------------
+    def live_clock(self, session: Session) -> datetime | None:
+        clock = session.get(FleetClock, "live")
+        return clock.time if clock is not None else None
+
+    def run_live_once(self) -> int:
+        """Issue the current tick of the live fleet (its clock is the newest telemetry); ticks
+        older than the current one can no longer be applied and are not issued late."""
+        with self.db.transaction() as session:
+            now = self.live_clock(session)
+        if now is None:
+            return 0
+        return self.tick_fleet("live", floor_tick(now, self.period))
+
+    def run_live(self, stop: threading.Event) -> None:
+        """The live fleet's loop, until ``stop``; a database that is briefly unavailable leaves
+        the last setpoints standing (the gateways keep them) and is retried."""
+        while not stop.is_set():
+            try:
+                self.run_live_once()
+            except OperationalError as exc:
+                log.warning("database unavailable, retrying: %s", str(exc).splitlines()[0])
+            except Exception:
+                log.exception("live loop iteration failed; retrying")
+            stop.wait(self.settings.scheduler_interval_s)
+
+
+def active_overrides(session: Session, coach_ids: list[str], at: datetime) -> dict[str, Override]:
+    """The override in force at ``at`` for each coach (the newest if several)."""
+    rows = session.scalars(
+        select(Override)
+        .where(
+            Override.coach_id.in_(coach_ids),
+            Override.starts_at <= at,
+            Override.ends_at > at,
+            Override.cancelled_at.is_(None),
+        )
+        .order_by(Override.created_at)
+    ).all()
+    return {o.coach_id: o for o in rows}
+
+
+def _from_step(result: StepResult) -> Decision:
+    predicted = None
+    if result.t_opt_c is not None:
+        predicted = {"t_opt_c": np.asarray(result.t_opt_c).tolist()}
+        if result.u_plan_c is not None:
+            predicted["u_plan_c"] = np.asarray(result.u_plan_c).tolist()
+        if result.y_pred_c is not None:
+            predicted["y_pred_c"] = np.asarray(result.y_pred_c).tolist()
+    return Decision(
+        t_ref_c=_finite(result.t_ref_c),
+        t_rule_c=_finite(result.t_rule_c),
+        source=result.source,
+        reason=result.reason,
+        detail=result.detail,
+        solve_time_ms=result.solve_time_s * 1e3 if result.source == "ddpc" else None,
+        step_time_ms=result.step_time_s * 1e3,
+        predicted=predicted,
+    )
+
+
+def _row(coach_id: str, tick: datetime, d: Decision, model_id: int | None) -> dict:
+    return {
+        "coach_id": coach_id,
+        "tick": tick,
+        "t_rule_c": d.t_rule_c,
+        "t_ref_c": d.t_ref_c,
+        "source": d.source,
+        "reason": d.reason,
+        "detail": d.detail,
+        "solve_time_ms": d.solve_time_ms,
+        "step_time_ms": d.step_time_ms,
+        "predicted": d.predicted,
+        "model_id": model_id if d.source == "ddpc" else None,
+        "created_at": pd.Timestamp.now(tz="UTC").to_pydatetime(),
+    }

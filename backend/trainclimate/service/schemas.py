@@ -1,0 +1,259 @@
+"""Request and response bodies of the HTTP API (pydantic), with the examples OpenAPI shows."""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+from typing import Literal
+
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator
+
+Role = Literal["viewer", "operator", "admin"]
+Source = Literal["ddpc", "rule", "override", "fallback"]
+Mode = Literal["regular", "slumber", "off"]
+
+
+class Strict(BaseModel):
+    """Unknown fields are an error (a typo must not be silently ignored)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+def _finite(value: float | None) -> float | None:
+    if value is not None and not math.isfinite(value):
+        raise ValueError("must be a finite number")
+    return value
+
+
+class Health(BaseModel):
+    status: str = Field(examples=["ok"])
+    version: str = Field(examples=["0.1.0"])
+    database: str = Field(examples=["sqlite"])
+
+
+class Ready(BaseModel):
+    status: str = Field(examples=["ready"])
+    migrations: str = Field(examples=["0001"])
+    model_version: int | None = Field(examples=[1])
+
+
+class CoachOut(BaseModel):
+    """A coach and what its layer does now."""
+
+    id: str = Field(examples=["D1-A"])
+    train_id: str = Field(examples=["D1"])
+    fleet: str = Field(examples=["demo"])
+    ddpc_active: bool
+    mode: str | None = Field(examples=["regular"], description="HVAC mode in the newest telemetry")
+    status: str = Field(
+        examples=["ok"],
+        description="ok, warm-up, stale, fallback, override, inactive or no-data",
+    )
+    reason: str | None = Field(examples=["ok"], description="the newest setpoint's reason code")
+    t_rule_c: float | None = Field(examples=[22.0])
+    t_ref_c: float | None = Field(examples=[21.0])
+    t_room_c: list[float | None] | None = Field(
+        examples=[[21.1, 21.0, 20.9]], description="deck temperatures up, mid, low (newest)"
+    )
+    last_tick: datetime | None
+    last_solve_ms: float | None = Field(examples=[0.09])
+    override_until: datetime | None = None
+    clock: datetime | None = Field(description="the coach's fleet clock")
+
+
+class TrainOut(BaseModel):
+    id: str = Field(examples=["D1"])
+    name: str = Field(examples=["parked outdoors in Zug"])
+    coaches: list[str] = Field(examples=[["D1-A", "D1-B"]])
+    activated: list[str] = Field(examples=[["D1-A"]])
+    deactivated: list[str] = Field(examples=[["D1-B"]])
+
+
+class CoachCreate(Strict):
+    """Register a coach (a gateway does it for its coaches; an existing one is left as it is)."""
+
+    id: str = Field(min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.-]+$", examples=["124-A"])
+    train_id: str = Field(
+        min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.-]+$", examples=["124"]
+    )
+    ddpc_active: bool = Field(default=False, examples=[True])
+
+
+class TimeSeries(BaseModel):
+    """Equal-length arrays, oldest first."""
+
+    time: list[datetime]
+    t_room_c: list[list[float | None]] = Field(description="n × 3: up, mid, low")
+    t_ref_c: list[float | None]
+    t_rule_c: list[float | None]
+    t_amb_c: list[float | None]
+    ghi_w_m2: list[float | None]
+    power_kw: list[float | None]
+    occupancy_pct: list[float | None]
+    speed_kmh: list[float | None]
+    mode: list[str]
+    connected: list[bool]
+    source: list[Source | None] = Field(description="the source of the setpoint in force")
+
+
+class TelemetryRow(Strict):
+    """One minute of a coach's telemetry: the minute up to ``time``."""
+
+    time: AwareDatetime = Field(examples=["2024-11-28T06:05:00Z"])
+    t_room_c: list[float] = Field(min_length=3, max_length=3, examples=[[21.2, 21.0, 20.8]])
+    t_ref_c: float = Field(ge=5, le=40, examples=[22.0])
+    t_rule_c: float = Field(ge=5, le=40, examples=[22.0])
+    t_amb_c: float = Field(ge=-50, le=60, examples=[1.5])
+    ghi_w_m2: float | None = Field(default=None, ge=0, le=1500, examples=[120.0])
+    q_gt_w_m2: float = Field(default=0.0, ge=0, le=1500, examples=[60.0])
+    q_gs_w_m2: float = Field(default=0.0, ge=0, le=1500, examples=[40.0])
+    occupancy_pct: float = Field(default=0.0, ge=0, le=300, examples=[35.0])
+    speed_kmh: float = Field(default=0.0, ge=0, le=250, examples=[80.0])
+    power_kw: float | None = Field(default=None, ge=0, le=200, examples=[9.5])
+    mode: Mode = Field(default="regular")
+    connected: bool = True
+
+    @field_validator("t_room_c")
+    @classmethod
+    def _temps(cls, v: list[float]) -> list[float]:
+        if any(not math.isfinite(x) or not -40 <= x <= 70 for x in v):
+            raise ValueError("deck temperatures must be finite and within −40…70 °C")
+        return v
+
+
+class TelemetryBatch(Strict):
+    """A gateway's batch for one coach (resending a batch changes nothing)."""
+
+    coach_id: str = Field(examples=["124-A"])
+    rows: list[TelemetryRow] = Field(min_length=1, max_length=10000)
+
+
+class TelemetryAccepted(BaseModel):
+    received: int = Field(examples=[5])
+    stored: int = Field(examples=[5])
+    duplicates: int = Field(examples=[0])
+
+
+class SetpointOut(BaseModel):
+    """The setpoint a coach's gateway applies (the pull of the live feed)."""
+
+    coach_id: str
+    tick: datetime | None
+    t_ref_c: float | None = Field(description="null: none issued; keep the HVAC's own T_rule")
+    t_rule_c: float | None
+    source: Source | None
+    reason: str | None
+    valid_until: datetime | None = Field(
+        description="after this, without a newer setpoint, fall back to T_rule"
+    )
+
+
+class SetpointHistory(BaseModel):
+    tick: list[datetime]
+    t_ref_c: list[float | None]
+    t_rule_c: list[float | None]
+    source: list[str]
+    reason: list[str]
+    solve_time_ms: list[float | None]
+    predicted: list[dict | None] = Field(description="T_opt, the planned u and predicted y")
+
+
+class OverrideIn(Strict):
+    t_ref_c: float = Field(examples=[21.5], description="°C, within T_rule ± 2 K")
+    duration_min: float = Field(gt=0, le=24 * 60, examples=[60])
+    reason: str = Field(min_length=1, max_length=500, examples=["passengers report it is cold"])
+
+    _check = field_validator("t_ref_c")(_finite)
+
+
+class OverrideOut(BaseModel):
+    id: int
+    coach_id: str
+    t_ref_c: float
+    starts_at: datetime
+    ends_at: datetime
+    reason: str
+    created_by: str
+    cancelled_at: datetime | None
+    cancelled_by: str | None
+    active: bool
+
+
+class ControllerChange(Strict):
+    """Switch the DDPC layer on or off for a coach."""
+
+    active: bool = Field(examples=[False])
+    reason: str = Field(min_length=1, max_length=500, examples=["maintenance of the HVAC"])
+
+
+class WindowSavings(BaseModel):
+    start: datetime
+    energy_activated_kwh: float
+    energy_deactivated_kwh: float
+    savings_pct: float | None
+    excluded: bool
+
+
+class Comparison(BaseModel):
+    """Activated vs deactivated coach of a train (the analysis module's numbers)."""
+
+    train_id: str
+    activated: str
+    deactivated: str
+    start: datetime
+    end: datetime
+    window_min: float
+    windows: list[WindowSavings]
+    savings_pct: float | None
+    energy_activated_kwh: float
+    energy_deactivated_kwh: float
+    avg_hourly_violation_k: float
+    baseline_violation_k: float
+    excluded_minutes: float
+
+
+class ModelOut(BaseModel):
+    id: int
+    version: int
+    method: str
+    rho: int
+    horizon: int
+    sampling_min: float | None
+    active: bool
+    created_at: datetime
+    info: dict = Field(description="training data hash, validation MAE …")
+
+
+class AuditOut(BaseModel):
+    id: int
+    time: datetime
+    user: str
+    role: str
+    action: str
+    target: str
+    reason: str
+    detail: dict
+
+
+class TokenIn(Strict):
+    role: Role
+    name: str | None = Field(default=None, min_length=1, max_length=100, examples=["alice"])
+
+
+class TokenOut(BaseModel):
+    token: str = Field(description="shown once; only its hash is stored")
+    name: str
+    role: Role
+
+
+class TokenInfo(BaseModel):
+    id: int
+    user: str
+    role: Role
+    prefix: str
+    created_at: datetime
+    revoked_at: datetime | None
+
+
+class Message(BaseModel):
+    detail: str

@@ -1,0 +1,53 @@
+"""The service's settings, in one place: environment variables (``TRAINCLIMATE_*``) and the
+``trainclimate serve`` options, validated by pydantic-settings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from trainclimate.data.cache import home
+
+
+def default_database_url() -> str:
+    """The embedded default: a SQLite file under ``$TRAINCLIMATE_HOME``."""
+    return f"sqlite:///{home() / 'trainclimate.db'}"
+
+
+class Settings(BaseSettings):
+    """``database_url`` (``--db``; env ``TRAINCLIMATE_DATABASE_URL``; default a SQLite file);
+    ``fleet`` ``demo`` to add the simulated demo fleet; ``speedup`` how many times faster than
+    real time the demo fleet's clock runs; ``sampling_min`` the controller's period;
+    ``stale_periods`` after how many periods without telemetry a coach is stale;
+    ``cors_origins`` other origins allowed to call the API (default none: the dashboard is served
+    by the same origin); ``predictor_path`` a model file (default: the cached default model)."""
+
+    model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
+
+    database_url: str = Field(default_factory=default_database_url)
+    fleet: str | None = None
+    speedup: float = 1.0
+    sampling_min: float = 5.0
+    stale_periods: int = 2
+    cors_origins: list[str] = Field(default_factory=list)
+    predictor_path: Path | None = None
+    scheduler_interval_s: float = 0.5
+    frontend_dir: Path = Field(
+        default_factory=lambda: Path(__file__).resolve().parents[3] / "frontend"
+    )
+
+    @field_validator("fleet")
+    @classmethod
+    def _fleet(cls, value: str | None) -> str | None:
+        if value not in (None, "demo"):
+            raise ValueError("fleet must be 'demo' or empty")
+        return value
+
+    @field_validator("speedup", "sampling_min", "scheduler_interval_s")
+    @classmethod
+    def _positive(cls, value: float) -> float:
+        if not value > 0:
+            raise ValueError("must be positive")
+        return value

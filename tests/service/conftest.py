@@ -1,0 +1,86 @@
+"""Fixtures of the service tests: a database of each kind, the app, tokens, a small model.
+
+``db_url`` runs a test on SQLite (a fresh file) and on PostgreSQL (a fresh database created on the
+server ``TRAINCLIMATE_TEST_PG_URL`` names, dropped afterwards); without that variable the
+PostgreSQL case is skipped with the reason. ``.ci/run`` makes sure a server answers and sets it.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+
+import psycopg
+import pytest
+from fastapi.testclient import TestClient
+
+from support import small_predictor
+from trainclimate.predict.artifact import save_predictor
+from trainclimate.service.app import create_app
+from trainclimate.service.db import Database, migrate
+from trainclimate.service.security import create_token
+from trainclimate.service.settings import Settings
+
+PG_URL = os.environ.get("TRAINCLIMATE_TEST_PG_URL")
+PG_SKIP = "TRAINCLIMATE_TEST_PG_URL is not set: no PostgreSQL server to test against"
+
+
+def _pg_database() -> tuple[str, str]:
+    """A fresh database on the test server: (its URL, its name)."""
+    name = f"tc_test_{uuid.uuid4().hex[:12]}"
+    with psycopg.connect(PG_URL, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    base = PG_URL.rsplit("/", 1)[0]
+    return f"{base}/{name}", name
+
+
+def _drop_pg_database(name: str) -> None:
+    with psycopg.connect(PG_URL, autocommit=True) as conn:
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def db_url(request, tmp_path):
+    """An empty database: SQLite, then PostgreSQL (skipped without a server)."""
+    if request.param == "sqlite":
+        yield f"sqlite:///{tmp_path / 'trainclimate.db'}"
+        return
+    if not PG_URL:
+        pytest.skip(PG_SKIP)
+    url, name = _pg_database()
+    try:
+        yield url
+    finally:
+        _drop_pg_database(name)
+
+
+@pytest.fixture(scope="session")
+def model_file(tmp_path_factory):
+    """A small Transient Predictor at the controller's setting, saved (never the default one)."""
+    return save_predictor(small_predictor(), tmp_path_factory.mktemp("model") / "transient.npz")
+
+
+@pytest.fixture
+def settings(db_url, model_file) -> Settings:
+    return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=0.05)
+
+
+@pytest.fixture
+def client(settings):
+    """The app, started (migrations, model, loops) and stopped around the test."""
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+@pytest.fixture
+def tokens(client, settings) -> dict[str, dict[str, str]]:
+    """Authorization headers for a viewer, an operator and an admin."""
+    migrate(settings.database_url)
+    db = Database(settings.database_url)
+    out = {}
+    with db.transaction() as session:
+        for role in ("viewer", "operator", "admin"):
+            token, _ = create_token(session, role, f"test-{role}")
+            out[role] = {"Authorization": f"Bearer {token}"}
+    db.dispose()
+    return out
