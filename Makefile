@@ -20,7 +20,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
 
 demo: $(STAMP)
-	$(BIN)/trainclimate demo --out out/demo
+	$(BIN)/trainclimate serve --fleet demo --speedup 300 --new-token operator
 
 bench: $(STAMP)
 	$(BIN)/trainclimate bench simulator

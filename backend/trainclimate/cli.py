@@ -203,6 +203,26 @@ def _bench_controller_text(d: dict) -> str:
     )
 
 
+def _bench_service_text(d: dict) -> str:
+    i, c, t = d["ingest"], d["comparison"], d["fleet_tick"]
+    large, small = c["large"], c["small"]
+    reasons = ", ".join(f"{k} {v}" for k, v in sorted(t["reasons"].items()))
+    return (
+        f"ingest into PostgreSQL: HTTP API {i['http_rows_per_s']:,.0f} rows/s "
+        f"({i['http_vs_plain']:.2f}× a plain INSERT), commands.ingest "
+        f"{i['direct_rows_per_s']:,.0f} rows/s ({i['direct_vs_plain']:.2f}×), plain INSERT "
+        f"{i['plain_insert_rows_per_s']:,.0f} rows/s; COPY {c['copy']['rows_per_s']:,.0f} rows/s\n"
+        f"24-h comparison with {large['rows_stored'] / 1e6:.2f} M rows stored "
+        f"({large['table']['total_mb']:,.0f} MB): median {large['median_ms']:.1f} ms, "
+        f"p95 {large['p95_ms']:.1f} ms, p99 {large['p99_ms']:.1f} ms; with 1 pair × 1 day: "
+        f"median {small['median_ms']:.1f} ms, p95 {small['p95_ms']:.1f} ms "
+        f"(p95 ratio {c['p95_large_vs_small']:.2f}×)\n"
+        f"fleet tick of {t['coaches']} coaches with the database: {t['tick_s']:.2f} s "
+        f"(target {t['target_s']:g} s); the decisions alone {t['controller_steps_s']:.2f} s "
+        f"({t['tick_vs_steps']:.0f}×); reasons: {reasons}"
+    )
+
+
 def cmd_bench(args: argparse.Namespace) -> None:
     from trainclimate import bench
 
@@ -221,6 +241,13 @@ def cmd_bench(args: argparse.Namespace) -> None:
         with _progress(len(scales) + 1, "predictor fits", "fit") as bar:
             data = bench.bench_predictor(scales, args.data, progress=bar.update)
         _emit(args, data, _bench_predictor_text)
+    elif args.target == "service":
+        with _progress(4, "service benchmark", "stage") as bar:
+            try:
+                data = bench.bench_service(args.db, progress=bar.update)
+            except bench.ServiceBenchError as exc:
+                raise UsageError(str(exc)) from None
+        _emit(args, data, _bench_service_text)
     else:
         _emit(args, bench.bench_controller(), _bench_controller_text)
 
@@ -449,31 +476,46 @@ def cmd_serve(args: argparse.Namespace) -> None:
         speedup=args.speedup,
         predictor_path=args.predictor,
     )
+    url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
     print(
-        f"trainclimate: serving on http://{args.host}:{args.port}/ "
-        f"(database {settings.database_url.split('://')[0]})",
+        f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})",
         file=sys.stderr,
     )
+    if args.predictor is None:
+        from trainclimate.control.models import default_model_path, default_predictor
+
+        if not default_model_path().exists():
+            # fitted once, before the server answers (a database without a model needs it)
+            print("trainclimate: building the default model once (about 3 min)…", file=sys.stderr)
+            default_predictor()
+    if args.new_token:
+        token = _create_token(settings.database_url, args.new_token, f"demo-{args.new_token}")
+        print(f"dashboard: {url}\n{args.new_token} token: {token['token']}", flush=True)
     uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
 
 
-def cmd_token_create(args: argparse.Namespace) -> None:
+def _create_token(url: str, role: str, name: str | None) -> dict:
+    """A new token in the database ``url`` (migrated first): {token, name, role}."""
     from trainclimate.service.db import Database, migrate
     from trainclimate.service.security import create_token
 
-    url = _db_url(args)
     migrate(url)
     db = Database(url)
     try:
         with db.transaction() as session:
-            token, user = create_token(session, args.role, args.name)
-            data = {"token": token, "name": user.name, "role": user.role}
+            token, user = create_token(session, role, name)
+            return {"token": token, "name": user.name, "role": user.role}
     finally:
         db.dispose()
-    _emit(args, data, lambda d: d["token"])
+
+
+def cmd_token_create(args: argparse.Namespace) -> None:
+    _emit(args, _create_token(_db_url(args), args.role, args.name), lambda d: d["token"])
 
 
 def cmd_gateway(args: argparse.Namespace) -> None:
+    import httpx
+
     from trainclimate.service.gateway import Gateway
     from trainclimate.sim import scenarios
 
@@ -497,7 +539,15 @@ def cmd_gateway(args: argparse.Namespace) -> None:
         speedup=args.speedup,
         hours=args.hours,
     )
-    stats = gateway.run()
+    try:
+        stats = gateway.run()
+    except httpx.HTTPStatusError as exc:  # a refusal: a bad token, a coach of another train
+        reply = exc.response
+        try:
+            detail = reply.json()["detail"]
+        except (ValueError, KeyError, TypeError):
+            detail = reply.reason_phrase
+        raise UsageError(f"the server refused the gateway: {reply.status_code} {detail}") from None
     _emit(args, dataclasses.asdict(stats), lambda d: json.dumps(d))
 
 
@@ -567,9 +617,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--file", default=None, help="validate and print a parameter file")
 
     p = add("bench", cmd_bench, "run a benchmark")
-    p.add_argument("target", choices=("simulator", "pipeline", "predictor", "controller"))
+    p.add_argument(
+        "target", choices=("simulator", "pipeline", "predictor", "controller", "service")
+    )
     p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
     p.add_argument("--data", default=None, help="predictor: dataset directory")
+    p.add_argument(
+        "--db",
+        default=None,
+        help="service: an empty PostgreSQL database (default: a new one on the server "
+        "$TRAINCLIMATE_TEST_PG_URL names, else 127.0.0.1:5432, dropped at the end)",
+    )
     p.add_argument("--coaches", type=int, default=100)
     p.add_argument("--days", type=float, default=1.0)
     p.add_argument(
@@ -659,6 +717,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--predictor", default=None, help="model file (default: the cached model)")
     p.add_argument("--log-level", default="warning")
+    p.add_argument(
+        "--new-token",
+        choices=("viewer", "operator", "admin"),
+        default=None,
+        help="create a token with this role at start and print it with the dashboard's URL",
+    )
 
     token = sub.add_parser("token", help="API tokens")
     tsub = token.add_subparsers(dest="token_command", required=True, parser_class=_Parser)

@@ -14,6 +14,7 @@ import psycopg
 import pytest
 from fastapi.testclient import TestClient
 
+from service_processes import CLI, Server, free_port
 from support import small_predictor
 from trainclimate.predict.artifact import save_predictor
 from trainclimate.service.app import create_app
@@ -84,3 +85,40 @@ def tokens(client, settings) -> dict[str, dict[str, str]]:
             out[role] = {"Authorization": f"Bearer {token}"}
     db.dispose()
     return out
+
+
+# --- the service as child processes ------------------------------------------------------
+@pytest.fixture
+def proc_env(tmp_path) -> dict[str, str]:
+    """The children's environment: no TRAINCLIMATE_* from outside, a private home."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
+    env["TRAINCLIMATE_HOME"] = str(tmp_path / "home")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+@pytest.fixture
+def servers(tmp_path, model_file, proc_env):
+    """A factory of servers on ``db_url``; every one is stopped after the test."""
+    made: list[Server] = []
+
+    def make(db_url: str, *extra: str, env: dict[str, str] | None = None, port=None) -> Server:
+        port = port or free_port()
+        args = [
+            *CLI,
+            "serve",
+            "--db",
+            db_url,
+            "--port",
+            str(port),
+            "--predictor",
+            str(model_file),
+            *extra,
+        ]
+        server = Server(args, env or proc_env, port, tmp_path / f"server-{port}.log")
+        made.append(server)
+        return server
+
+    yield make
+    for server in made:
+        server.stop()

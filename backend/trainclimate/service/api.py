@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 from datetime import timedelta
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Response, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import AwareDatetime
 from sqlalchemy import select
@@ -37,10 +37,15 @@ UNAUTHORIZED = {401: {"model": schemas.Message, "description": "no valid token"}
 FORBIDDEN = {403: {"model": schemas.Message, "description": "the token's role is too low"}}
 NOT_FOUND = {404: {"model": schemas.Message, "description": "no such coach or train"}}
 AUTH = {**UNAUTHORIZED, **FORBIDDEN}
+#: The largest id, version or offset taken: the columns are 32-bit integers (a larger value
+#: cannot exist, and PostgreSQL refuses to compare with it).
+INT32_MAX = 2**31 - 1
 
 
 def session(request: Request) -> Iterator[Session]:
-    """One transaction per request: committed when the route returns, rolled back on error."""
+    """One transaction per request: committed when the route returns, rolled back on error.
+    Its scope is the route function (``DB``), so the commit happens before the response is
+    sent: a commit that fails gives an error response, never a 2xx for a write not stored."""
     with request.app.state.db.transaction() as s:
         yield s
 
@@ -63,7 +68,7 @@ def require(role: str) -> Callable[..., Principal]:
     return check
 
 
-DB = Annotated[Session, Depends(session)]
+DB = Annotated[Session, Depends(session, scope="function")]
 Viewer = Annotated[Principal, Depends(require("viewer"))]
 Operator = Annotated[Principal, Depends(require("operator"))]
 Admin = Annotated[Principal, Depends(require("admin"))]
@@ -103,6 +108,12 @@ def ready(request: Request, s: DB) -> dict:
 
 
 # --- coaches and trains ----------------------------------------------------------------------
+@router.get("/me", response_model=schemas.Me, tags=["users"], responses=UNAUTHORIZED)
+def me(who: Viewer) -> dict:
+    """Who the token belongs to and its role (the dashboard shows write controls by it)."""
+    return {"name": who.name, "role": who.role}
+
+
 @router.get("/coaches", response_model=list[schemas.CoachOut], tags=["coaches"], responses=AUTH)
 def list_coaches(request: Request, s: DB, _: Viewer) -> list:
     cfg = settings(request)
@@ -374,7 +385,7 @@ def list_models(s: DB, _: Viewer) -> list:
     responses={**AUTH, **NOT_FOUND},
 )
 def activate_model(
-    version: int,
+    version: Annotated[int, Path(ge=1, le=INT32_MAX)],
     reason: Annotated[str, Query(min_length=1, max_length=500)],
     s: DB,
     who: Admin,
@@ -402,7 +413,7 @@ def audit_log(
     s: DB,
     _: Viewer,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=INT32_MAX)] = 0,
     target: Annotated[str | None, Query(max_length=64)] = None,
 ) -> list:
     """The audit log, newest first."""
@@ -455,7 +466,7 @@ def list_tokens(s: DB, _: Admin) -> list:
     tags=["users"],
     responses={**AUTH, **NOT_FOUND},
 )
-def revoke_token(token_id: int, s: DB, who: Admin):
+def revoke_token(token_id: Annotated[int, Path(ge=1, le=INT32_MAX)], s: DB, who: Admin):
     t = commands.revoke_token(s, who, token_id)
     user = s.get(User, t.user_id)
     return {
@@ -471,5 +482,5 @@ def revoke_token(token_id: int, s: DB, who: Admin):
 ERROR_STATUS = {
     queries.NotFoundError: status.HTTP_404_NOT_FOUND,
     commands.ConflictError: status.HTTP_409_CONFLICT,
-    ValueError: status.HTTP_422_UNPROCESSABLE_CONTENT,
+    queries.RequestError: status.HTTP_422_UNPROCESSABLE_CONTENT,
 }

@@ -8,13 +8,18 @@ the demo fleet. They stop with the server.
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 from contextlib import asynccontextmanager
+from pathlib import Path
 
+import plotly
 from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse
+from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
@@ -27,6 +32,8 @@ from trainclimate.service.models import PredictorModel
 from trainclimate.service.settings import Settings
 
 log = logging.getLogger(__name__)
+#: Plotly.js as the installed plotly package ships it (served at /vendor/plotly.min.js).
+PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 
 
 def ensure_model(session, settings: Settings) -> None:
@@ -91,6 +98,20 @@ def _error(status: int):
     return handler
 
 
+def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    """422 with pydantic's errors, as FastAPI gives them, but an input JSON cannot carry (a NaN
+    or an infinity sent as such) is left out of the answer rather than failing it."""
+    errors = []
+    for error in jsonable_encoder(exc.errors()):
+        try:
+            json.dumps(error, allow_nan=False)
+        except ValueError:
+            error.pop("input", None)
+            error.pop("ctx", None)
+        errors.append(error)
+    return JSONResponse({"detail": errors}, status_code=422)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The application for ``settings`` (default: from the environment)."""
     settings = settings or Settings()
@@ -111,6 +132,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for exc, status in api.ERROR_STATUS.items():
         app.add_exception_handler(exc, _error(status))
     app.add_exception_handler(OperationalError, _error(503))
+    app.add_exception_handler(RequestValidationError, _validation_error)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,
@@ -119,5 +141,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["Authorization", "Content-Type"],
         )
     if (settings.frontend_dir / "index.html").exists():
+        # Plotly.js from the installed plotly package: the dashboard needs no CDN and no build
+        app.add_api_route(
+            "/vendor/plotly.min.js",
+            lambda: FileResponse(PLOTLY_JS, media_type="text/javascript"),
+            include_in_schema=False,
+        )
         app.mount("/", StaticFiles(directory=settings.frontend_dir, html=True), name="frontend")
     return app

@@ -21,7 +21,7 @@ from trainclimate.service.models import (
     User,
     utcnow,
 )
-from trainclimate.service.queries import NotFoundError, coach_or_404, fleet_clock
+from trainclimate.service.queries import NotFoundError, RequestError, coach_or_404, fleet_clock
 from trainclimate.service.security import Principal, create_token
 from trainclimate.service.telemetry import insert_rows
 
@@ -29,7 +29,7 @@ from trainclimate.service.telemetry import insert_rows
 OVERRIDE_BAND_K = 2.0
 
 
-class ConflictError(ValueError):
+class ConflictError(Exception):
     """A request that contradicts the stored state (→ 409)."""
 
 
@@ -66,8 +66,12 @@ def register_coach(session: Session, who: Principal, coach_id: str, train_id: st
 def ingest(session: Session, coach_id: str, rows: list[dict]) -> tuple[int, int]:
     """Store a batch of telemetry; advance the live fleet's clock. Returns (stored, duplicates)."""
     coach = coach_or_404(session, coach_id)
+    if coach.fleet != "live":
+        # the demo fleet writes its coaches' rows itself, without skipping any: a row posted
+        # here would make its next write conflict, every time, and stop the demo
+        raise ConflictError(f"coach {coach_id!r} is simulated by the {coach.fleet} fleet")
     stored = insert_rows(session, coach.id, rows)
-    if coach.fleet == "live" and rows:
+    if rows:
         newest = max(r["time"] for r in rows)
         clock = session.get(FleetClock, "live", with_for_update=True)
         if clock is None:
@@ -92,7 +96,7 @@ def create_override(
     if t_rule is None:
         raise ConflictError(f"coach {coach_id!r} has no T_rule yet")
     if abs(t_ref_c - t_rule) > OVERRIDE_BAND_K + 1e-9:
-        raise ValueError(
+        raise RequestError(
             f"t_ref_c {t_ref_c:g} °C is outside T_rule ± {OVERRIDE_BAND_K:g} K "
             f"({t_rule - OVERRIDE_BAND_K:.1f} … {t_rule + OVERRIDE_BAND_K:.1f} °C)"
         )

@@ -10,7 +10,9 @@ it simulates the period with the setpoints issued at its start, writes the coach
 row per minute, the minute up to its time), the new clock and the simulator's state in one
 transaction, and then issues the tick at the period's end
 (:meth:`~trainclimate.service.loop.Scheduler.tick_fleet`). After a crash or restart it carries on
-from the stored clock and state, so no tick is lost or issued twice.
+from the stored clock and state, so no tick is lost or issued twice: before its first period it
+issues the tick at the stored clock, which a crash between storing a period and issuing its tick
+left undone.
 """
 
 from __future__ import annotations
@@ -120,6 +122,18 @@ class DemoFleet:
         self.ids = coach_ids()
         self.sim: FleetSimulator | None = None
         self.day: pd.Timestamp | None = None
+        self.caught_up = False
+
+    def _catch_up(self) -> None:
+        """Issue the tick at the stored clock if a crash came between storing its period and
+        issuing it (a no-op otherwise: the tick is claimed per coach). Not at the very start:
+        there is no data before the first period."""
+        with self.db.transaction() as session:
+            clock = session.get(FleetClock, FLEET)
+            t0, started = clock.time, clock.state is not None
+        if started:
+            self.scheduler.tick_fleet(FLEET, t0)
+        self.caught_up = True
 
     # --- the simulator, one local day at a time ------------------------------------------
     def _build_day(self, day: pd.Timestamp) -> FleetSimulator:
@@ -146,6 +160,8 @@ class DemoFleet:
     # --- one period ------------------------------------------------------------------------
     def advance(self) -> datetime:
         """Simulate one period from the stored clock, store it, and issue the tick at its end."""
+        if not self.caught_up:
+            self._catch_up()
         with self.db.transaction() as session:
             clock = session.get(FleetClock, FLEET)
             t0, state = clock.time, clock.state

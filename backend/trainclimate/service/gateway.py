@@ -12,7 +12,10 @@ of that clock it
   it is valid; without one — none issued, expired, or the server unreachable — the HVAC falls back
   to its own T_rule, as a real coach does.
 
-At start it registers its coaches (``POST /api/v1/coaches``; an existing coach is left as it is).
+At start it registers its coaches (``POST /api/v1/coaches``; an existing coach is left as it is);
+while the server cannot be reached it runs on, keeps its telemetry and tries again every minute;
+at the end it keeps trying for a minute more to send what is left. A refusal (a bad token, a
+coach of another train) stops it with the server's answer.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ class GatewayStats:
     minutes: int = 0
     rows_sent: int = 0
     failed_posts: int = 0
+    rows_unsent: int = 0
     setpoints_applied: int = 0
     fallbacks_to_rule: int = 0
     sources: dict[str, int] = field(default_factory=dict)
@@ -78,12 +82,26 @@ class Gateway:
         self.t_ref = np.full(len(self.ids), np.nan)
         self.valid_until: list[pd.Timestamp | None] = [None] * len(self.ids)
         self.buffer: dict[str, list[dict]] = {cid: [] for cid in self.ids}
+        self.registered = False
         self.stats = GatewayStats()
 
-    def register(self) -> None:
-        for cid in self.ids:
-            body = {"id": cid, "train_id": self.train_id, "ddpc_active": cid in self.active}
-            self.client.post("/coaches", json=body).raise_for_status()
+    def register(self) -> bool:
+        """Register the coaches; False while the server is unreachable or unavailable (5xx).
+        A refusal (4xx) raises :class:`httpx.HTTPStatusError`."""
+        try:
+            for cid in self.ids:
+                body = {"id": cid, "train_id": self.train_id, "ddpc_active": cid in self.active}
+                self.client.post("/coaches", json=body).raise_for_status()
+        except httpx.HTTPStatusError as exc:
+            if exc.response.status_code < 500:
+                raise
+            log.warning("coaches not registered (server unavailable), retrying: %s", exc)
+            return False
+        except httpx.TransportError as exc:
+            log.warning("coaches not registered (server unreachable), retrying: %s", exc)
+            return False
+        self.registered = True
+        return True
 
     def _policy(self, k: int, sim: FleetSimulator) -> np.ndarray:
         rule = sim.t_rule(k)
@@ -134,8 +152,9 @@ class Gateway:
         self.stats.fallbacks_to_rule += len(applied) - sum(applied)
         for cid, rows in rows_from_simulation(self.sim, k0, self.sim.k, self.ids).items():
             self.buffer[cid].extend(rows)
-        self._send()
-        self._pull()
+        if self.registered or self.register():
+            self._send()
+            self._pull()
         self.stats.minutes += 1
 
     def run(self) -> GatewayStats:
@@ -147,7 +166,21 @@ class Gateway:
             ahead = self.stats.minutes * 60.0 / self.speedup - (time.monotonic() - wall0)
             if ahead > 0:
                 time.sleep(ahead)
+        self._flush()
         return self.stats
+
+    def _flush(self, patience_s: float = 60.0) -> None:
+        """At the end: send what is still kept, retrying every second for ``patience_s`` s (wall
+        time) while the server is unreachable; what is left then is counted in ``rows_unsent``."""
+        deadline = time.monotonic() + patience_s
+        while any(self.buffer.values()) and time.monotonic() < deadline:
+            if self.registered or self.register():
+                self._send()
+            if any(self.buffer.values()):
+                time.sleep(1.0)
+        self.stats.rows_unsent = sum(len(rows) for rows in self.buffer.values())
+        if self.stats.rows_unsent:
+            log.error("%d telemetry rows could not be sent", self.stats.rows_unsent)
 
 
 def _jsonable(row: dict) -> dict:

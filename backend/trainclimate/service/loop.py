@@ -12,8 +12,8 @@ unique constraint (coach, tick) in the same transaction that advances ``last_tic
 issued at most once, whatever crashes or replicas do; and since the lead-in comes from stored
 telemetry, a restarted loop carries on where it stopped.
 
-Per tick and coach (:meth:`Scheduler.decide`), in this order: an active override; the layer
-switched off for the coach (T_ref = T_rule); no telemetry for ``stale_periods`` periods (stale:
+Per tick and coach (:meth:`Scheduler.decide`), in this order: an active override; no telemetry
+for ``stale_periods`` periods (stale: T_rule); the layer switched off for the coach (T_ref =
 T_rule); not in regular mode (T_rule); otherwise the DDPC step, which falls back to T_rule itself
 on any problem. One coach's failure never stops the others: its decision becomes a fallback.
 """
@@ -27,8 +27,8 @@ from datetime import datetime, timedelta
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import or_, select
-from sqlalchemy.exc import OperationalError
+from sqlalchemy import func, or_, select
+from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 
 from trainclimate.control import DDPCController, OCPSettings
@@ -38,7 +38,7 @@ from trainclimate.predict.artifact import load_predictor_bytes
 from trainclimate.service.db import Database
 from trainclimate.service.models import Coach, FleetClock, Override, PredictorModel, Setpoint
 from trainclimate.service.settings import Settings
-from trainclimate.service.telemetry import Samples, controller_samples, load_frames
+from trainclimate.service.telemetry import Samples, controller_samples, load_rows
 
 log = logging.getLogger(__name__)
 U_BAND_K = 2.0
@@ -156,37 +156,68 @@ class Scheduler:
     def tick_fleet(self, fleet: str, tick: datetime, batch: int = 250) -> int:
         """Issue tick ``tick`` to every coach of ``fleet`` that has not had it; returns how many
         were issued here (0 if another replica or an earlier run did them)."""
-        issued = 0
-        window = (self._rho() + 2) * self.period + timedelta(minutes=1)
+        issued, left = 0, None
         while True:
-            with self.db.transaction() as session:
-                self.refresh_model(session)
-                coaches = session.scalars(
-                    select(Coach)
-                    .where(Coach.fleet == fleet)
-                    .where(or_(Coach.last_tick.is_(None), Coach.last_tick < tick))
-                    .order_by(Coach.id)
-                    .limit(batch)
-                    .with_for_update(skip_locked=True)
-                ).all()
-                if not coaches:
-                    return issued
-                ids = [c.id for c in coaches]
-                frames = load_frames(session, ids, tick - window, tick)
-                overrides = active_overrides(session, ids, tick)
-                rows = []
-                for coach in coaches:
-                    try:
-                        frame = frames[coach.id]
-                        samples = controller_samples(frame, pd.Timestamp(tick), self.period_s)
-                        decision = self.decide(coach, samples, overrides.get(coach.id), tick)
-                    except Exception as exc:  # one coach's failure never stops the others
-                        log.exception("tick %s for coach %s failed", tick, coach.id)
-                        decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
-                    rows.append(_row(coach.id, tick, decision, self._model_id))
-                    coach.last_tick = tick
-                session.execute(Setpoint.__table__.insert(), rows)
-                issued += len(rows)
+            try:
+                n = self._tick_batch(fleet, tick, batch)
+            except IntegrityError:
+                # another scheduler issued some of these ticks first: on SQLite, which has no
+                # SKIP LOCKED, both may claim a coach and the unique (coach, tick) lets one
+                # win; this batch was rolled back, and the coaches still without the tick are
+                # taken again — unless nobody made progress since the last conflict: then it
+                # is no race, and it is raised
+                before, left = left, self._pending(fleet, tick)
+                if before is not None and left >= before:
+                    raise
+                log.info("tick %s: another scheduler issued part of it first", tick)
+                continue
+            if n == 0:
+                return issued
+            issued += n
+
+    def _pending(self, fleet: str, tick: datetime) -> int:
+        """How many coaches of ``fleet`` have not had ``tick`` yet."""
+        with self.db.transaction() as session:
+            return session.scalar(
+                select(func.count())
+                .select_from(Coach)
+                .where(Coach.fleet == fleet)
+                .where(or_(Coach.last_tick.is_(None), Coach.last_tick < tick))
+            )
+
+    def _tick_batch(self, fleet: str, tick: datetime, batch: int) -> int:
+        """Claim and issue ``tick`` for up to ``batch`` coaches in one transaction; returns how
+        many (0: none left)."""
+        window = (self._rho() + 2) * self.period + timedelta(minutes=1)
+        with self.db.transaction() as session:
+            self.refresh_model(session)
+            coaches = session.scalars(
+                select(Coach)
+                .where(Coach.fleet == fleet)
+                .where(or_(Coach.last_tick.is_(None), Coach.last_tick < tick))
+                .order_by(Coach.id)
+                .limit(batch)
+                .with_for_update(skip_locked=True)
+            ).all()
+            if not coaches:
+                return 0
+            ids = [c.id for c in coaches]
+            telemetry = load_rows(session, ids, tick - window, tick)
+            overrides = active_overrides(session, ids, tick)
+            rows = []
+            for coach in coaches:
+                try:
+                    samples = controller_samples(
+                        telemetry[coach.id], tick.timestamp(), self.period_s
+                    )
+                    decision = self.decide(coach, samples, overrides.get(coach.id), tick)
+                except Exception as exc:  # one coach's failure never stops the others
+                    log.exception("tick %s for coach %s failed", tick, coach.id)
+                    decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
+                rows.append(_row(coach.id, tick, decision, self._model_id))
+                coach.last_tick = tick
+            session.execute(Setpoint.__table__.insert(), rows)
+        return len(rows)
 
     def _rho(self) -> int:
         return self._predictor.rho if self._predictor is not None else 12

@@ -6,7 +6,7 @@ the same function the experiment reports use.
 
 from __future__ import annotations
 
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 
 import numpy as np
 import pandas as pd
@@ -27,8 +27,18 @@ STATUS = {
 }
 
 
+#: The time ranges the API reads (far outside, dates overflow in the arithmetic behind a read).
+EARLIEST = datetime(1970, 1, 1, tzinfo=UTC)
+LATEST = datetime(2200, 1, 1, tzinfo=UTC)
+
+
 class NotFoundError(LookupError):
     """A coach, train or record that does not exist (→ 404)."""
+
+
+class RequestError(ValueError):
+    """A request the API cannot carry out as asked: a bad range, a value outside its band (→ 422).
+    Only this is mapped to 422: any other ValueError is a bug and answers 500."""
 
 
 def coach_or_404(session: Session, coach_id: str) -> Coach:
@@ -110,12 +120,17 @@ def time_range(
 ) -> tuple[datetime, datetime]:
     """[start, end], by default the last 24 h of the coach's clock."""
     clock = fleet_clock(session, coach) or pd.Timestamp.now(tz="UTC").to_pydatetime()
-    end = end or clock
-    start = start or end - timedelta(hours=24)
+    try:
+        end = (end or clock).astimezone(UTC)
+        start = (start or end - timedelta(hours=24)).astimezone(UTC)
+    except OverflowError:
+        raise RequestError(f"start and end must lie in {EARLIEST:%Y} … {LATEST:%Y}") from None
+    if start < EARLIEST or end > LATEST:
+        raise RequestError(f"start and end must lie in {EARLIEST:%Y} … {LATEST:%Y}")
     if start >= end:
-        raise ValueError("start must be before end")
+        raise RequestError("start must be before end")
     if end - start > timedelta(days=31):
-        raise ValueError("at most 31 days at a time")
+        raise RequestError("at most 31 days at a time")
     return start, end
 
 
@@ -137,8 +152,15 @@ def timeseries(session: Session, coach: Coach, start: datetime, end: datetime) -
     if len(frame) and ticks:
         sp = pd.DataFrame(ticks, columns=["tick", "source"])
         sp["tick"] = pd.to_datetime(sp["tick"], utc=True)
+        # a row stamped t covers the minute (t − 1 min, t]: the setpoint issued at tick t acts
+        # from t on, so the row at t still ran under the one before
         joined = pd.merge_asof(
-            frame.reset_index()[["time"]], sp, left_on="time", right_on="tick", direction="backward"
+            frame.reset_index()[["time"]],
+            sp,
+            left_on="time",
+            right_on="tick",
+            direction="backward",
+            allow_exact_matches=False,
         )
         source = [None if pd.isna(s) else s for s in joined["source"]]
     else:
@@ -206,7 +228,7 @@ def pair_of(train: Train) -> tuple[Coach, Coach]:
     on = [c for c in train.coaches if c.ddpc_active]
     off = [c for c in train.coaches if not c.ddpc_active]
     if not on or not off:
-        raise ValueError(f"train {train.id} has no pair of an activated and a deactivated coach")
+        raise RequestError(f"train {train.id} has no pair of an activated and a deactivated coach")
     return on[0], off[0]
 
 
@@ -238,15 +260,19 @@ def comparison(
     """30-minute savings and the summary of the train's pair over (start, end]."""
     act, deact = pair_of(train)
     window = pd.Timedelta(minutes=window_min)
-    earliest = session.scalar(
-        select(func.min(Telemetry.time)).where(Telemetry.coach_id.in_([act.id, deact.id]))
-    )
+    # each coach's first row on its own: one index probe each (a min over both coaches at once
+    # reads every index entry of both)
+    firsts = [
+        session.scalar(select(func.min(Telemetry.time)).where(Telemetry.coach_id == c.id))
+        for c in (act, deact)
+    ]
+    earliest = min((t for t in firsts if t is not None), default=None)
     if earliest is not None and earliest - timedelta(minutes=1) > start:
         start = earliest - timedelta(minutes=1)  # nothing to compare before the pair's data
     first = pd.Timestamp(start).ceil(window)
     grid = pd.date_range(first + pd.Timedelta(minutes=1), pd.Timestamp(end), freq="1min")
     if len(grid) < 2:
-        raise ValueError("the range is shorter than two minutes")
+        raise RequestError("the range is shorter than two minutes")
     a = _series(session, act, grid, start, end)
     b = _series(session, deact, grid, start, end)
     c = compare(a, b, start=first, window_min=window_min)

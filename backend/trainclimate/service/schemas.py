@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from datetime import datetime
+from datetime import UTC, datetime, timedelta
 from typing import Literal
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator
@@ -11,6 +11,11 @@ from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validato
 Role = Literal["viewer", "operator", "admin"]
 Source = Literal["ddpc", "rule", "override", "fallback"]
 Mode = Literal["regular", "slumber", "off"]
+
+
+#: How far ahead of the server's clock a telemetry row may be stamped (clock skew).
+MAX_AHEAD = timedelta(minutes=5)
+EARLIEST_ROW = datetime(2000, 1, 1, tzinfo=UTC)
 
 
 class Strict(BaseModel):
@@ -112,6 +117,22 @@ class TelemetryRow(Strict):
     power_kw: float | None = Field(default=None, ge=0, le=200, examples=[9.5])
     mode: Mode = Field(default="regular")
     connected: bool = True
+
+    @field_validator("time")
+    @classmethod
+    def _time(cls, v: datetime) -> datetime:
+        try:
+            v = v.astimezone(UTC)
+        except OverflowError:
+            raise ValueError("time out of range") from None
+        if v < EARLIEST_ROW:
+            raise ValueError("time before 2000")
+        if v > datetime.now(UTC) + MAX_AHEAD:
+            # it would move the live fleet's clock, and every live coach's ticks, into the future
+            raise ValueError(
+                f"time more than {MAX_AHEAD.total_seconds() / 60:g} min ahead of the server's clock"
+            )
+        return v
 
     @field_validator("t_room_c")
     @classmethod
@@ -243,6 +264,11 @@ class TokenIn(Strict):
 class TokenOut(BaseModel):
     token: str = Field(description="shown once; only its hash is stored")
     name: str
+    role: Role
+
+
+class Me(BaseModel):
+    name: str = Field(examples=["alice"])
     role: Role
 
 

@@ -10,6 +10,7 @@ controller needs has arrived, and the samples follow the training data's convent
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from datetime import datetime
 
@@ -54,31 +55,61 @@ def insert_rows(session: Session, coach_id: str, rows: list[dict]) -> int:
 FRAME_COLS = ("time", *VALUE_COLS, "mode", "connected")
 
 
-def _frame(rows) -> pd.DataFrame:
-    frame = pd.DataFrame(rows, columns=list(FRAME_COLS))
-    frame["time"] = pd.to_datetime(frame["time"], utc=True)
-    return frame.set_index("time")
-
-
-def load_frame(session: Session, coach_id: str, start: datetime, end: datetime) -> pd.DataFrame:
-    """The coach's rows with start < time ≤ end as a DataFrame indexed by UTC time."""
-    return load_frames(session, [coach_id], start, end)[coach_id]
-
-
-def load_frames(
-    session: Session, coach_ids: list[str], start: datetime, end: datetime
-) -> dict[str, pd.DataFrame]:
-    """:func:`load_frame` for many coaches in one query."""
+def _select(session: Session, coach_ids: list[str], start: datetime, end: datetime) -> list:
+    """The rows (coach_id, *FRAME_COLS) of ``coach_ids`` with start < time ≤ end, by coach and
+    time."""
     cols = [Telemetry.coach_id, *(getattr(Telemetry, c) for c in FRAME_COLS)]
-    rows = session.execute(
+    return session.execute(
         select(*cols)
         .where(Telemetry.coach_id.in_(coach_ids), Telemetry.time > start, Telemetry.time <= end)
         .order_by(Telemetry.coach_id, Telemetry.time)
     ).all()
-    grouped: dict[str, list] = {cid: [] for cid in coach_ids}
-    for row in rows:
-        grouped[row[0]].append(row[1:])
-    return {cid: _frame(r) for cid, r in grouped.items()}
+
+
+def load_frame(session: Session, coach_id: str, start: datetime, end: datetime) -> pd.DataFrame:
+    """The coach's rows with start < time ≤ end as a DataFrame indexed by UTC time."""
+    frame = pd.DataFrame(
+        [r[1:] for r in _select(session, [coach_id], start, end)], columns=list(FRAME_COLS)
+    )
+    frame["time"] = pd.to_datetime(frame["time"], utc=True)
+    return frame.set_index("time")
+
+
+@dataclass
+class CoachRows:
+    """One coach's telemetry rows, oldest first, as arrays: ``time_s`` (n,) Unix time of each
+    row's end, s; ``values`` (n, len(VALUE_COLS)) in :data:`VALUE_COLS` order (NaN where
+    missing); ``regular`` (n,) whether the row's minute was entirely in regular mode."""
+
+    time_s: np.ndarray
+    values: np.ndarray
+    regular: np.ndarray
+
+    def column(self, name: str) -> np.ndarray:
+        return self.values[:, VALUE_COLS.index(name)]
+
+
+def load_rows(
+    session: Session, coach_ids: list[str], start: datetime, end: datetime
+) -> dict[str, CoachRows]:
+    """Every coach's rows with start < time ≤ end (empty arrays for a coach without any), from
+    one query, without a DataFrame per coach (the tick reads 1 000 coaches at a time)."""
+    rows = _select(session, coach_ids, start, end)
+    n = len(rows)
+    time_s = np.fromiter((r[1].timestamp() for r in rows), float, n)
+    values = np.array(
+        [[np.nan if v is None else v for v in r[2 : 2 + len(VALUE_COLS)]] for r in rows], float
+    ).reshape(n, len(VALUE_COLS))
+    regular = np.fromiter((r[-2] == "regular" for r in rows), bool, n)
+    spans, first = {}, 0  # each coach's rows are contiguous (whatever the collation's order)
+    for cid, group in itertools.groupby(r[0] for r in rows):
+        spans[cid] = (first, first + sum(1 for _ in group))
+        first = spans[cid][1]
+    out = {}
+    for cid in coach_ids:
+        a, b = spans.get(cid, (0, 0))
+        out[cid] = CoachRows(time_s[a:b], values[a:b], regular[a:b])
+    return out
 
 
 @dataclass
@@ -100,59 +131,54 @@ class Samples:
     last_time_s: float | None = None
 
 
-def controller_samples(frame: pd.DataFrame, tick: pd.Timestamp, period_s: float) -> Samples:
-    """Samples at the ticks t, t − Δ, … covered by ``frame``, cut at the first gap, interval
-    with missing rows, or interval not entirely in regular mode (the controller's model only
-    knows regular mode; its lead-in starts again after anything else)."""
-    step = pd.Timedelta(seconds=period_s)
+_Y = [VALUE_COLS.index(c) for c in Y_COLS]
+_U = VALUE_COLS.index("t_ref_c")
+_D = [VALUE_COLS.index(c) for c in D_COLS]
+
+
+def controller_samples(rows: CoachRows, tick_s: float, period_s: float) -> Samples:
+    """Samples at the ticks t, t − Δ, … (t = ``tick_s``, Δ = ``period_s``, s) covered by
+    ``rows``, walking back until the first tick without a complete reading (no row in its last
+    minute, or a NaN deck temperature) or the first interval with missing rows, a NaN input or
+    disturbance, or a minute not in regular mode (the controller's model only knows regular
+    mode; its lead-in starts again after anything else)."""
     minutes = round(period_s / 60.0)
-    last = frame.iloc[-1] if len(frame) else None
-    u_prev = float(last["t_ref_c"]) if last is not None else float("nan")
-    t_rule_now = float(last["t_rule_c"]) if last is not None else float("nan")
-    regular_now = bool(last is not None and last["mode"] == "regular")
-    last_time_s = frame.index[-1].timestamp() if last is not None else None
-    if last is None or frame.index[-1] < tick - pd.Timedelta(minutes=1):
-        return Samples(
-            times_s=np.empty(0),
-            y=np.empty((0, 3)),
-            u=np.empty(0),
-            d_past=np.empty((0, 5)),
-            d_now=None,
-            u_prev=u_prev,
-            t_rule_now=t_rule_now,
-            regular=regular_now,
-            last_time_s=last_time_s,
-        )
+    time_s, v = rows.time_s, rows.values
+    if len(time_s):
+        last = v[-1]
+        u_prev, t_rule_now = float(last[_U]), float(last[VALUE_COLS.index("t_rule_c")])
+        regular_now, last_time_s = bool(rows.regular[-1]), float(time_s[-1])
+    else:
+        u_prev = t_rule_now = float("nan")
+        regular_now, last_time_s = False, None
     times, ys, us, ds = [], [], [], []
-    t = tick
-    while True:
-        y = frame.loc[(frame.index > t - pd.Timedelta(minutes=1)) & (frame.index <= t)]
-        if y.empty or y[list(Y_COLS)].isna().any().any():
-            break
-        times.append(t)
-        ys.append(y[list(Y_COLS)].to_numpy(float).mean(axis=0))
-        previous = t - step
-        block = frame.loc[(frame.index > previous) & (frame.index <= t)]
-        complete = (
-            len(block) >= minutes
-            and (block["mode"] == "regular").all()
-            and not block[["t_ref_c", *D_COLS]].isna().any().any()
-        )
-        if not complete:
-            break
-        us.append(float(block["t_ref_c"].mean()))
-        ds.append(block[list(D_COLS)].to_numpy(float).mean(axis=0))
-        t = previous
-    times, ys = times[::-1], ys[::-1]
-    us, ds = us[::-1], ds[::-1]
-    # the samples are the ticks; u and d are the intervals between consecutive ones
+    if last_time_s is not None and last_time_s >= tick_s - 60.0:
+        y_ok = ~np.isnan(v[:, _Y]).any(axis=1)
+        block_ok = rows.regular & ~np.isnan(v[:, [_U, *_D]]).any(axis=1)
+        t = tick_s
+        while True:
+            # the reading at t: the rows of its last minute (t − 1 min, t]
+            hi = np.searchsorted(time_s, t, side="right")
+            lo = np.searchsorted(time_s, t - 60.0, side="right")
+            if hi == lo or not y_ok[lo:hi].all():
+                break
+            times.append(t)
+            ys.append(v[lo:hi, _Y].mean(axis=0))
+            # the interval (t − Δ, t] before it: complete, regular, and with every input
+            lo = np.searchsorted(time_s, t - period_s, side="right")
+            if hi - lo < minutes or not block_ok[lo:hi].all():
+                break
+            us.append(float(v[lo:hi, _U].mean()))
+            ds.append(v[lo:hi, _D].mean(axis=0))
+            t -= period_s
+    # oldest first; the samples are the ticks, u and d the intervals between consecutive ones
     n = len(times)
-    us, ds = us[len(us) - (n - 1) :] if n > 1 else [], ds[len(ds) - (n - 1) :] if n > 1 else []
+    us, ds = us[: n - 1][::-1], ds[: n - 1][::-1]
     return Samples(
-        times_s=np.array([x.timestamp() for x in times]),
-        y=np.array(ys).reshape(-1, 3),
-        u=np.array(us),
-        d_past=np.array(ds).reshape(-1, 5),
+        times_s=np.array(times[::-1], float),
+        y=np.array(ys[::-1], float).reshape(-1, 3),
+        u=np.array(us, float),
+        d_past=np.array(ds, float).reshape(-1, 5),
         d_now=ds[-1] if ds else None,
         u_prev=u_prev,
         t_rule_now=t_rule_now,

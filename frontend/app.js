@@ -1,0 +1,420 @@
+// trainclimate operator dashboard: fleet overview, pair comparison, coach detail, audit log.
+// Plain JavaScript, no build step; Plotly.js is served by the backend (no CDN).
+"use strict";
+
+const API = "/api/v1";
+const TZ = "Europe/Zurich";
+const REFRESH_MS = 5000;
+const DECKS = ["up", "mid", "low"];
+// Okabe–Ito colours: distinguishable with the common colour-vision deficiencies
+const DECK_COLOUR = { up: "#D55E00", mid: "#009E73", low: "#0072B2" };
+const COLOUR = { ref: "#000000", band: "#8c8c8c", amb: "#CC79A7", ghi: "#E69F00", act: "#009E73", deact: "#555555", savings: "#56B4E9" };
+const SOURCE_COLOUR = { ddpc: "#009E73", rule: "#8c8c8c", override: "#5a32a3", fallback: "#b42318" };
+
+const state = { token: sessionStorage.getItem("tc_token"), me: null, timer: null, sort: { key: "id", dir: 1 } };
+
+// --- API -----------------------------------------------------------------------------------
+class ApiError extends Error {
+  constructor(status, detail) { super(typeof detail === "string" ? detail : formatDetail(detail)); this.status = status; }
+}
+
+function formatDetail(detail) {
+  if (Array.isArray(detail)) {
+    return detail.map((d) => `${(d.loc || []).filter((x) => x !== "body").join(".")}: ${d.msg}`).join("; ");
+  }
+  return JSON.stringify(detail);
+}
+
+async function api(path, options = {}) {
+  const headers = { Authorization: `Bearer ${state.token}` };
+  if (options.body) headers["Content-Type"] = "application/json";
+  const reply = await fetch(API + path, { ...options, headers });
+  const body = reply.headers.get("content-type")?.includes("json") ? await reply.json() : null;
+  if (reply.status === 401) { signOut(); throw new ApiError(401, body?.detail || "not signed in"); }
+  if (!reply.ok) throw new ApiError(reply.status, body?.detail ?? reply.statusText);
+  return body;
+}
+
+// --- formatting ----------------------------------------------------------------------------
+const zurich = new Intl.DateTimeFormat("sv-SE", { timeZone: TZ, year: "numeric", month: "2-digit", day: "2-digit", hour: "2-digit", minute: "2-digit", second: "2-digit" });
+/** An ISO UTC time as Zurich local time "YYYY-MM-DD HH:MM:SS" (what Plotly plots as local). */
+const local = (iso) => (iso ? zurich.format(new Date(iso)) : "");
+const fmt = (v, digits = 1) => (v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits));
+const el = (tag, attrs = {}, ...children) => {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") node.className = v; else if (k === "text") node.textContent = v; else node.setAttribute(k, v);
+  }
+  for (const c of children) node.append(c);
+  return node;
+};
+function badge(coach) {
+  const label = coach.status === "override" && coach.override_until ? `override until ${local(coach.override_until).slice(11, 16)}` : coach.status;
+  const span = el("span", { class: `badge ${coach.status}`, text: label });
+  const wrap = el("span", {}, span);
+  if (coach.status === "fallback" && coach.reason) wrap.append(el("span", { class: "reason", text: coach.reason }));
+  return wrap;
+}
+function kpi(label, value, id) {
+  return el("div", { class: "kpi", ...(id ? { id } : {}) }, el("div", { class: "label", text: label }), el("div", { class: "value", text: value }));
+}
+
+// --- sign-in -------------------------------------------------------------------------------
+async function signIn(token) {
+  state.token = token;
+  const me = await api("/me");
+  state.me = me;
+  sessionStorage.setItem("tc_token", token);
+  document.body.classList.toggle("viewer", me.role === "viewer");
+  document.getElementById("who").textContent = `${me.name} (${me.role})`;
+  document.getElementById("signout").hidden = false;
+}
+
+function signOut() {
+  sessionStorage.removeItem("tc_token");
+  state.token = null;
+  state.me = null;
+  document.getElementById("who").textContent = "";
+  document.getElementById("signout").hidden = true;
+  showSignIn();
+}
+
+function showSignIn(message = "") {
+  const dialog = document.getElementById("signin");
+  document.getElementById("signin-error").textContent = message;
+  if (!dialog.open) dialog.showModal();
+}
+
+// --- router --------------------------------------------------------------------------------
+function mount(templateId) {
+  const view = document.getElementById("view");
+  view.replaceChildren(document.getElementById(templateId).content.cloneNode(true));
+  return view;
+}
+
+function every(ms, fn) {
+  clearInterval(state.timer);
+  state.timer = setInterval(() => fn().catch(report), ms);
+  return fn().catch(report);
+}
+
+function report(err) {
+  if (err instanceof ApiError && err.status === 401) return;
+  console.warn(err);
+}
+
+async function route() {
+  if (!state.me) return;
+  const [, page, id] = (location.hash || "#/").split("/");
+  document.querySelectorAll("[data-nav]").forEach((a) => a.classList.toggle("active", a.dataset.nav === (page || "fleet")));
+  clearInterval(state.timer);
+  if (page === "train" && id) return showTrain(decodeURIComponent(id));
+  if (page === "coach" && id) return showCoach(decodeURIComponent(id));
+  if (page === "audit") return showAudit();
+  return showFleet();
+}
+
+// --- fleet overview ------------------------------------------------------------------------
+async function showFleet() {
+  const view = mount("tpl-fleet");
+  const body = view.querySelector("#coaches tbody");
+  let coaches = [];
+  const draw = () => {
+    const text = view.querySelector("#filter").value.toLowerCase();
+    const status = view.querySelector("#status-filter").value;
+    const { key, dir } = state.sort;
+    const rows = coaches
+      .filter((c) => !status || c.status === status)
+      .filter((c) => !text || [c.id, c.train_id, c.status, c.reason || ""].some((s) => s.toLowerCase().includes(text)))
+      .sort((a, b) => (a[key] > b[key] ? dir : a[key] < b[key] ? -dir : 0));
+    body.replaceChildren(...rows.map((c) => {
+      const temps = c.t_room_c ? c.t_room_c.map((t) => fmt(t)).join(" / ") : "–";
+      const band = c.t_rule_c === null ? "–" : `${fmt(c.t_rule_c - 1)} – ${fmt(c.t_rule_c + 1)}`;
+      return el("tr", { "data-coach": c.id },
+        el("td", {}, el("a", { href: `#/coach/${encodeURIComponent(c.id)}`, text: c.id })),
+        el("td", { text: c.train_id }),
+        el("td", { text: c.ddpc_active ? "activated" : "deactivated" }),
+        el("td", {}, badge(c)),
+        el("td", { text: c.mode || "–" }),
+        el("td", { class: "num", text: temps }),
+        el("td", { class: "num", text: fmt(c.t_ref_c, 2) }),
+        el("td", { class: "num", text: band }),
+        el("td", { class: "num", text: fmt(c.last_solve_ms, 3) }),
+        el("td", {}, el("a", { href: `#/train/${encodeURIComponent(c.train_id)}`, text: "compare" })));
+    }));
+    view.querySelectorAll("th[data-sort]").forEach((th) => {
+      th.classList.toggle("sorted-asc", th.dataset.sort === key && dir === 1);
+      th.classList.toggle("sorted-desc", th.dataset.sort === key && dir === -1);
+    });
+  };
+  view.querySelector("#filter").addEventListener("input", draw);
+  view.querySelector("#status-filter").addEventListener("change", draw);
+  view.querySelectorAll("th[data-sort]").forEach((th) => th.addEventListener("click", () => {
+    state.sort = { key: th.dataset.sort, dir: state.sort.key === th.dataset.sort ? -state.sort.dir : 1 };
+    draw();
+  }));
+  await every(REFRESH_MS, async () => {
+    coaches = await api("/coaches");
+    const clock = coaches.map((c) => c.clock).filter(Boolean).sort().pop();
+    view.querySelector("#fleet-clock").textContent = clock ? `fleet clock ${local(clock)} (Zurich)` : "";
+    draw();
+  });
+}
+
+// --- pair comparison (the paper's experiment figure, live) ---------------------------------
+function rangeQuery(view, clock) {
+  const choice = view.querySelector("#range").value;
+  if (choice === "custom") {
+    const start = view.querySelector("#range-start").value;
+    const end = view.querySelector("#range-end").value;
+    if (start && end) return `?start=${encodeURIComponent(zurichToIso(start))}&end=${encodeURIComponent(zurichToIso(end))}`;
+  }
+  const hours = choice === "custom" ? 24 : Number(choice);
+  if (!clock) return "";
+  const end = new Date(clock);
+  const start = new Date(end.getTime() - hours * 3600e3);
+  return `?start=${encodeURIComponent(start.toISOString())}&end=${encodeURIComponent(end.toISOString())}`;
+}
+
+/** "YYYY-MM-DDTHH:MM" in Zurich time → ISO UTC (finding the offset that round-trips). */
+function zurichToIso(value) {
+  const guess = new Date(`${value}:00Z`);
+  for (const offsetH of [1, 2, 0]) {
+    const candidate = new Date(guess.getTime() - offsetH * 3600e3);
+    if (local(candidate.toISOString()).startsWith(value.replace("T", " "))) return candidate.toISOString();
+  }
+  return guess.toISOString();
+}
+
+async function showTrain(trainId) {
+  const view = mount("tpl-train");
+  const train = await api(`/trains/${encodeURIComponent(trainId)}`);
+  view.querySelector("#train-title").textContent = `Train ${train.id}: ${train.name}`;
+  const rangeSelect = view.querySelector("#range");
+  rangeSelect.addEventListener("change", () => {
+    view.querySelector("#custom-range").hidden = rangeSelect.value !== "custom";
+    if (rangeSelect.value !== "custom") refresh().catch(report);
+  });
+  view.querySelector("#range-apply").addEventListener("click", () => refresh().catch(report));
+  if (!train.activated.length || !train.deactivated.length) {
+    view.querySelector("#summary").textContent = "This train has no pair of an activated and a deactivated coach.";
+    return;
+  }
+  const [act, deact] = [train.activated[0], train.deactivated[0]];
+  async function refresh() {
+    const coach = await api(`/coaches/${encodeURIComponent(act)}`);
+    const q = rangeQuery(view, coach.clock);
+    const [cmp, a, b] = await Promise.all([
+      api(`/trains/${encodeURIComponent(trainId)}/comparison${q}`),
+      api(`/coaches/${encodeURIComponent(act)}/timeseries${q}`),
+      api(`/coaches/${encodeURIComponent(deact)}/timeseries${q}`),
+    ]);
+    view.querySelector("#train-clock").textContent = coach.clock ? `clock ${local(coach.clock)} (Zurich)` : "";
+    view.querySelector("#summary").replaceChildren(
+      kpi("Energy savings", cmp.savings_pct === null ? "–" : `${fmt(cmp.savings_pct, 1)} %`, "kpi-savings"),
+      kpi(`Avg hourly violation, activated ${act}`, `${fmt(cmp.avg_hourly_violation_k, 3)} K`),
+      kpi(`Avg hourly violation, deactivated ${deact}`, `${fmt(cmp.baseline_violation_k, 3)} K`),
+      kpi("Energy activated / deactivated", `${fmt(cmp.energy_activated_kwh, 1)} / ${fmt(cmp.energy_deactivated_kwh, 1)} kWh`),
+      kpi("Excluded", `${fmt(cmp.excluded_minutes, 0)} min`));
+    drawPair(view.querySelector("#pair-figure"), cmp, a, b, act, deact);
+  }
+  await every(2 * REFRESH_MS, refresh);
+}
+
+function temperatureTraces(ts, axis, showlegend) {
+  const t = ts.time.map(local);
+  const traces = [];
+  for (const [offset, name] of [[1, "upper bound"], [-1, "lower bound"]]) {
+    traces.push({ x: t, y: ts.t_rule_c.map((r) => (r === null ? null : r + offset)), name, legendgroup: name, showlegend, yaxis: axis,
+      line: { color: COLOUR.band, dash: "dot", width: 1 } });
+  }
+  DECKS.forEach((deck, d) => traces.push({ x: t, y: ts.t_room_c.map((r) => r[d]), name: `T_room ${deck}`, legendgroup: deck, showlegend, yaxis: axis,
+    line: { color: DECK_COLOUR[deck], width: 1.3 } }));
+  traces.push({ x: t, y: ts.t_ref_c, name: "T_ref", legendgroup: "ref", showlegend, yaxis: axis, line: { color: COLOUR.ref, dash: "dash", width: 1.6 } });
+  return traces;
+}
+
+function cumulative(ts) {
+  let sum = 0;
+  return ts.power_kw.map((p) => (sum += (p || 0) / 60));
+}
+
+function drawPair(node, cmp, a, b, act, deact) {
+  const traces = [
+    ...temperatureTraces(b, "y", true),
+    ...temperatureTraces(a, "y2", false),
+    { x: a.time.map(local), y: a.t_amb_c, name: "T_amb", yaxis: "y3", line: { color: COLOUR.amb } },
+    { x: a.time.map(local), y: a.ghi_w_m2, name: "global irradiance", yaxis: "y4", line: { color: COLOUR.ghi } },
+    { x: b.time.map(local), y: cumulative(b), name: `energy ${deact} (deactivated)`, yaxis: "y5", line: { color: COLOUR.deact } },
+    { x: a.time.map(local), y: cumulative(a), name: `energy ${act} (activated)`, yaxis: "y5", line: { color: COLOUR.act } },
+    { type: "bar", x: cmp.windows.map((w) => local(new Date(new Date(w.start).getTime() + cmp.window_min * 30e3).toISOString())),
+      y: cmp.windows.map((w) => w.savings_pct), name: "30-min savings (%)", yaxis: "y6", marker: { color: COLOUR.savings }, opacity: 0.65,
+      width: cmp.window_min * 60e3 * 0.8 },
+  ];
+  const shapes = cmp.windows.filter((w) => w.excluded).map((w) => ({
+    type: "rect", xref: "x", yref: "paper", y0: 0, y1: 1, fillcolor: "#b42318", opacity: 0.12, line: { width: 0 },
+    x0: local(w.start), x1: local(new Date(new Date(w.start).getTime() + cmp.window_min * 60e3).toISOString()) }));
+  const layout = {
+    margin: { t: 30, r: 70, l: 70, b: 50 }, hovermode: "x unified", legend: { orientation: "h", y: -0.08 },
+    shapes,
+    xaxis: { title: { text: "local time (Europe/Zurich)" }, anchor: "y5" },
+    yaxis: { title: { text: `${deact} deactivated (°C)` }, domain: [0.76, 1], anchor: "x" },
+    yaxis2: { title: { text: `${act} activated (°C)` }, domain: [0.51, 0.73], anchor: "x" },
+    yaxis3: { title: { text: "T_amb (°C)" }, domain: [0.27, 0.48], anchor: "x" },
+    yaxis4: { title: { text: "irradiance (W/m²)" }, overlaying: "y3", side: "right", anchor: "x", rangemode: "tozero" },
+    yaxis5: { title: { text: "energy (kWh)" }, domain: [0, 0.24], anchor: "x" },
+    yaxis6: { title: { text: "30-min savings (%)" }, overlaying: "y5", side: "right", anchor: "x", showgrid: false, rangemode: "tozero" },
+  };
+  Plotly.react(node, traces, layout, { responsive: true, displaylogo: false });
+}
+
+// --- coach detail --------------------------------------------------------------------------
+async function showCoach(coachId) {
+  const view = mount("tpl-coach");
+  view.querySelector("#coach-title").textContent = `Coach ${coachId}`;
+  const form = view.querySelector("#override-form");
+  form.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const error = view.querySelector("#ov-error");
+    error.textContent = "";
+    try {
+      await api(`/coaches/${encodeURIComponent(coachId)}/override`, { method: "POST", body: JSON.stringify({
+        t_ref_c: Number(view.querySelector("#ov-value").value),
+        duration_min: Number(view.querySelector("#ov-duration").value),
+        reason: view.querySelector("#ov-reason").value }) });
+      form.reset();
+      await refresh();
+    } catch (err) {
+      error.textContent = err.message;
+    }
+  });
+  view.querySelector("#layer-form").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const coach = await api(`/coaches/${encodeURIComponent(coachId)}`);
+    await api(`/coaches/${encodeURIComponent(coachId)}/controller`, { method: "PUT", body: JSON.stringify({
+      active: !coach.ddpc_active, reason: view.querySelector("#layer-reason").value }) });
+    view.querySelector("#layer-form").reset();
+    await refresh();
+  });
+
+  async function refresh() {
+    const coach = await api(`/coaches/${encodeURIComponent(coachId)}`);
+    const [ts, sp, overrides, audit] = await Promise.all([
+      api(`/coaches/${encodeURIComponent(coachId)}/timeseries`),
+      api(`/coaches/${encodeURIComponent(coachId)}/setpoints`),
+      api(`/coaches/${encodeURIComponent(coachId)}/overrides`),
+      api(`/audit?target=${encodeURIComponent(coachId)}&limit=50`),
+    ]);
+    view.querySelector("#coach-clock").textContent = coach.clock ? `clock ${local(coach.clock)} (Zurich)` : "";
+    view.querySelector("#coach-status").replaceChildren(
+      kpi("Status", "", "kpi-status"),
+      kpi("Layer", coach.ddpc_active ? "activated" : "deactivated"),
+      kpi("T_ref", `${fmt(coach.t_ref_c, 2)} °C`),
+      kpi("T_rule band", coach.t_rule_c === null ? "–" : `${fmt(coach.t_rule_c - 1)} – ${fmt(coach.t_rule_c + 1)} °C`),
+      kpi("Last solve", `${fmt(coach.last_solve_ms, 3)} ms`));
+    view.querySelector("#kpi-status .value").replaceChildren(badge(coach));
+    view.querySelector("#layer-button").textContent = coach.ddpc_active ? "Switch the layer off" : "Switch the layer on";
+    view.querySelector("#ov-band").textContent = coach.t_rule_c === null ? "" :
+      `Allowed: ${fmt(coach.t_rule_c - 2)} – ${fmt(coach.t_rule_c + 2)} °C (T_rule ± 2 K, the driver's limit).`;
+    drawPrediction(view.querySelector("#prediction-figure"), ts, sp);
+    drawSources(view.querySelector("#sources-figure"), sp);
+    view.querySelector("#overrides tbody").replaceChildren(...(overrides.length ? overrides.map((o) => el("tr", {},
+      el("td", { text: `${fmt(o.t_ref_c, 1)} °C` }),
+      el("td", { text: `${local(o.starts_at).slice(11, 16)}–${local(o.ends_at).slice(11, 16)}` }),
+      el("td", { text: `${o.created_by}: ${o.reason}` }),
+      el("td", {}, o.active && state.me.role !== "viewer" ? cancelButton(coachId, refresh) : el("span", { text: o.active ? "active" : "ended" }))))
+      : [el("tr", {}, el("td", { text: "none" }))]));
+    view.querySelector("#coach-audit tbody").replaceChildren(...(audit.length ? audit.map((a) => el("tr", {},
+      el("td", { text: local(a.time) }), el("td", { text: a.user }), el("td", { text: a.action }), el("td", { text: a.reason }))) :
+      [el("tr", {}, el("td", { text: "nothing yet" }))]));
+  }
+  await every(REFRESH_MS, refresh);
+}
+
+function cancelButton(coachId, after) {
+  const button = el("button", { class: "secondary", text: "Cancel" });
+  button.addEventListener("click", async () => {
+    await api(`/coaches/${encodeURIComponent(coachId)}/override?reason=${encodeURIComponent("cancelled on the dashboard")}`, { method: "DELETE" });
+    await after();
+  });
+  return button;
+}
+
+function drawPrediction(node, ts, sp) {
+  const times = ts.time.map((t) => new Date(t).getTime());
+  const last = times.length ? times[times.length - 1] : 0;
+  // the newest prediction whose horizon has passed, so it can be compared with what happened
+  let index = -1;
+  for (let i = sp.tick.length - 1; i >= 0; i--) {
+    const p = sp.predicted[i];
+    if (p && p.y_pred_c && new Date(sp.tick[i]).getTime() + p.y_pred_c.length * 300e3 <= last) { index = i; break; }
+  }
+  if (index < 0) {
+    Plotly.react(node, [], { annotations: [{ text: "no completed prediction yet (the layer warms up for an hour)", showarrow: false, xref: "paper", yref: "paper", x: 0.5, y: 0.5 }],
+      xaxis: { visible: false }, yaxis: { visible: false } }, { responsive: true, displaylogo: false });
+    return;
+  }
+  const tick = new Date(sp.tick[index]).getTime();
+  const pred = sp.predicted[index];
+  const steps = pred.y_pred_c.map((_, k) => local(new Date(tick + (k + 1) * 300e3).toISOString()));
+  const start = tick - 3600e3;
+  const end = tick + pred.y_pred_c.length * 300e3;
+  const sel = times.map((t, i) => (t >= start && t <= end ? i : -1)).filter((i) => i >= 0);
+  const traces = [];
+  DECKS.forEach((deck, d) => {
+    traces.push({ x: sel.map((i) => local(ts.time[i])), y: sel.map((i) => ts.t_room_c[i][d]), name: `measured ${deck}`, line: { color: DECK_COLOUR[deck], width: 1.2 } });
+    traces.push({ x: steps, y: pred.y_pred_c.map((row) => row[d]), name: `predicted ${deck}`, mode: "lines+markers", line: { color: DECK_COLOUR[deck], dash: "dash" } });
+  });
+  traces.push({ x: [local(sp.tick[index]), ...steps], y: pred.t_opt_c, name: "T_opt", line: { color: COLOUR.band, dash: "dot" } });
+  traces.push({ x: [local(sp.tick[index]), ...steps], y: pred.u_plan_c, name: "planned T_ref", line: { color: COLOUR.ref, dash: "dash", shape: "hv" } });
+  Plotly.react(node, traces, { margin: { t: 20, r: 20, l: 60, b: 50 }, yaxis: { title: { text: "°C" } },
+    xaxis: { title: { text: `local time (Europe/Zurich), prediction made at ${local(sp.tick[index]).slice(11, 16)}` } },
+    shapes: [{ type: "line", xref: "x", yref: "paper", x0: local(sp.tick[index]), x1: local(sp.tick[index]), y0: 0, y1: 1, line: { dash: "dot", color: "#444" } }] },
+  { responsive: true, displaylogo: false });
+}
+
+function drawSources(node, sp) {
+  const traces = Object.keys(SOURCE_COLOUR).map((source) => {
+    const idx = sp.source.map((s, i) => (s === source ? i : -1)).filter((i) => i >= 0);
+    return { x: idx.map((i) => local(sp.tick[i])), y: idx.map((i) => sp.t_ref_c[i]), name: source, mode: "markers",
+      marker: { color: SOURCE_COLOUR[source], size: 6 }, text: idx.map((i) => sp.reason[i]), hovertemplate: "%{x}<br>%{y:.2f} °C<br>%{text}" };
+  });
+  traces.push({ x: sp.tick.map(local), y: sp.t_rule_c, name: "T_rule", line: { color: COLOUR.band, dash: "dot" } });
+  Plotly.react(node, traces, { margin: { t: 20, r: 20, l: 60, b: 50 }, yaxis: { title: { text: "T_ref issued (°C)" } },
+    xaxis: { title: { text: "local time (Europe/Zurich)" } } }, { responsive: true, displaylogo: false });
+}
+
+// --- audit log -----------------------------------------------------------------------------
+async function showAudit() {
+  const view = mount("tpl-audit");
+  await every(REFRESH_MS, async () => {
+    const rows = await api("/audit?limit=200");
+    view.querySelector("#audit tbody").replaceChildren(...rows.map((a) => el("tr", {},
+      el("td", { text: local(a.time) }), el("td", { text: a.user }), el("td", { text: a.role }), el("td", { text: a.action }),
+      el("td", { text: a.target }), el("td", { text: a.reason }), el("td", { text: JSON.stringify(a.detail) }))));
+  });
+}
+
+// --- start ---------------------------------------------------------------------------------
+document.getElementById("signin-form").addEventListener("submit", async (event) => {
+  event.preventDefault();
+  try {
+    await signIn(document.getElementById("token").value.trim());
+    document.getElementById("signin").close();
+    route();
+  } catch (err) {
+    showSignIn(err.message);
+  }
+});
+document.getElementById("signout").addEventListener("click", signOut);
+window.addEventListener("hashchange", route);
+
+(async () => {
+  if (!state.token) return showSignIn();
+  try {
+    await signIn(state.token);
+    route();
+  } catch {
+    showSignIn("Your session has ended; sign in again.");
+  }
+})();

@@ -1,0 +1,223 @@
+"""The dashboard in a real browser: Playwright driving Debian's Chromium (headless) against
+``trainclimate serve --fleet demo`` running as its own process on SQLite.
+
+Pages load without console errors and their charts have data; a viewer sees no write controls;
+an operator's override is applied (the next tick issues it) and audited, an invalid one shows the
+API's message, and cancelling ends it. With ``TRAINCLIMATE_SCREENSHOT_DIR`` set, the screenshots of
+the operator guide are written there (``docs/img``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import httpx
+import pytest
+
+from service_processes import CLI, Server, free_port
+from service_support import wait_for
+from trainclimate.service.db import Database, migrate
+from trainclimate.service.security import create_token
+
+CHROMIUM = Path("/usr/bin/chromium")
+if not CHROMIUM.exists():
+    pytest.skip(f"no Chromium at {CHROMIUM} (.ci/run installs Debian's)", allow_module_level=True)
+sync_api = pytest.importorskip("playwright.sync_api")
+
+LAPTOP = {"width": 1366, "height": 768}
+WALL = {"width": 1920, "height": 1080}
+#: Chromium flags for a headless run in a container without a session bus or GPU.
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run"]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory, model_file):
+    """The demo fleet at 3000× on SQLite, with a viewer and an operator token; running until its
+    activated coaches have a completed prediction (the layer's first hour) and a few hours more."""
+    home = tmp_path_factory.mktemp("dashboard")
+    db_url = f"sqlite:///{home / 'trainclimate.db'}"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
+    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+    port = free_port()
+    args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
+    srv = Server([*args, "--fleet", "demo", "--speedup", "3000"], env, port, home / "server.log")
+    srv.start()
+    migrate(db_url)
+    db = Database(db_url)
+    with db.transaction() as s:
+        srv.tokens = {r: create_token(s, r, f"browser-{r}")[0] for r in ("viewer", "operator")}
+    db.dispose()
+    headers = {"Authorization": f"Bearer {srv.tokens['viewer']}"}
+
+    def predicted() -> bool:
+        sp = httpx.get(f"{srv.url}/api/v1/coaches/D1-A/setpoints", headers=headers).json()
+        return sum(s == "ddpc" for s in sp["source"]) >= 20
+
+    wait_for(predicted, 120, "20 DDPC setpoints of D1-A")
+    yield srv
+    srv.stop()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=ARGS)
+        yield b
+        b.close()
+
+
+class Watched:
+    """A page with its console errors and uncaught exceptions collected."""
+
+    def __init__(self, browser, server: Server, role: str, viewport=LAPTOP):
+        self.context = browser.new_context(viewport=viewport)
+        self.page = self.context.new_page()
+        self.errors: list[str] = []
+        self.page.on("console", lambda m: m.type == "error" and self.errors.append(m.text))
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.server = server
+        self.page.goto(server.url + "/")
+        self.page.fill("#token", server.tokens[role])
+        self.page.click("#signin-form button[type=submit]")
+        self.page.wait_for_selector(f"#who:has-text('({role})')")
+
+    def go(self, hash_: str) -> None:
+        self.page.goto(f"{self.server.url}/{hash_}")
+
+    def traces(self, figure: str) -> list[dict]:
+        """The figure's traces with how many finite points each has."""
+        return self.page.evaluate(
+            """(sel) => (document.querySelector(sel).data || []).map((t) => ({
+                name: t.name, type: t.type || 'scatter',
+                points: (t.y || []).filter((v) => v !== null && Number.isFinite(v)).length }))""",
+            figure,
+        )
+
+    def shot(self, name: str) -> None:
+        out = os.environ.get("TRAINCLIMATE_SCREENSHOT_DIR")
+        if out:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            self.page.screenshot(path=str(Path(out) / f"{name}.png"), full_page=True)
+
+    def close(self) -> None:
+        self.context.close()
+
+
+def test_pages_load_and_charts_have_data(browser, server):
+    w = Watched(browser, server, "viewer", WALL)
+    page = w.page
+    # fleet: every demo coach, with its status and deck temperatures
+    page.wait_for_selector("#coaches tbody tr[data-coach='D3-B']")
+    rows = page.locator("#coaches tbody tr")
+    assert rows.count() == 6
+    assert page.locator("tr[data-coach='D1-A'] td").nth(2).inner_text() == "activated"
+    assert page.locator("tr[data-coach='D1-B'] td").nth(2).inner_text() == "deactivated"
+    temps = page.locator("tr[data-coach='D1-A'] td").nth(5).inner_text()
+    assert len([t for t in temps.split(" / ") if t.replace(".", "").isdigit()]) == 3, temps
+    # filter and sort
+    page.fill("#filter", "D2")
+    assert page.locator("#coaches tbody tr").count() == 2
+    page.fill("#filter", "")
+    first = page.locator("#coaches tbody tr").first
+    assert first.get_attribute("data-coach") == "D1-A"  # by coach, ascending
+    page.click("th[data-sort='id']")
+    assert first.get_attribute("data-coach") == "D3-B"
+    assert page.locator("th.sorted-desc[data-sort='id']").count() == 1
+    w.shot("dashboard-fleet")
+
+    # the pair comparison: the paper's four panels with data and the summary
+    w.go("#/train/D1")
+    page.wait_for_function(
+        "() => (document.querySelector('#pair-figure').data || []).length > 0", timeout=20_000
+    )
+    traces = {t["name"]: t for t in w.traces("#pair-figure")}
+    for name in ("T_room up", "T_ref", "T_amb", "global irradiance", "30-min savings (%)"):
+        assert traces[name]["points"] > 0, (name, traces[name])
+    assert traces["energy D1-A (activated)"]["points"] > 60
+    assert traces["energy D1-B (deactivated)"]["points"] > 60
+    assert page.locator("#pair-figure .main-svg").count() > 0  # drawn, not only data
+    savings = page.locator("#kpi-savings .value").inner_text()
+    assert savings.endswith("%"), savings
+    w.shot("dashboard-pair")
+    # the range picker asks the API for another range
+    with page.expect_response(lambda r: "/comparison?start=" in r.url and r.ok):
+        page.select_option("#range", "6")
+
+    # the coach detail: the last completed prediction against what happened, the sources
+    w.go("#/coach/D1-A")
+    page.wait_for_function(
+        "() => (document.querySelector('#prediction-figure').data || []).length > 0",
+        timeout=20_000,
+    )
+    names = {t["name"]: t["points"] for t in w.traces("#prediction-figure")}
+    assert names["predicted mid"] > 0 and names["measured mid"] > 0 and names["T_opt"] > 0
+    assert {t["name"] for t in w.traces("#sources-figure")} >= {"ddpc", "rule", "T_rule"}
+    assert dict((t["name"], t["points"]) for t in w.traces("#sources-figure"))["ddpc"] >= 20
+    # the audit log page loads
+    w.go("#/audit")
+    page.wait_for_selector("#audit thead")
+    assert w.errors == []
+    w.close()
+
+
+def test_viewer_sees_no_write_controls(browser, server):
+    w = Watched(browser, server, "viewer")
+    w.go("#/coach/D2-A")
+    w.page.wait_for_selector("#coach-status .kpi")
+    assert not w.page.locator("#override-form").is_visible()
+    assert not w.page.locator("#layer-form").is_visible()
+    assert w.page.locator("#overrides button").count() == 0
+    assert w.errors == []
+    w.close()
+
+
+def test_operator_overrides_and_it_is_applied_and_audited(browser, server):
+    w = Watched(browser, server, "operator")
+    page = w.page
+    w.go("#/coach/D3-A")
+    page.wait_for_selector("#ov-band:has-text('Allowed')")
+    assert page.locator("#override-form").is_visible()
+    headers = {"Authorization": f"Bearer {server.tokens['viewer']}"}
+    t_rule = httpx.get(f"{server.url}/api/v1/coaches/D3-A", headers=headers).json()["t_rule_c"]
+
+    # outside T_rule ± 2 K: the API's message is shown and nothing is stored
+    page.fill("#ov-value", f"{t_rule + 2.5:.1f}")
+    page.fill("#ov-duration", "30")
+    page.fill("#ov-reason", "too warm")
+    page.click("#override-form button[type=submit]")
+    page.wait_for_selector("#ov-error:has-text('outside T_rule ± 2 K')")
+    w.shot("dashboard-override-refused")
+    assert httpx.get(f"{server.url}/api/v1/coaches/D3-A/overrides", headers=headers).json() == []
+
+    # within the band: stored, shown as active with a cancel button, audited, and applied
+    value = round(t_rule + 1.5, 1)
+    page.fill("#ov-value", f"{value:.1f}")
+    page.fill("#ov-reason", "passengers report it is cold")
+    page.click("#override-form button[type=submit]")
+    page.wait_for_selector("#overrides button:has-text('Cancel')")
+    page.wait_for_selector("#coach-audit td:has-text('override.create')")
+    assert page.locator("#ov-error").inner_text() == ""
+
+    def applied():
+        coach = httpx.get(f"{server.url}/api/v1/coaches/D3-A", headers=headers).json()
+        return coach if coach["status"] == "override" else None
+
+    coach = wait_for(applied, 30, "the override issued at a tick")
+    assert coach["t_ref_c"] == pytest.approx(value)
+    page.wait_for_selector("#coach-status .badge.override")
+    w.shot("dashboard-coach")
+
+    # cancel: the override ends and the cancellation is audited
+    page.click("#overrides button:has-text('Cancel')")
+    page.wait_for_selector("#coach-audit td:has-text('override.cancel')")
+    page.wait_for_selector("#overrides td:has-text('ended')")
+    audit = httpx.get(f"{server.url}/api/v1/audit?target=D3-A", headers=headers).json()
+    assert [a["action"] for a in audit][:2] == ["override.cancel", "override.create"]
+    assert audit[1]["user"] == "browser-operator" and audit[1]["reason"] == (
+        "passengers report it is cold"
+    )
+    # the browser logs the refused request itself; nothing else went wrong
+    refused = "the server responded with a status of 422"
+    assert [e for e in w.errors if refused not in e] == [] and len(w.errors) == 1
+    w.close()

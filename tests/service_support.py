@@ -1,0 +1,182 @@
+"""Helpers of the service tests (importable as ``service_support``: pytest's ``pythonpath``
+includes ``tests``).
+
+Telemetry rows in the store's format (:data:`trainclimate.service.telemetry.FRAME_COLS`, one per
+coach and minute, stamped at the minute's end): realistic ones from a short simulation of three
+empty coaches parked outdoors in Zug on a cold November morning (:func:`sim_rows`, the rule-based
+HVAC in regular mode throughout), or hand-made constant ones (:func:`flat_row`); :func:`to_json`
+turns a row into the body ``POST /api/v1/telemetry`` takes. :data:`T0` is a tick (a multiple of
+the 5-min period) and the simulation's start, so the row stamped ``T0 + k min`` is the k-th
+simulated minute.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime, timedelta
+
+import pytest
+
+from trainclimate.control.coach_model import CoachModel
+from trainclimate.service import loop
+from trainclimate.service.telemetry import rows_from_simulation
+from trainclimate.sim import scenarios
+from trainclimate.sim.simulator import FleetSimulator
+
+API = "/api/v1"
+#: The parked-heating-nov scenario's start (07:00 in Zurich), a tick of the 5-min grid.
+T0 = datetime(2024, 11, 28, 6, 0, tzinfo=UTC)
+SIM_COACHES = 3
+SIM_MINUTES = 120
+
+
+@functools.cache
+def _coach_model(dt_s: float) -> CoachModel:
+    return CoachModel(dt_s=dt_s)
+
+
+@pytest.fixture(autouse=True)
+def shared_coach_model(monkeypatch):
+    """Every scheduler of a test process shares one coach model per period (building it, some
+    eighty matrix exponentials, is most of starting a scheduler, 0.1–0.3 s; it is read only).
+    Autouse in the modules that import it."""
+    monkeypatch.setattr(loop, "CoachModel", lambda dt_s=300.0: _coach_model(float(dt_s)))
+
+
+def at(minutes: float) -> datetime:
+    """``T0`` plus ``minutes``."""
+    return T0 + timedelta(minutes=minutes)
+
+
+@functools.cache
+def _simulation() -> tuple[tuple[dict, ...], ...]:
+    """Two hours of three coaches (≈ 0.5 s, once per process)."""
+    scenario = scenarios.get("parked-heating-nov")
+    env, params = scenarios.build(scenario, n_coaches=SIM_COACHES, hours=SIM_MINUTES / 60)
+    assert env.time[0] == T0
+    sim = FleetSimulator(params, env, seed=7)
+    sim.run()
+    ids = [str(i) for i in range(SIM_COACHES)]
+    rows = rows_from_simulation(sim, 0, sim.k, ids)
+    return tuple(tuple(rows[i]) for i in ids)
+
+
+def sim_rows(coach: int, first: int, last: int) -> list[dict]:
+    """The simulated coach ``coach``'s rows stamped ``T0 + first`` … ``T0 + last`` minutes
+    (1 ≤ first ≤ last ≤ 120), copies."""
+    rows = _simulation()[coach]
+    assert 1 <= first <= last <= len(rows)
+    out = [dict(r) for r in rows[first - 1 : last]]
+    assert out[0]["time"] == at(first) and out[-1]["time"] == at(last)
+    return out
+
+
+def flat_row(time: datetime, **values) -> dict:
+    """A hand-made row: decks at 21.5 °C, T_ref = T_rule = 22 °C, 0 °C outside, dark, parked,
+    10 kW, regular mode, connected — ``values`` replace any of them."""
+    row = {
+        "time": time,
+        "t_room_up_c": 21.5,
+        "t_room_mid_c": 21.5,
+        "t_room_low_c": 21.5,
+        "t_ref_c": 22.0,
+        "t_rule_c": 22.0,
+        "t_amb_c": 0.0,
+        "ghi_w_m2": 0.0,
+        "q_gt_w_m2": 0.0,
+        "q_gs_w_m2": 0.0,
+        "occupancy_pct": 0.0,
+        "speed_kmh": 0.0,
+        "power_kw": 10.0,
+        "mode": "regular",
+        "connected": True,
+    }
+    unknown = set(values) - set(row)
+    assert not unknown, unknown
+    row.update(values)
+    return row
+
+
+def flat_rows(first: int, last: int, **values) -> list[dict]:
+    """:func:`flat_row` stamped ``T0 + first`` … ``T0 + last`` minutes."""
+    return [flat_row(at(m), **values) for m in range(first, last + 1)]
+
+
+SENT = (
+    "t_ref_c",
+    "t_rule_c",
+    "t_amb_c",
+    "ghi_w_m2",
+    "q_gt_w_m2",
+    "q_gs_w_m2",
+    "occupancy_pct",
+    "speed_kmh",
+    "power_kw",
+    "mode",
+    "connected",
+)
+
+
+def to_json(row: dict) -> dict:
+    """A stored row as a row of ``POST /telemetry``."""
+    return {
+        "time": row["time"].isoformat(),
+        "t_room_c": [row["t_room_up_c"], row["t_room_mid_c"], row["t_room_low_c"]],
+        **{k: row[k] for k in SENT},
+    }
+
+
+def wait_for(condition: Callable[[], object], timeout_s: float = 15.0, what: str = ""):
+    """Poll ``condition`` until it returns something truthy (returned); fail after the time."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what or condition}")
+        time.sleep(0.02)
+
+
+# --- the HTTP API ----------------------------------------------------------------------------
+def register(client, headers, coach_id: str, train_id: str = "T", active: bool = True):
+    """``POST /coaches``."""
+    body = {"id": coach_id, "train_id": train_id, "ddpc_active": active}
+    return client.post(f"{API}/coaches", json=body, headers=headers)
+
+
+def post_rows(client, headers, coach_id: str, rows: list[dict]):
+    """``POST /telemetry`` with stored-format rows."""
+    body = {"coach_id": coach_id, "rows": [to_json(r) for r in rows]}
+    return client.post(f"{API}/telemetry", json=body, headers=headers)
+
+
+def wait_for_tick(client, headers, coach_id: str, tick: datetime) -> dict:
+    """The coach's setpoint once the live loop (the app's thread) has issued ``tick``."""
+
+    def issued():
+        sp = client.get(f"{API}/coaches/{coach_id}/setpoint", headers=headers).json()
+        return sp if sp["tick"] and datetime.fromisoformat(sp["tick"]) >= tick else None
+
+    sp = wait_for(issued, what=f"the tick {tick:%H:%M} of coach {coach_id}")
+    assert datetime.fromisoformat(sp["tick"]) == tick
+    return sp
+
+
+def count(url: str, model, **where) -> int:
+    """How many rows of ``model`` (matching ``where``) the database at ``url`` holds."""
+    from sqlalchemy import func, select
+
+    from trainclimate.service.db import Database
+
+    db = Database(url)
+    try:
+        with db.transaction() as s:
+            q = select(func.count()).select_from(model)
+            for key, value in where.items():
+                q = q.where(getattr(model, key) == value)
+            return s.scalar(q)
+    finally:
+        db.dispose()
