@@ -261,9 +261,9 @@ function drawPair(node, cmp, a, b, act, deact) {
     yaxis: { title: { text: `${deact} deactivated (°C)` }, domain: [0.76, 1], anchor: "x" },
     yaxis2: { title: { text: `${act} activated (°C)` }, domain: [0.51, 0.73], anchor: "x" },
     yaxis3: { title: { text: "T_amb (°C)" }, domain: [0.27, 0.48], anchor: "x" },
-    yaxis4: { title: { text: "irradiance (W/m²)" }, overlaying: "y3", side: "right", anchor: "x", rangemode: "tozero" },
+    yaxis4: { title: { text: "irradiance (W/m²)" }, overlaying: "y3", side: "right", anchor: "x", rangemode: "tozero", tickmode: "auto" },
     yaxis5: { title: { text: "energy (kWh)" }, domain: [0, 0.24], anchor: "x" },
-    yaxis6: { title: { text: "30-min savings (%)" }, overlaying: "y5", side: "right", anchor: "x", showgrid: false, rangemode: "tozero" },
+    yaxis6: { title: { text: "30-min savings (%)" }, overlaying: "y5", side: "right", anchor: "x", showgrid: false, rangemode: "tozero", tickmode: "auto" },
   };
   Plotly.react(node, traces, layout, { responsive: true, displaylogo: false });
 }

@@ -13,10 +13,13 @@ simulated minute.
 from __future__ import annotations
 
 import functools
+import os
 import time
+import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 
+import psycopg
 import pytest
 
 from trainclimate.control.coach_model import CoachModel
@@ -43,6 +46,24 @@ def shared_coach_model(monkeypatch):
     eighty matrix exponentials, is most of starting a scheduler, 0.1–0.3 s; it is read only).
     Autouse in the modules that import it."""
     monkeypatch.setattr(loop, "CoachModel", lambda dt_s=300.0: _coach_model(float(dt_s)))
+
+
+PG_URL = os.environ.get("TRAINCLIMATE_TEST_PG_URL")
+PG_SKIP = "TRAINCLIMATE_TEST_PG_URL is not set: no PostgreSQL server to test against"
+
+
+def pg_database() -> tuple[str, str]:
+    """A fresh database on the test server: (its URL, its name)."""
+    name = f"tc_test_{uuid.uuid4().hex[:12]}"
+    with psycopg.connect(PG_URL, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    base = PG_URL.rsplit("/", 1)[0]
+    return f"{base}/{name}", name
+
+
+def drop_pg_database(name: str) -> None:
+    with psycopg.connect(PG_URL, autocommit=True) as conn:
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
 
 
 def at(minutes: float) -> datetime:

@@ -510,7 +510,16 @@ def _create_token(url: str, role: str, name: str | None) -> dict:
 
 
 def cmd_token_create(args: argparse.Namespace) -> None:
-    _emit(args, _create_token(_db_url(args), args.role, args.name), lambda d: d["token"])
+    data = _create_token(_db_url(args), args.role, args.name)
+    if args.out:  # for another process to read (the compose demo's gateways): owner-only
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.touch(mode=0o600)
+        out.write_text(data["token"] + "\n")
+        data = {**data, "token": None, "file": str(out)}
+        _emit(args, data, lambda d: f"token written to {d['file']}")
+        return
+    _emit(args, data, lambda d: d["token"])
 
 
 def cmd_gateway(args: argparse.Namespace) -> None:
@@ -527,8 +536,15 @@ def cmd_gateway(args: argparse.Namespace) -> None:
     if not set(active) <= set(coaches):
         raise UsageError("--active must name coaches of --coaches")
     token = args.token or os.environ.get("TRAINCLIMATE_TOKEN")
+    if args.token_file:
+        try:
+            token = Path(args.token_file).read_text().strip()
+        except OSError as exc:
+            raise UsageError(f"--token-file: {exc.strerror}: {args.token_file}") from None
     if not token:
-        raise UsageError("--token (or TRAINCLIMATE_TOKEN) is required: an operator token")
+        raise UsageError(
+            "--token, --token-file or TRAINCLIMATE_TOKEN is required: an operator token"
+        )
     gateway = Gateway(
         args.server,
         token,
@@ -731,6 +747,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--role", required=True, choices=("viewer", "operator", "admin"))
     p.add_argument("--name", default=None, help="user name (default: generated)")
     p.add_argument("--db", default=None, help="database URL")
+    p.add_argument("--out", default=None, help="write the token to this file (mode 600)")
     p.set_defaults(func=cmd_token_create)
 
     p = add("gateway", cmd_gateway, "an onboard gateway emulator speaking the HTTP live feed")
@@ -739,6 +756,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--active", default=None, help="coaches with the layer on (default: the first)")
     p.add_argument("--train", default=None, help="train id (default: the first coach's prefix)")
     p.add_argument("--token", default=None, help="an operator token (or $TRAINCLIMATE_TOKEN)")
+    p.add_argument("--token-file", default=None, help="a file holding the operator token")
     p.add_argument("--scenario", default="parked-heating-nov", help="weather and operation")
     p.add_argument("--speedup", type=float, default=60.0, help="clock × real time")
     p.add_argument("--hours", type=float, default=None, help="how long (default: the scenario's)")

@@ -8,36 +8,18 @@ PostgreSQL case is skipped with the reason. ``.ci/run`` makes sure a server answ
 from __future__ import annotations
 
 import os
-import uuid
 
-import psycopg
 import pytest
 from fastapi.testclient import TestClient
 
 from service_processes import CLI, Server, free_port
+from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database
 from support import small_predictor
 from trainclimate.predict.artifact import save_predictor
 from trainclimate.service.app import create_app
 from trainclimate.service.db import Database, migrate
 from trainclimate.service.security import create_token
 from trainclimate.service.settings import Settings
-
-PG_URL = os.environ.get("TRAINCLIMATE_TEST_PG_URL")
-PG_SKIP = "TRAINCLIMATE_TEST_PG_URL is not set: no PostgreSQL server to test against"
-
-
-def _pg_database() -> tuple[str, str]:
-    """A fresh database on the test server: (its URL, its name)."""
-    name = f"tc_test_{uuid.uuid4().hex[:12]}"
-    with psycopg.connect(PG_URL, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    base = PG_URL.rsplit("/", 1)[0]
-    return f"{base}/{name}", name
-
-
-def _drop_pg_database(name: str) -> None:
-    with psycopg.connect(PG_URL, autocommit=True) as conn:
-        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
@@ -48,11 +30,11 @@ def db_url(request, tmp_path):
         return
     if not PG_URL:
         pytest.skip(PG_SKIP)
-    url, name = _pg_database()
+    url, name = pg_database()
     try:
         yield url
     finally:
-        _drop_pg_database(name)
+        drop_pg_database(name)
 
 
 @pytest.fixture(scope="session")

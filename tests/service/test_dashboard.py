@@ -10,6 +10,7 @@ the operator guide are written there (``docs/img``).
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import httpx
@@ -33,21 +34,27 @@ ARGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory, model_file):
-    """The demo fleet at 3000× on SQLite, with a viewer and an operator token; running until its
-    activated coaches have a completed prediction (the layer's first hour) and a few hours more."""
+    """The demo fleet at 600× on SQLite (a 5-min tick every 0.5 s), with a viewer and an
+    operator token; running until its activated coaches have a completed prediction (the layer's
+    first hour) and 20 DDPC setpoints."""
     home = tmp_path_factory.mktemp("dashboard")
     db_url = f"sqlite:///{home / 'trainclimate.db'}"
     env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
     env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
     port = free_port()
     args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
-    srv = Server([*args, "--fleet", "demo", "--speedup", "3000"], env, port, home / "server.log")
+    # as `make demo` runs it: the operator token and the dashboard's URL printed at start
+    demo = ["--fleet", "demo", "--speedup", "600", "--new-token", "operator"]
+    srv = Server([*args, *demo], env, port, home / "server.log")
     srv.start()
+    printed = re.search(r"dashboard: (\S+)\noperator token: (tc_\S+)", srv.output())
+    assert printed and printed.group(1) == f"{srv.url}/", srv.output()
     migrate(db_url)
     db = Database(db_url)
     with db.transaction() as s:
-        srv.tokens = {r: create_token(s, r, f"browser-{r}")[0] for r in ("viewer", "operator")}
+        srv.tokens = {"viewer": create_token(s, "viewer", "browser-viewer")[0]}
     db.dispose()
+    srv.tokens["operator"] = printed.group(2)
     headers = {"Authorization": f"Bearer {srv.tokens['viewer']}"}
 
     def predicted() -> bool:
@@ -193,6 +200,7 @@ def test_operator_overrides_and_it_is_applied_and_audited(browser, server):
     # within the band: stored, shown as active with a cancel button, audited, and applied
     value = round(t_rule + 1.5, 1)
     page.fill("#ov-value", f"{value:.1f}")
+    page.fill("#ov-duration", "600")  # 10 h of the fleet's clock: a minute of the test's
     page.fill("#ov-reason", "passengers report it is cold")
     page.click("#override-form button[type=submit]")
     page.wait_for_selector("#overrides button:has-text('Cancel')")
@@ -214,7 +222,7 @@ def test_operator_overrides_and_it_is_applied_and_audited(browser, server):
     page.wait_for_selector("#overrides td:has-text('ended')")
     audit = httpx.get(f"{server.url}/api/v1/audit?target=D3-A", headers=headers).json()
     assert [a["action"] for a in audit][:2] == ["override.cancel", "override.create"]
-    assert audit[1]["user"] == "browser-operator" and audit[1]["reason"] == (
+    assert audit[1]["user"] == "demo-operator" and audit[1]["reason"] == (
         "passengers report it is cold"
     )
     # the browser logs the refused request itself; nothing else went wrong

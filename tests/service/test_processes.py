@@ -377,8 +377,18 @@ def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
         (["serve", "--speedup", "nan"], "--speedup must be positive"),
         (["gateway", "--server", "http://127.0.0.1:9", "--coaches", "1-A,1-B"], "--token"),
         (["token", "create", "--role", "nope"], "invalid choice: 'nope'"),
+        (
+            ["gateway", "--server", "http://127.0.0.1:9", "--coaches", "1-A", "--token-file", "/x"],
+            "--token-file: No such file or directory: /x",
+        ),
     ],
-    ids=["serve-speedup-0", "serve-speedup-nan", "gateway-without-token", "token-bad-role"],
+    ids=[
+        "serve-speedup-0",
+        "serve-speedup-nan",
+        "gateway-without-token",
+        "token-bad-role",
+        "gateway-no-token-file",
+    ],
 )
 def test_cli_refuses_bad_arguments(args, message, proc_env, tmp_path, model_file):
     if args[0] == "serve":

@@ -65,6 +65,7 @@ def require(role: str) -> Callable[..., Principal]:
             raise HTTPException(403, f"this needs the {role} role; the token is {who.role}")
         return who
 
+    check.role = role  # read by the API reference (service/apidoc.py)
     return check
 
 
@@ -116,6 +117,8 @@ def me(who: Viewer) -> dict:
 
 @router.get("/coaches", response_model=list[schemas.CoachOut], tags=["coaches"], responses=AUTH)
 def list_coaches(request: Request, s: DB, _: Viewer) -> list:
+    """Every coach with its train, layer, status (ok, warm-up, stale, fallback, override,
+    inactive, not-regular, no-data), latest readings and setpoint."""
     cfg = settings(request)
     coaches = s.scalars(select(Coach).order_by(Coach.id)).all()
     return [queries.coach_view(s, c, _period(request), cfg.stale_periods) for c in coaches]
@@ -150,6 +153,7 @@ def register_coach(
     responses={**AUTH, **NOT_FOUND},
 )
 def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
+    """One coach, as in the list."""
     coach = queries.coach_or_404(s, coach_id)
     return queries.coach_view(s, coach, _period(request), settings(request).stale_periods)
 
@@ -245,6 +249,7 @@ def cancel_override(
     responses={**AUTH, **NOT_FOUND},
 )
 def list_overrides(coach_id: str, s: DB, _: Viewer) -> list:
+    """The coach's overrides, newest first, with whether each is in force."""
     coach = queries.coach_or_404(s, coach_id)
     now = queries.fleet_clock(s, coach)
     rows = s.scalars(
@@ -292,6 +297,7 @@ def set_controller(
 
 @router.get("/trains", response_model=list[schemas.TrainOut], tags=["trains"], responses=AUTH)
 def list_trains(s: DB, _: Viewer) -> list:
+    """Every train with its activated and deactivated coaches."""
     return [_train(t) for t in s.scalars(select(Train).order_by(Train.id))]
 
 
@@ -302,6 +308,7 @@ def list_trains(s: DB, _: Viewer) -> list:
     responses={**AUTH, **NOT_FOUND},
 )
 def get_train(train_id: str, s: DB, _: Viewer) -> dict:
+    """One train with its activated and deactivated coaches."""
     return _train(queries.train_or_404(s, train_id))
 
 
@@ -375,6 +382,7 @@ def _telemetry_row(r: schemas.TelemetryRow) -> dict:
 # --- models, audit, tokens -------------------------------------------------------------------
 @router.get("/models", response_model=list[schemas.ModelOut], tags=["models"], responses=AUTH)
 def list_models(s: DB, _: Viewer) -> list:
+    """The predictor model versions, with which is active."""
     return [_model(m) for m in s.scalars(select(PredictorModel).order_by(PredictorModel.version))]
 
 
@@ -446,6 +454,7 @@ def create_token(body: schemas.TokenIn, s: DB, who: Admin) -> dict:
 
 @router.get("/tokens", response_model=list[schemas.TokenInfo], tags=["users"], responses=AUTH)
 def list_tokens(s: DB, _: Admin) -> list:
+    """Every token (its prefix only), its user, role and whether it is revoked."""
     rows = s.execute(select(ApiToken, User).join(User).order_by(ApiToken.id)).all()
     return [
         {
@@ -467,6 +476,7 @@ def list_tokens(s: DB, _: Admin) -> list:
     responses={**AUTH, **NOT_FOUND},
 )
 def revoke_token(token_id: Annotated[int, Path(ge=1, le=INT32_MAX)], s: DB, who: Admin):
+    """Revoke a token: it no longer authenticates; audited."""
     t = commands.revoke_token(s, who, token_id)
     user = s.get(User, t.user_id)
     return {

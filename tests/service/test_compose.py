@@ -1,0 +1,179 @@
+"""The dockerised demo without a Docker engine: ``docker-compose.yml`` and the ``Dockerfile``
+name files that exist and commands the CLI takes; and the same set-up — PostgreSQL, the backend
+with its migrations at start, the token step and the three gateway emulators — runs here as
+separate processes with the compose file's own commands (only host names, ports, paths and the
+run's length changed), end to end over HTTP."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+from urllib.parse import urlparse
+
+import httpx
+import pytest
+import yaml
+
+from service_processes import CLI, Server, free_port
+from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database, wait_for
+from trainclimate.cli import build_parser
+from trainclimate.service.app import create_app
+from trainclimate.service.settings import Settings
+
+ROOT = Path(__file__).resolve().parents[2]
+COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+SERVICES = COMPOSE["services"]
+GATEWAYS = sorted(name for name in SERVICES if name.startswith("gateway-1"))
+
+
+def option(command: list[str], name: str) -> str:
+    return command[command.index(name) + 1]
+
+
+def replaced(command: list[str], name: str, value: str) -> list[str]:
+    out = list(command)
+    out[out.index(name) + 1] = value
+    return out
+
+
+def test_the_compose_file_names_what_exists():
+    assert set(SERVICES) == {"postgres", "backend", "gateway-token", *GATEWAYS}
+    assert len(GATEWAYS) == 3
+    for name, service in SERVICES.items():
+        if "build" in service:
+            assert (ROOT / service["build"] / "Dockerfile").exists(), name
+        for dependency, rule in service.get("depends_on", {}).items():
+            assert dependency in SERVICES, (name, dependency)
+            assert rule["condition"] in (
+                "service_healthy",
+                "service_completed_successfully",
+            ), name
+            if rule["condition"] == "service_healthy":
+                assert "healthcheck" in SERVICES[dependency], dependency
+        for volume in service.get("volumes", []):
+            assert volume.split(":")[0] in COMPOSE["volumes"], (name, volume)
+    assert SERVICES["postgres"]["healthcheck"]["test"][:2] == ["CMD", "pg_isready"]
+    # the backend's health check asks a route the app serves without a token
+    probe = " ".join(SERVICES["backend"]["healthcheck"]["test"])
+    path = urlparse(re.search(r"http://[^'\"]+", probe).group(0)).path
+    app = create_app(Settings(database_url="sqlite://"))
+    operation = app.openapi()["paths"][path]["get"]
+    assert "security" not in operation, "the health check has no token"
+    # the database the services use is the compose PostgreSQL's
+    url = urlparse(SERVICES["backend"]["environment"]["TRAINCLIMATE_DATABASE_URL"])
+    pg = SERVICES["postgres"]["environment"]
+    assert (url.scheme, url.hostname, url.username, url.password, url.path[1:]) == (
+        "postgresql",
+        "postgres",
+        pg["POSTGRES_USER"],
+        pg["POSTGRES_PASSWORD"],
+        pg["POSTGRES_DB"],
+    )
+
+
+def test_the_dockerfile_copies_what_exists_and_runs_a_valid_command():
+    text = (ROOT / "Dockerfile").read_text()
+    copies = re.findall(r"^COPY (.+) \S+$", text, flags=re.MULTILINE)
+    sources = [s for line in copies for s in line.split()]
+    assert {"requirements.lock", "pyproject.toml", "backend", "migrations", "frontend"} <= set(
+        sources
+    )
+    for source in sources:
+        assert (ROOT / source).exists(), source
+    cmd = re.search(r"^CMD (\[.+\])$", text, flags=re.MULTILINE).group(1)
+    args = yaml.safe_load(cmd)
+    assert args[0] == "trainclimate"
+    assert build_parser().parse_args(args[1:]).command == "serve"
+
+
+def test_every_compose_command_is_one_the_cli_takes():
+    parser = build_parser()
+    backend = parser.parse_args(SERVICES["backend"]["command"][1:])
+    assert backend.command == "serve" and backend.host == "0.0.0.0"
+    token = parser.parse_args(SERVICES["gateway-token"]["command"][1:])
+    assert token.role == "operator" and token.out
+    coaches = set()
+    for name in GATEWAYS:
+        command = SERVICES[name]["command"]
+        assert command[0] == "trainclimate"
+        args = parser.parse_args(command[1:])
+        server = urlparse(args.server)
+        assert (server.hostname, server.port) == ("backend", backend.port), name
+        assert args.token_file == token.out, name
+        assert SERVICES[name]["depends_on"]["gateway-token"]["condition"] == (
+            "service_completed_successfully"
+        )
+        coaches |= set(args.coaches.split(","))
+    assert len(coaches) == 6  # three trains, two coaches each, none shared
+
+
+def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_env):
+    """PostgreSQL (a fresh database on the test server) + the backend + the token step + the
+    three gateways as child processes: every minute of every coach stored, the layer on in coach
+    A only, and the pair comparison of every train answered."""
+    if not PG_URL:
+        pytest.skip(PG_SKIP)
+    db_url, db_name = pg_database()
+    env = {**proc_env, "TRAINCLIMATE_DATABASE_URL": db_url}
+    port = free_port()
+    backend = replaced(SERVICES["backend"]["command"], "--host", "127.0.0.1")
+    backend = replaced(backend, "--port", str(port))
+    server = Server(
+        [*CLI, *backend[1:], "--predictor", str(model_file)], env, port, tmp_path / "backend.log"
+    )
+    gateways: list[subprocess.Popen] = []
+    try:
+        server.start()  # the compose health check: /ready answers once migrated
+        wait_for(lambda: httpx.get(f"{server.url}/api/v1/ready").status_code == 200, 30, "ready")
+        token_file = tmp_path / "run" / "token"
+        step = replaced(SERVICES["gateway-token"]["command"], "--out", str(token_file))
+        done = subprocess.run(
+            [*CLI, *step[1:]], env=env, capture_output=True, text=True, timeout=60
+        )
+        assert done.returncode == 0, done.stderr
+        assert token_file.stat().st_mode & 0o077 == 0  # owner only
+        hours, minutes = 1.5, 90
+        for name in GATEWAYS:
+            command = replaced(SERVICES[name]["command"], "--server", server.url)
+            command = replaced(command, "--token-file", str(token_file))
+            command = replaced(command, "--speedup", "900")
+            log = (tmp_path / f"{name}.log").open("wb")
+            gateways.append(
+                subprocess.Popen(
+                    [*CLI, *command[1:], "--hours", str(hours)], env=env, stdout=log, stderr=log
+                )
+            )
+        for name, proc in zip(GATEWAYS, gateways, strict=True):
+            assert proc.wait(timeout=120) == 0, (tmp_path / f"{name}.log").read_text()
+
+        headers = {"Authorization": f"Bearer {token_file.read_text().strip()}"}
+        api = f"{server.url}/api/v1"
+        coaches = httpx.get(f"{api}/coaches", headers=headers).json()
+        assert sorted(c["id"] for c in coaches) == [
+            f"{t}-{s}" for t in (124, 125, 126) for s in "AB"
+        ]
+        for c in coaches:
+            ts = httpx.get(f"{api}/coaches/{c['id']}/timeseries", headers=headers).json()
+            assert len(ts["time"]) == minutes, c["id"]
+            sp = httpx.get(f"{api}/coaches/{c['id']}/setpoints", headers=headers).json()
+            reasons = set(sp["reason"])
+            # the gateways start a second or two apart, which is 15–30 simulated minutes at 900×:
+            # the live clock runs ahead of the last one started, whose first ticks are stale
+            if c["id"].endswith("-A"):
+                assert c["ddpc_active"] and "ddpc" in sp["source"], (c["id"], reasons)
+            else:
+                assert not c["ddpc_active"] and "inactive" in reasons, (c["id"], reasons)
+                assert reasons <= {"inactive", "stale"}, (c["id"], reasons)
+        for train in ("124", "125", "126"):
+            reply = httpx.get(f"{api}/trains/{train}/comparison", headers=headers)
+            assert reply.status_code == 200, reply.text
+            cmp = reply.json()
+            assert (cmp["activated"], cmp["deactivated"]) == (f"{train}-A", f"{train}-B")
+            assert cmp["energy_activated_kwh"] > 0 and cmp["energy_deactivated_kwh"] > 0
+    finally:
+        for proc in gateways:
+            if proc.poll() is None:
+                proc.kill()
+        server.stop()
+        drop_pg_database(db_name)
