@@ -4,10 +4,10 @@ includes ``tests``).
 Telemetry rows in the store's format (:data:`trainclimate.service.telemetry.FRAME_COLS`, one per
 coach and minute, stamped at the minute's end): realistic ones from a short simulation of three
 empty coaches parked outdoors in Zug on a cold November morning (:func:`sim_rows`, the rule-based
-HVAC in regular mode throughout), or hand-made constant ones (:func:`flat_row`); :func:`to_json`
-turns a row into the body ``POST /api/v1/telemetry`` takes. :data:`T0` is a tick (a multiple of
-the 5-min period) and the simulation's start, so the row stamped ``T0 + k min`` is the k-th
-simulated minute.
+HVAC in regular mode throughout), or hand-made constant ones (:func:`flat_row`); `to_wire`
+(from the telemetry module) turns a row into the body ``POST /api/v1/telemetry`` takes.
+:data:`T0` is a tick (a multiple of the 5-min period) and the simulation's start, so the row
+stamped ``T0 + k min`` is the k-th simulated minute.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import pytest
 
 from trainclimate.control.coach_model import CoachModel
 from trainclimate.service import loop
-from trainclimate.service.telemetry import rows_from_simulation
+from trainclimate.service.telemetry import rows_from_simulation, to_wire
 from trainclimate.sim import scenarios
 from trainclimate.sim.simulator import FleetSimulator
 
@@ -125,30 +125,6 @@ def flat_rows(first: int, last: int, **values) -> list[dict]:
     return [flat_row(at(m), **values) for m in range(first, last + 1)]
 
 
-SENT = (
-    "t_ref_c",
-    "t_rule_c",
-    "t_amb_c",
-    "ghi_w_m2",
-    "q_gt_w_m2",
-    "q_gs_w_m2",
-    "occupancy_pct",
-    "speed_kmh",
-    "power_kw",
-    "mode",
-    "connected",
-)
-
-
-def to_json(row: dict) -> dict:
-    """A stored row as a row of ``POST /telemetry``."""
-    return {
-        "time": row["time"].isoformat(),
-        "t_room_c": [row["t_room_up_c"], row["t_room_mid_c"], row["t_room_low_c"]],
-        **{k: row[k] for k in SENT},
-    }
-
-
 def wait_for(condition: Callable[[], object], timeout_s: float = 15.0, what: str = ""):
     """Poll ``condition`` until it returns something truthy (returned); fail after the time."""
     deadline = time.monotonic() + timeout_s
@@ -170,7 +146,7 @@ def register(client, headers, coach_id: str, train_id: str = "T", active: bool =
 
 def post_rows(client, headers, coach_id: str, rows: list[dict]):
     """``POST /telemetry`` with stored-format rows."""
-    body = {"coach_id": coach_id, "rows": [to_json(r) for r in rows]}
+    body = {"coach_id": coach_id, "rows": [to_wire(r) for r in rows]}
     return client.post(f"{API}/telemetry", json=body, headers=headers)
 
 

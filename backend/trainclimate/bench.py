@@ -677,6 +677,7 @@ def _bench_ingest(url: str, model: Path, coaches: int, batches: int, rows_per_ba
     from trainclimate.service import commands
     from trainclimate.service.db import Database
     from trainclimate.service.models import Telemetry
+    from trainclimate.service.telemetry import to_wire
 
     rng = np.random.default_rng(1)
     pairs = coaches // 2
@@ -707,20 +708,11 @@ def _bench_ingest(url: str, model: Path, coaches: int, batches: int, rows_per_ba
     }
     for way in way_ids.values():
         _register(url, way, "live")
-    http_keys = ("t_ref_c", "t_rule_c", "t_amb_c", "ghi_w_m2", "q_gt_w_m2", "q_gs_w_m2")
-    http_keys += ("occupancy_pct", "speed_kmh", "power_kw", "mode", "connected")
     bodies = [
         json.dumps(
             {
                 "coach_id": way_ids["http"][i],
-                "rows": [
-                    {
-                        "time": r["time"].isoformat(),
-                        "t_room_c": [r["t_room_up_c"], r["t_room_mid_c"], r["t_room_low_c"]],
-                        **{k: r[k] for k in http_keys},
-                    }
-                    for r in rows
-                ],
+                "rows": [to_wire(r) for r in rows],
             }
         ).encode()
         for i, rows in batch_rows

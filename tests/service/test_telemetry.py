@@ -17,7 +17,7 @@ from service_support import (
     register,
     shared_coach_model,  # noqa: F401  (autouse)
     sim_rows,
-    to_json,
+    to_wire,
 )
 from trainclimate.service.db import Database
 from trainclimate.service.models import AuditLog, Coach, FleetClock, Telemetry, Train
@@ -95,7 +95,7 @@ def test_telemetry_is_stored_once_and_read_back(client, tokens, settings):
     # the same minutes written in another offset are the same instants
     cet = timezone(timedelta(hours=1))
     shifted = [{**r, "time": r["time"].astimezone(cet)} for r in rows_a[-5:]]
-    assert to_json(shifted[0])["time"].endswith("+01:00")
+    assert to_wire(shifted[0])["time"].endswith("+01:00")
     assert post_rows(client, op, "A", shifted).json() == accepted(5, 0)
     # an overlapping batch: only the new rows; a minute twice in one batch: stored once
     more = sim_rows(0, 21, 40)
@@ -189,7 +189,7 @@ def test_malformed_telemetry_is_refused_whole(client, tokens, settings):
     nothing of it is stored: no row, no clock."""
     op = tokens["operator"]
     register(client, op, "A")
-    good = [to_json(r) for r in sim_rows(0, 1, 5)]
+    good = [to_wire(r) for r in sim_rows(0, 1, 5)]
     for name, (key, value) in MALFORMED.items():
         bad = dict(good[2])
         if key == "t_rule_c" and value is None:

@@ -28,7 +28,7 @@ import httpx
 import numpy as np
 import pandas as pd
 
-from trainclimate.service.telemetry import rows_from_simulation
+from trainclimate.service.telemetry import rows_from_simulation, to_wire
 from trainclimate.sim import scenarios
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.simulator import Environment, FleetSimulator
@@ -115,7 +115,7 @@ class Gateway:
         for cid, rows in self.buffer.items():
             if not rows:
                 continue
-            body = {"coach_id": cid, "rows": [_jsonable(r) for r in rows]}
+            body = {"coach_id": cid, "rows": [to_wire(r) for r in rows]}
             try:
                 self.client.post("/telemetry", json=body).raise_for_status()
             except httpx.HTTPError as exc:
@@ -181,26 +181,3 @@ class Gateway:
         self.stats.rows_unsent = sum(len(rows) for rows in self.buffer.values())
         if self.stats.rows_unsent:
             log.error("%d telemetry rows could not be sent", self.stats.rows_unsent)
-
-
-def _jsonable(row: dict) -> dict:
-    return {
-        "time": pd.Timestamp(row["time"]).isoformat(),
-        "t_room_c": [row["t_room_up_c"], row["t_room_mid_c"], row["t_room_low_c"]],
-        **{k: row[k] for k in SENT},
-    }
-
-
-SENT = (
-    "t_ref_c",
-    "t_rule_c",
-    "t_amb_c",
-    "ghi_w_m2",
-    "q_gt_w_m2",
-    "q_gs_w_m2",
-    "occupancy_pct",
-    "speed_kmh",
-    "power_kw",
-    "mode",
-    "connected",
-)

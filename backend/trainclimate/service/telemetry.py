@@ -187,6 +187,32 @@ def controller_samples(rows: CoachRows, tick_s: float, period_s: float) -> Sampl
     )
 
 
+#: The fields of a ``POST /api/v1/telemetry`` row besides ``time`` and ``t_room_c``.
+WIRE_FIELDS = (
+    "t_ref_c",
+    "t_rule_c",
+    "t_amb_c",
+    "ghi_w_m2",
+    "q_gt_w_m2",
+    "q_gs_w_m2",
+    "occupancy_pct",
+    "speed_kmh",
+    "power_kw",
+    "mode",
+    "connected",
+)
+
+
+def to_wire(row: dict) -> dict:
+    """A stored row (one value per column) as a row of ``POST /api/v1/telemetry``: the time in
+    ISO 8601 with its offset and the decks as ``t_room_c`` [up, mid, low]."""
+    return {
+        "time": pd.Timestamp(row["time"]).isoformat(),
+        "t_room_c": [row["t_room_up_c"], row["t_room_mid_c"], row["t_room_low_c"]],
+        **{k: row[k] for k in WIRE_FIELDS},
+    }
+
+
 def rows_from_simulation(sim, k0: int, k1: int, coach_ids: list[str]) -> dict[str, list[dict]]:
     """Telemetry rows of a :class:`~trainclimate.sim.simulator.FleetSimulator`'s steps [k0, k1),
     one per coach and minute (the minute up to the row's time), as a logger would report them:
