@@ -464,8 +464,10 @@ def _db_url(args: argparse.Namespace) -> str:
 
 def cmd_serve(args: argparse.Namespace) -> None:
     import uvicorn
+    from sqlalchemy.exc import OperationalError
 
     from trainclimate.service.app import create_app
+    from trainclimate.service.db import migrate
     from trainclimate.service.settings import Settings
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
@@ -477,10 +479,11 @@ def cmd_serve(args: argparse.Namespace) -> None:
         predictor_path=args.predictor,
     )
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
-    print(
-        f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})",
-        file=sys.stderr,
-    )
+    try:  # a database that cannot be reached is a one-line error, not a traceback
+        migrate(settings.database_url)
+    except OperationalError as exc:
+        first = str(exc.orig).strip().splitlines()[0] if exc.orig else type(exc).__name__
+        raise UsageError(f"cannot use the database: {first}") from None
     if args.predictor is None:
         from trainclimate.control.models import default_model_path, default_predictor
 
@@ -488,6 +491,10 @@ def cmd_serve(args: argparse.Namespace) -> None:
             # fitted once, before the server answers (a database without a model needs it)
             print("trainclimate: building the default model once (about 3 min)…", file=sys.stderr)
             default_predictor()
+    print(
+        f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})",
+        file=sys.stderr,
+    )
     if args.new_token:
         token = _create_token(settings.database_url, args.new_token, f"demo-{args.new_token}")
         print(f"dashboard: {url}\n{args.new_token} token: {token['token']}", flush=True)

@@ -381,6 +381,10 @@ def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
             ["gateway", "--server", "http://127.0.0.1:9", "--coaches", "1-A", "--token-file", "/x"],
             "--token-file: No such file or directory: /x",
         ),
+        (
+            ["serve", "--db", "postgresql://nobody@127.0.0.1:9/none"],
+            "cannot use the database: connection failed",
+        ),
     ],
     ids=[
         "serve-speedup-0",
@@ -388,6 +392,7 @@ def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
         "gateway-without-token",
         "token-bad-role",
         "gateway-no-token-file",
+        "serve-no-database",
     ],
 )
 def test_cli_refuses_bad_arguments(args, message, proc_env, tmp_path, model_file):
