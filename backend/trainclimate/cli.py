@@ -489,7 +489,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
 
         if not default_model_path().exists():
             # fitted once, before the server answers (a database without a model needs it)
-            print("trainclimate: building the default model once (about 3 min)…", file=sys.stderr)
+            print("trainclimate: building the default model once (3–6 min)…", file=sys.stderr)
             default_predictor()
     print(
         f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})",
