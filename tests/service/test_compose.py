@@ -137,10 +137,10 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
         for name in GATEWAYS:
             command = replaced(SERVICES[name]["command"], "--server", server.url)
             command = replaced(command, "--token-file", str(token_file))
-            # the live fleet has one clock, the newest row of any gateway: emulators that start a
-            # second or two apart must not drift more than the stale limit (10 min) apart, so
-            # 120× (2–4 simulated minutes) rather than faster
-            command = replaced(command, "--speedup", "120")
+            # the live fleet has one clock, the newest row of any gateway, and waits 4 minutes
+            # of it for a late coach's row at a tick: emulators that start a second or two
+            # apart must stay closer than that, so 90× (1.5–3 simulated minutes), not faster
+            command = replaced(command, "--speedup", "90")
             log = (tmp_path / f"{name}.log").open("wb")
             gateways.append(
                 subprocess.Popen(

@@ -286,7 +286,12 @@ def test_run_live_once_issues_only_the_current_tick(db, settings):
     ingest(db, "A", sim_rows(0, 63, 64))
     assert scheduler.run_live_once() == 0  # still the tick of T0 + 60 min
     ingest(db, "A", sim_rows(0, 65, 75))  # the clock jumps two periods: only the newest tick
-    assert scheduler.run_live_once() == 2
+    # … and for the first 4 minutes after it, only to the coaches whose row at it has arrived
+    assert scheduler.run_live_once() == 1
+    ingest(db, "A", sim_rows(0, 76, 78))
+    assert scheduler.run_live_once() == 0  # B may still report (its gateway is late)
+    ingest(db, "A", sim_rows(0, 79, 79))
+    assert scheduler.run_live_once() == 1  # the clock 4 min past the tick: B decides on its data
     assert [(sp.coach_id, sp.tick) for sp in setpoints(db)] == [
         ("A", at(60)),
         ("B", at(60)),
@@ -358,3 +363,18 @@ def test_the_tick_transaction_is_all_or_nothing(db, settings, monkeypatch):
     monkeypatch.setattr(loop, "_row", row)
     assert scheduler.tick_fleet("live", at(10)) == 2
     assert [sp.coach_id for sp in setpoints(db, at(10))] == ["A", "B"]
+
+
+def test_a_live_coach_whose_gateway_is_late_gets_the_tick_with_its_row(db, settings):
+    """Gateways report at slightly different moments: the clock (the newest row of any coach)
+    passing a tick does not issue it to a coach whose row at the tick is on its way, so the
+    late coach's controller still has the reading at the tick."""
+    scheduler = Scheduler(db, settings)
+    add_coaches(db, ["A", "B"])
+    ingest(db, "A", sim_rows(0, 1, 60))
+    ingest(db, "B", sim_rows(1, 1, 58))  # B's gateway is two minutes behind
+    assert scheduler.run_live_once() == 1
+    ingest(db, "B", sim_rows(1, 59, 60))
+    assert scheduler.run_live_once() == 1
+    got = by_coach(db, at(60))
+    assert [(got[c].source, got[c].reason) for c in "AB"] == [("ddpc", "ok")] * 2

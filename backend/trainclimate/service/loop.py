@@ -36,7 +36,14 @@ from trainclimate.control.coach_model import CoachModel
 from trainclimate.control.controller import StepResult
 from trainclimate.predict.artifact import load_predictor_bytes
 from trainclimate.service.db import Database
-from trainclimate.service.models import Coach, FleetClock, Override, PredictorModel, Setpoint
+from trainclimate.service.models import (
+    Coach,
+    FleetClock,
+    Override,
+    PredictorModel,
+    Setpoint,
+    Telemetry,
+)
 from trainclimate.service.settings import Settings
 from trainclimate.service.telemetry import Samples, controller_samples, load_rows
 
@@ -77,6 +84,9 @@ class Scheduler:
         self.settings = settings
         self.period = timedelta(minutes=settings.sampling_min)
         self.period_s = self.period.total_seconds()
+        #: how long (of the live clock) after a tick the live fleet waits for each coach's row at
+        #: the tick: a minute less than the period (4 min), so it is issued before the next tick
+        self.live_grace = max(self.period - timedelta(minutes=1), timedelta(0))
         self.coach_model = CoachModel(dt_s=self.period_s)
         self.ocp = OCPSettings()
         self._controllers: dict[str, DDPCController] = {}
@@ -153,20 +163,23 @@ class Scheduler:
         )
         return _from_step(result)
 
-    def tick_fleet(self, fleet: str, tick: datetime, batch: int = 250) -> int:
-        """Issue tick ``tick`` to every coach of ``fleet`` that has not had it; returns how many
+    def tick_fleet(
+        self, fleet: str, tick: datetime, batch: int = 250, *, reported_only: bool = False
+    ) -> int:
+        """Issue tick ``tick`` to every coach of ``fleet`` that has not had it — with
+        ``reported_only``, only to those whose telemetry has reached the tick; returns how many
         were issued here (0 if another replica or an earlier run did them)."""
         issued, left = 0, None
         while True:
             try:
-                n = self._tick_batch(fleet, tick, batch)
+                n = self._tick_batch(fleet, tick, batch, reported_only)
             except IntegrityError:
                 # another scheduler issued some of these ticks first: on SQLite, which has no
                 # SKIP LOCKED, both may claim a coach and the unique (coach, tick) lets one
                 # win; this batch was rolled back, and the coaches still without the tick are
                 # taken again — unless nobody made progress since the last conflict: then it
                 # is no race, and it is raised
-                before, left = left, self._pending(fleet, tick)
+                before, left = left, self._pending(fleet, tick, reported_only)
                 if before is not None and left >= before:
                     raise
                 log.info("tick %s: another scheduler issued part of it first", tick)
@@ -175,17 +188,24 @@ class Scheduler:
                 return issued
             issued += n
 
-    def _pending(self, fleet: str, tick: datetime) -> int:
-        """How many coaches of ``fleet`` have not had ``tick`` yet."""
-        with self.db.transaction() as session:
-            return session.scalar(
-                select(func.count())
-                .select_from(Coach)
-                .where(Coach.fleet == fleet)
-                .where(or_(Coach.last_tick.is_(None), Coach.last_tick < tick))
+    @staticmethod
+    def _due(fleet: str, tick: datetime, reported_only: bool) -> list:
+        """The conditions of a coach of ``fleet`` still due ``tick``."""
+        due = [Coach.fleet == fleet, or_(Coach.last_tick.is_(None), Coach.last_tick < tick)]
+        if reported_only:
+            reported = select(Telemetry.id).where(
+                Telemetry.coach_id == Coach.id, Telemetry.time >= tick
             )
+            due.append(reported.exists())
+        return due
 
-    def _tick_batch(self, fleet: str, tick: datetime, batch: int) -> int:
+    def _pending(self, fleet: str, tick: datetime, reported_only: bool) -> int:
+        """How many coaches of ``fleet`` are still due ``tick``."""
+        with self.db.transaction() as session:
+            due = self._due(fleet, tick, reported_only)
+            return session.scalar(select(func.count()).select_from(Coach).where(*due))
+
+    def _tick_batch(self, fleet: str, tick: datetime, batch: int, reported_only: bool) -> int:
         """Claim and issue ``tick`` for up to ``batch`` coaches in one transaction; returns how
         many (0: none left)."""
         window = (self._rho() + 2) * self.period + timedelta(minutes=1)
@@ -193,8 +213,7 @@ class Scheduler:
             self.refresh_model(session)
             coaches = session.scalars(
                 select(Coach)
-                .where(Coach.fleet == fleet)
-                .where(or_(Coach.last_tick.is_(None), Coach.last_tick < tick))
+                .where(*self._due(fleet, tick, reported_only))
                 .order_by(Coach.id)
                 .limit(batch)
                 .with_for_update(skip_locked=True)
@@ -228,13 +247,18 @@ class Scheduler:
         return clock.time if clock is not None else None
 
     def run_live_once(self) -> int:
-        """Issue the current tick of the live fleet (its clock is the newest telemetry); ticks
-        older than the current one can no longer be applied and are not issued late."""
+        """Issue the current tick of the live fleet (its clock is the newest telemetry of any
+        coach). Gateways report at slightly different moments, so for the first
+        ``live_grace`` after a tick only the coaches whose row at the tick has arrived get
+        it; after that every coach still due does (one without that row then decides on what it
+        has: stale, warm-up, …). Ticks older than the current one can no longer be applied and
+        are not issued late."""
         with self.db.transaction() as session:
             now = self.live_clock(session)
         if now is None:
             return 0
-        return self.tick_fleet("live", floor_tick(now, self.period))
+        tick = floor_tick(now, self.period)
+        return self.tick_fleet("live", tick, reported_only=now < tick + self.live_grace)
 
     def run_live(self, stop: threading.Event) -> None:
         """The live fleet's loop, until ``stop``; a database that is briefly unavailable leaves
