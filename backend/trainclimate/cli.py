@@ -502,11 +502,10 @@ def cmd_serve(args: argparse.Namespace) -> None:
 
 
 def _create_token(url: str, role: str, name: str | None) -> dict:
-    """A new token in the database ``url`` (migrated first): {token, name, role}."""
-    from trainclimate.service.db import Database, migrate
+    """A new token in the migrated database ``url``: {token, name, role}."""
+    from trainclimate.service.db import Database
     from trainclimate.service.security import create_token
 
-    migrate(url)
     db = Database(url)
     try:
         with db.transaction() as session:
@@ -517,7 +516,11 @@ def _create_token(url: str, role: str, name: str | None) -> dict:
 
 
 def cmd_token_create(args: argparse.Namespace) -> None:
-    data = _create_token(_db_url(args), args.role, args.name)
+    from trainclimate.service.db import migrate
+
+    url = _db_url(args)
+    migrate(url)
+    data = _create_token(url, args.role, args.name)
     if args.out:  # for another process to read (the compose demo's gateways): owner-only
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)

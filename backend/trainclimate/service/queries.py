@@ -63,14 +63,19 @@ def fleet_clock(session: Session, coach: Coach) -> datetime | None:
     return session.scalar(select(func.max(Telemetry.time)).where(Telemetry.coach_id == coach.id))
 
 
-def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
-    """A coach with its newest setpoint, telemetry and override, and its status."""
-    setpoint = session.scalar(
+def newest_setpoint(session: Session, coach: Coach) -> Setpoint | None:
+    """The coach's setpoint of its latest tick, or None before its first."""
+    return session.scalar(
         select(Setpoint)
         .where(Setpoint.coach_id == coach.id)
         .order_by(Setpoint.tick.desc())
         .limit(1)
     )
+
+
+def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
+    """A coach with its newest setpoint, telemetry and override, and its status."""
+    setpoint = newest_setpoint(session, coach)
     row = session.scalar(
         select(Telemetry)
         .where(Telemetry.coach_id == coach.id)
@@ -203,12 +208,7 @@ def setpoint_history(session: Session, coach: Coach, start: datetime, end: datet
 
 def current_setpoint(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
     """The newest setpoint, valid until ``stale_periods`` periods after its tick."""
-    sp = session.scalar(
-        select(Setpoint)
-        .where(Setpoint.coach_id == coach.id)
-        .order_by(Setpoint.tick.desc())
-        .limit(1)
-    )
+    sp = newest_setpoint(session, coach)
     if sp is None:
         empty = ("tick", "t_ref_c", "t_rule_c", "source", "reason", "valid_until")
         return {"coach_id": coach.id, **dict.fromkeys(empty)}
