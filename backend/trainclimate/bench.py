@@ -948,7 +948,7 @@ def _bench_tick(url: str, model: Path, coaches: int, lead_ticks: int, repeats: i
     from sqlalchemy import select
 
     from trainclimate.predict.artifact import load_predictor
-    from trainclimate.service.app import ensure_model
+    from trainclimate.service.app import register_model_file
     from trainclimate.service.db import Database
     from trainclimate.service.loop import Scheduler
     from trainclimate.service.models import Coach
@@ -964,7 +964,7 @@ def _bench_tick(url: str, model: Path, coaches: int, lead_ticks: int, repeats: i
     _sql(url, "VACUUM ANALYZE telemetry", autocommit=True)
     db = Database(url)
     with db.transaction() as session:
-        ensure_model(session, settings)
+        register_model_file(session, settings)
     warm = start.to_pydatetime() + lead_ticks * period
     ticks = [warm + j * period for j in range(1, repeats + 1)]
 

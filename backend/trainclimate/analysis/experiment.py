@@ -40,9 +40,24 @@ EVENT_KINDS = ("connection_loss", "command_override")
 
 @dataclass(frozen=True)
 class Event:
-    """A field event: ``kind`` ``connection_loss`` or ``command_override`` on the ``activated``
-    or ``deactivated`` coach, from local clock ``start`` (``"HH:MM"``, ``"+1"`` for the next day)
-    for ``minutes`` (None: to the end)."""
+    """A field event of a paired experiment, like those of the paper's Section V.
+
+    Attributes
+    ----------
+    kind : str
+        ``"connection_loss"`` or ``"command_override"`` (:data:`EVENT_KINDS`).
+    coach : str
+        ``"activated"`` or ``"deactivated"``.
+    start : str
+        Local clock time, ``"HH:MM"`` (``"+1"`` for the next day).
+    minutes : float or None
+        Duration (None: to the end of the run). [min]
+
+    Raises
+    ------
+    ValueError
+        For an unknown kind or coach.
+    """
 
     kind: str
     coach: str
@@ -60,9 +75,18 @@ class Event:
 class ExperimentSetup:
     """How a scenario is run as a paired experiment (see the module docstring).
 
-    ``settings``: OCPSettings fields that differ from the defaults; ``events``; ``activate_at``
-    the local clock time the layer is switched on (None: as soon as its lead-in is complete);
-    ``steady_after_min`` the delay from then to the start of the counted period.
+    Attributes
+    ----------
+    settings : dict
+        :class:`~trainclimate.control.ocp.OCPSettings` fields that differ from the defaults.
+    events : tuple of Event
+        The field events.
+    activate_at : str or None
+        Local clock time the layer is switched on (None: as soon as its lead-in is complete).
+    steady_after_min : float
+        Delay from activation to the start of the counted period. [min]
+    note : str
+        What the setup reproduces.
     """
 
     settings: dict = field(default_factory=dict)
@@ -72,6 +96,13 @@ class ExperimentSetup:
     note: str = ""
 
     def ocp_settings(self) -> OCPSettings:
+        """The controller's settings.
+
+        Returns
+        -------
+        OCPSettings
+            The defaults with :attr:`settings` applied.
+        """
         return dataclasses.replace(OCPSettings(), **self.settings)
 
 
@@ -104,13 +135,48 @@ EXPERIMENTS: dict[str, ExperimentSetup] = {
 
 
 def setup_for(name: str) -> ExperimentSetup:
-    """The experiment setup of a scenario (the default setup for one without its own)."""
+    """The experiment setup of a scenario.
+
+    Parameters
+    ----------
+    name : str
+        Scenario name.
+
+    Returns
+    -------
+    ExperimentSetup
+        From :data:`EXPERIMENTS`, or the default setup for a scenario without its own.
+    """
     return EXPERIMENTS.get(name, ExperimentSetup())
 
 
 @dataclass
 class PairResult:
-    """A paired experiment: the three-column simulation, its comparisons and the ticks."""
+    """A paired experiment: the three-column simulation, its comparisons and the ticks.
+
+    Attributes
+    ----------
+    scenario : Scenario
+        The scenario run.
+    setup : ExperimentSetup
+        How it was run.
+    result : SimulationResult
+        Columns :data:`ACTIVATED`, :data:`DEACTIVATED` and :data:`EDGE`.
+    comparison, edge_comparison : Comparison
+        Activated and band-edge coach each against the deactivated one.
+    activated_at : pandas.Timestamp or None
+        When the layer first acted (UTC).
+    counted_from : pandas.Timestamp
+        Start of the counted period (UTC).
+    ticks : dict
+        :func:`~trainclimate.control.closed_loop.tick_summary` of the activated coach.
+    affected : numpy.ndarray of bool, shape (steps, 3)
+        Samples hit by a field event.
+    controller_time_ratio : float
+        Mean controller step time over the controller's period. [–]
+    wall_s : float
+        Wall-clock time of the run. [s]
+    """
 
     scenario: scenarios.Scenario
     setup: ExperimentSetup
@@ -125,7 +191,16 @@ class PairResult:
     wall_s: float
 
     def to_dict(self) -> dict:
-        """The contract's JSON of ``trainclimate experiment run``, and the KPIs beside it."""
+        """The JSON of ``trainclimate experiment run``, and the KPIs beside it.
+
+        Returns
+        -------
+        dict
+            JSON-ready: savings (%), violations (K), energies (kWh), discomfort (K·h per deck),
+            minutes, hours, timestamps (ISO 8601), the band-edge reference's savings and the
+            layer's share of them (%, None when the reference saves nothing), the controller
+            settings and ticks.
+        """
         c, e = self.comparison, self.edge_comparison
         # a share of a saving: meaningless when the reference itself saves nothing
         share = (
@@ -201,12 +276,40 @@ def run_pair(
     setup: ExperimentSetup | None = None,
     window_min: float = 30.0,
 ) -> PairResult:
-    """Run scenario ``name`` as a paired experiment (module docstring) with the DDPC layer
-    built on ``predictor``.
+    """Run a scenario as a paired experiment (see the module docstring).
 
-    ``coach_spread`` > 0 gives the deactivated coach parameters of its own (seeded ±spread
-    around the activated coach's, as two real coaches differ); 0 makes them twins, so the
-    comparison measures the controller alone.
+    Parameters
+    ----------
+    name : str
+        Scenario name (:data:`~trainclimate.sim.scenarios.SCENARIOS`).
+    predictor : MultistepPredictor
+        The DDPC layer's prediction model.
+    hours : float, optional
+        Duration (default: the scenario's). [h]
+    forecast : str, default "perfect"
+        The activated coach's forecast: ``"perfect"``, ``"persistence"`` or ``"noisy"``.
+    coach_spread : float, default 0.0
+        > 0 gives the deactivated coach parameters of its own (seeded ±spread around the
+        activated coach's, as two real coaches differ); 0 makes them twins, so the comparison
+        measures the controller alone. [–]
+    setup : ExperimentSetup, optional
+        Overrides the scenario's (:func:`setup_for`).
+    window_min : float, default 30.0
+        Savings window. [min]
+
+    Returns
+    -------
+    PairResult
+
+    Raises
+    ------
+    ScenarioError
+        For an unknown scenario or invalid duration.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section V.
     """
     t_start = time.perf_counter()
     scenario = scenarios.get(name)

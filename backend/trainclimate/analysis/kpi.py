@@ -12,7 +12,27 @@ import numpy as np
 
 
 def violation_k(t_room_c: np.ndarray, t_rule_c: np.ndarray, t_max_k: float = 1.0) -> np.ndarray:
-    """Band violation in K, shape of ``t_room_c`` (..., 3); ``t_rule_c`` broadcasts as (..., 1)."""
+    """Violation of the comfort band T_rule ± T_max, max(0, |T_room − T_rule| − T_max).
+
+    Parameters
+    ----------
+    t_room_c : numpy.ndarray of shape (..., 3)
+        Deck temperatures up, mid, low. [°C]
+    t_rule_c : array-like of shape (...)
+        T_rule, broadcast against ``t_room_c`` as (..., 1). [°C]
+    t_max_k : float, default 1.0
+        Comfort half-band T_max. [K]
+
+    Returns
+    -------
+    numpy.ndarray of shape (..., 3)
+        Violation per deck. [K]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Eq. (4).
+    """
     return np.maximum(np.abs(t_room_c - np.asarray(t_rule_c)[..., None]) - t_max_k, 0.0)
 
 
@@ -24,10 +44,25 @@ def discomfort_kh(
     t_max_k: float = 1.0,
     mask: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Thermal discomfort per deck in K·h: ∫ violation dt over the samples in ``mask``.
+    """Thermal discomfort per deck: ∫ violation dt over the counted samples.
 
-    ``t_room_c`` (S, 3) °C sampled every ``dt_s`` seconds, ``t_rule_c`` (S,) °C, ``mask`` (S,)
-    bool selecting the counted samples (default all). Returns (3,).
+    Parameters
+    ----------
+    t_room_c : numpy.ndarray of shape (S, 3)
+        Deck temperatures, sampled every ``dt_s``. [°C]
+    t_rule_c : numpy.ndarray of shape (S,)
+        T_rule. [°C]
+    dt_s : float
+        Sampling interval. [s]
+    t_max_k : float, default 1.0
+        Comfort half-band T_max. [K]
+    mask : numpy.ndarray of bool, shape (S,), optional
+        The counted samples (default: all).
+
+    Returns
+    -------
+    numpy.ndarray of shape (3,)
+        Discomfort of the decks up, mid, low. [K·h]
     """
     v = violation_k(t_room_c, t_rule_c, t_max_k)
     if mask is not None:
@@ -43,8 +78,33 @@ def avg_hourly_violation_k(
     t_max_k: float = 1.0,
     mask: np.ndarray | None = None,
 ) -> float:
-    """The paper's average hourly constraint violation in K: discomfort (K·h) per deck divided
-    by the hours counted, averaged over the decks. 0 when no sample is counted."""
+    """The paper's average hourly constraint violation (Table II).
+
+    Discomfort (K·h) per deck divided by the hours counted, averaged over the decks.
+
+    Parameters
+    ----------
+    t_room_c : numpy.ndarray of shape (S, 3)
+        Deck temperatures, sampled every ``dt_s``. [°C]
+    t_rule_c : numpy.ndarray of shape (S,)
+        T_rule. [°C]
+    dt_s : float
+        Sampling interval. [s]
+    t_max_k : float, default 1.0
+        Comfort half-band T_max. [K]
+    mask : numpy.ndarray of bool, shape (S,), optional
+        The counted samples (default: all).
+
+    Returns
+    -------
+    float
+        Average hourly violation; 0 when no sample is counted. [K]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section V, Table II.
+    """
     n = len(t_room_c) if mask is None else int(np.count_nonzero(mask))
     if n == 0:
         return 0.0
@@ -53,8 +113,22 @@ def avg_hourly_violation_k(
 
 
 def energy_kwh(power_kw: np.ndarray, dt_s: float, mask: np.ndarray | None = None) -> float:
-    """Energy in kWh of a power series in kW sampled every ``dt_s`` s (rectangle rule: each
-    sample is the mean power over its step)."""
+    """Energy of a power series (rectangle rule: each sample is the mean power over its step).
+
+    Parameters
+    ----------
+    power_kw : array-like of shape (S,)
+        Power. [kW]
+    dt_s : float
+        Sampling interval. [s]
+    mask : numpy.ndarray of bool, shape (S,), optional
+        The counted samples (default: all).
+
+    Returns
+    -------
+    float
+        Energy. [kWh]
+    """
     p = np.asarray(power_kw, dtype=float)
     if mask is not None:
         p = p[np.asarray(mask, dtype=bool)]

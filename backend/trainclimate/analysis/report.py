@@ -31,7 +31,19 @@ def _every(result: SimulationResult) -> slice:
 
 
 def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
-    """Deck temperatures with T_ref and the T_rule ± 1 K band; T_amb and irradiance below."""
+    """Deck temperatures (°C) with T_ref and the T_rule ± 1 K band; T_amb and irradiance below.
+
+    Parameters
+    ----------
+    result : SimulationResult
+        The run, plotted at most once per :data:`PLOT_STEP_S` in local time (Europe/Zurich).
+    title : str
+    coach : int, default 0
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
     t = _local(result)
     fig = make_subplots(
         rows=2,
@@ -102,7 +114,19 @@ def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> 
 
 
 def power_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
-    """Electrical power by component (stacked, kW) and cumulative energy (kWh)."""
+    """Electrical power by component (stacked, kW) and cumulative energy (kWh).
+
+    Parameters
+    ----------
+    result : SimulationResult
+        The run, plotted at most once per :data:`PLOT_STEP_S` in local time (Europe/Zurich).
+    title : str
+    coach : int, default 0
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
     t = _local(result)
     fig = make_subplots(specs=[[{"secondary_y": True}]])
     e = _every(result)
@@ -129,7 +153,19 @@ def power_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
 
 
 def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
-    """HVAC mode and state over time, and the fresh-air fraction (substate)."""
+    """HVAC mode and state over time, and the fresh-air fraction (substate).
+
+    Parameters
+    ----------
+    result : SimulationResult
+        The run, plotted at most once per :data:`PLOT_STEP_S` in local time (Europe/Zurich).
+    title : str
+    coach : int, default 0
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
     t = _local(result)
     s, e = len(result.time), _every(result)
     fig = make_subplots(rows=2, cols=1, shared_xaxes=True, vertical_spacing=0.08)
@@ -169,7 +205,19 @@ def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
 
 
 def heat_balance_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
-    """Heat entering the coach over the run by mechanism, kWh (negative: heat leaving)."""
+    """Heat entering the coach over the run by mechanism, kWh (negative: heat leaving).
+
+    Parameters
+    ----------
+    result : SimulationResult
+        A run with its heat flows recorded (``record_flows=True``).
+    title : str
+    coach : int, default 0
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
     ext = result.flows_w[:, coach, thermal.N_INTERNAL :].sum(axis=0) * result.dt_s / 3.6e6
     names = list(thermal.FLOW_NAMES[thermal.N_INTERNAL :])
     fig = go.Figure(go.Bar(x=names, y=ext, marker_color=np.where(ext >= 0, "#d62728", "#1f77b4")))
@@ -179,7 +227,17 @@ def heat_balance_figure(result: SimulationResult, title: str, coach: int = 0) ->
 
 
 def fleet_energy_figure(result: SimulationResult, title: str) -> go.Figure:
-    """Electrical energy of every coach, kWh."""
+    """Electrical energy of every coach over the run, kWh, as bars.
+
+    Parameters
+    ----------
+    result : SimulationResult
+    title : str
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
     energy = result.energy_kwh
     fig = go.Figure(go.Bar(x=[f"coach {i}" for i in range(len(energy))], y=energy))
     fig.update_yaxes(title_text="electrical energy (kWh)")
@@ -190,7 +248,20 @@ def fleet_energy_figure(result: SimulationResult, title: str) -> go.Figure:
 def write_simulation_report(
     results: dict[str, SimulationResult], scenario: Scenario, path: str | Path
 ) -> Path:
-    """One HTML page for a scenario simulated with one or more controllers."""
+    """Write one self-contained HTML page for a scenario simulated with one or more controllers.
+
+    Parameters
+    ----------
+    results : dict of str to SimulationResult
+        Controller name → its run.
+    scenario : Scenario
+    path : str or pathlib.Path
+        Destination file.
+
+    Returns
+    -------
+    pathlib.Path
+    """
     path = Path(path)
     parts = [f"<h1>{html.escape(scenario.name)}</h1><p>{html.escape(scenario.description)}</p>"]
     first = True
@@ -230,10 +301,22 @@ def write_simulation_report(
 
 
 def experiment_figure(pair, title: str = "") -> go.Figure:
-    """The paper's experiment figure (Figures 8–11), from a :class:`PairResult`: the deactivated
-    coach (deck temperatures, T_ref, the T_rule ± 1 K band), the activated coach (the same), T_amb
-    and solar irradiance, and the cumulative energy of both with the 30-minute savings as bars;
-    excluded windows shaded, the counted period starting at the dashed line."""
+    """The paper's experiment figure (Figures 7–10) for a paired experiment.
+
+    The deactivated coach (deck temperatures, T_ref, the T_rule ± 1 K band), the activated coach
+    (the same), T_amb and solar irradiance, and the cumulative energy of both with the 30-minute
+    savings as bars; excluded windows shaded, the counted period starting at the dashed line.
+
+    Parameters
+    ----------
+    pair : PairResult
+        From :func:`~trainclimate.analysis.experiment.run_pair`.
+    title : str, default ""
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
     from trainclimate.analysis.experiment import ACTIVATED, DEACTIVATED
 
     result, comp = pair.result, pair.comparison
@@ -368,7 +451,18 @@ def experiment_figure(pair, title: str = "") -> go.Figure:
 
 
 def summary_table_html(rows: list[dict]) -> str:
-    """The summary table in the paper's format (Table II) plus the KPIs beside it."""
+    """The summary table in the paper's format (Table II) plus the KPIs beside it, as HTML.
+
+    Parameters
+    ----------
+    rows : list of dict
+        :meth:`~trainclimate.analysis.experiment.PairResult.to_dict` of each experiment.
+
+    Returns
+    -------
+    str
+        An HTML ``<table>``.
+    """
     head = (
         "<tr><th>scenario</th><th>energy savings (%)</th><th>average hourly violation (K)</th>"
         "<th>deactivated coach's violation (K)</th><th>band-edge savings (%)</th>"
@@ -393,7 +487,18 @@ def summary_table_html(rows: list[dict]) -> str:
 
 
 def write_experiment_report(pair, path: str | Path) -> Path:
-    """A self-contained HTML page for one paired experiment: figure and summary."""
+    """Write a self-contained HTML page for one paired experiment: figure and summary.
+
+    Parameters
+    ----------
+    pair : PairResult
+    path : str or pathlib.Path
+        Destination file; its directory is created.
+
+    Returns
+    -------
+    pathlib.Path
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     data = pair.to_dict()
@@ -422,7 +527,17 @@ PAPER_TABLE = {
 
 
 def summary_markdown(rows: list[dict]) -> str:
-    """The summary in the paper's format, its figures beside ours, and the KPIs."""
+    """The summary as a Markdown table: the paper's Table II figures beside ours, and the KPIs.
+
+    Parameters
+    ----------
+    rows : list of dict
+        :meth:`~trainclimate.analysis.experiment.PairResult.to_dict` of each experiment.
+
+    Returns
+    -------
+    str
+    """
 
     def num(v, fmt):
         return "–" if v is None else format(v, fmt)
@@ -447,7 +562,21 @@ def summary_markdown(rows: list[dict]) -> str:
 
 
 def write_summary(rows: list[dict], out: str | Path) -> dict[str, Path]:
-    """``summary.md`` and ``summary.html`` (the table in the paper's format, linked reports)."""
+    """Write ``summary.md`` and ``summary.html`` (the table in the paper's format, linked reports).
+
+    Parameters
+    ----------
+    rows : list of dict
+        :meth:`~trainclimate.analysis.experiment.PairResult.to_dict` of each experiment; an
+        ``html`` key links its report.
+    out : str or pathlib.Path
+        Output directory; created if missing.
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        ``markdown`` and ``html``: the files written.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     md = out / "summary.md"

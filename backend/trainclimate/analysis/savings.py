@@ -29,13 +29,30 @@ from trainclimate.analysis.kpi import avg_hourly_violation_k, discomfort_kh
 
 @dataclass
 class CoachSeries:
-    """One coach's series on a uniform UTC grid.
+    """One coach's series on a uniform UTC grid of n samples.
 
-    ``time`` (n,) tz-aware; ``power_kw`` (n,) the HVAC's electrical power (each sample the mean
-    over its step; NaN where no data); ``t_room_c`` (n, 3); ``t_rule_c`` (n,); ``affected``
-    (n,) bool where the connection was lost or commands were overwritten; ``in_band`` (n,) bool
-    where the comfort band applies — regular mode; a coach in slumber or off has none (default:
-    everywhere).
+    Attributes
+    ----------
+    time : pandas.DatetimeIndex
+        Timezone-aware times, shape (n,).
+    power_kw : numpy.ndarray of shape (n,)
+        The HVAC's electrical power, each sample the mean over its step; NaN where no data.
+        [kW]
+    t_room_c : numpy.ndarray of shape (n, 3)
+        Deck temperatures up, mid, low. [°C]
+    t_rule_c : numpy.ndarray of shape (n,)
+        T_rule. [°C]
+    affected : numpy.ndarray of bool, shape (n,)
+        Where the connection was lost or commands were overwritten; samples with NaN power are
+        added on construction.
+    in_band : numpy.ndarray of bool, shape (n,)
+        Where the comfort band applies — regular mode; a coach in slumber or off has none
+        (default: everywhere).
+
+    Raises
+    ------
+    ValueError
+        If a series does not have the length of ``time``.
     """
 
     time: pd.DatetimeIndex
@@ -60,7 +77,33 @@ class CoachSeries:
 
 @dataclass
 class Comparison:
-    """The result of :func:`compare` (JSON-ready through :meth:`to_dict`)."""
+    """The result of :func:`compare` (JSON-ready through :meth:`to_dict`).
+
+    Attributes
+    ----------
+    window_start : pandas.DatetimeIndex
+        Start of each window, shape (W,).
+    energy_activated_kwh, energy_deactivated_kwh : numpy.ndarray of shape (W,)
+        Energy of each coach per window. [kWh]
+    savings_30min_pct : list of float or None
+        Savings per window, None where excluded or undefined. [%]
+    excluded : numpy.ndarray of bool, shape (W,)
+        Windows excluded (affected, or not covered by the series).
+    savings_pct : float or None
+        Savings over the included windows. [%]
+    energy_activated_total_kwh, energy_deactivated_total_kwh : float
+        Energy over the included windows. [kWh]
+    excluded_minutes, affected_minutes : float
+        Length of the excluded windows and of the affected samples. [min]
+    counted_hours : float
+        Time counted for violation and discomfort. [h]
+    avg_hourly_violation_k, baseline_violation_k : float
+        Average hourly violation of the activated and the deactivated coach. [K]
+    discomfort_kh, baseline_discomfort_kh : list of float
+        Discomfort per deck of the activated and the deactivated coach. [K·h]
+    window_min : float
+        Window length. [min]
+    """
 
     window_start: pd.DatetimeIndex
     energy_activated_kwh: np.ndarray
@@ -80,6 +123,14 @@ class Comparison:
     window_min: float
 
     def to_dict(self) -> dict:
+        """The comparison as a JSON-ready dict.
+
+        Returns
+        -------
+        dict
+            The attributes (``excluded`` as ``excluded_windows``), times as ISO 8601 strings,
+            arrays as lists, in the units of the attribute names.
+        """
         return {
             "savings_pct": self.savings_pct,
             "savings_30min_pct": self.savings_30min_pct,
@@ -101,7 +152,23 @@ class Comparison:
 
 
 def savings_pct(e_activated_kwh: float, e_deactivated_kwh: float) -> float | None:
-    """100 (1 − E_act / E_deact) in %; None when the deactivated coach used no energy."""
+    """Energy savings of the activated coach, 100 (1 − E_act / E_deact).
+
+    Parameters
+    ----------
+    e_activated_kwh, e_deactivated_kwh : float
+        Energy of the activated and the deactivated coach. [kWh]
+
+    Returns
+    -------
+    float or None
+        Savings [%]; None when the deactivated coach used no energy.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section V, Table II.
+    """
     if not e_deactivated_kwh > 0:
         return None
     return float(100.0 * (1.0 - e_activated_kwh / e_deactivated_kwh))
@@ -125,13 +192,40 @@ def compare(
     window_min: float = 30.0,
     t_max_k: float = 1.0,
 ) -> Comparison:
-    """Energy per window, savings and comfort of an activated/deactivated pair (module docstring).
+    """Energy per window, savings and comfort of an activated/deactivated pair.
 
-    Both series share one time grid. Windows of ``window_min`` start at ``start`` (default: the
-    first sample) and the last incomplete one is dropped; ``end`` (default: the last sample) ends
-    the counted period; a window the series do not cover entirely (``start`` before the first
-    sample, ``end`` after the last) is excluded like an affected one. Violation and discomfort
-    count the same period, minus affected samples.
+    Windows of ``window_min`` start at ``start`` and the last incomplete one is dropped; a window
+    with an affected sample, or one the series do not cover entirely (``start`` before the first
+    sample, ``end`` after the last), is excluded. Violation and discomfort count the same period,
+    minus affected samples, where both coaches are in band. See the module docstring.
+
+    Parameters
+    ----------
+    activated, deactivated : CoachSeries
+        The two coaches, on one time grid.
+    start : pandas.Timestamp, optional
+        Start of the counted period, when the activated coach is in steady state (default:
+        the first sample).
+    end : pandas.Timestamp, optional
+        End of the counted period (default: the end of the last sample's step).
+    window_min : float, default 30.0
+        Window length. [min]
+    t_max_k : float, default 1.0
+        Comfort half-band T_max. [K]
+
+    Returns
+    -------
+    Comparison
+
+    Raises
+    ------
+    ValueError
+        If the two series do not share one uniform time grid of at least two samples.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section V, Table II.
     """
     time = activated.time
     if len(deactivated.time) != len(time) or not (deactivated.time == time).all():

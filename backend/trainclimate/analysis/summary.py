@@ -10,9 +10,25 @@ from trainclimate.sim.simulator import SimulationResult
 
 
 def coach_kpis(result: SimulationResult, coach: int, t_max_k: float = 1.0) -> dict:
-    """Energy (kWh), mean electrical power (kW), and — over the time in regular mode, when the
-    comfort band applies — thermal discomfort (K·h, mean over decks) and the average hourly
-    violation (K) of one coach, from its true room temperatures."""
+    """The KPIs of one coach of a simulation run, from its true room temperatures.
+
+    Discomfort and violation count the time in regular mode, when the comfort band applies.
+
+    Parameters
+    ----------
+    result : SimulationResult
+        The run.
+    coach : int
+        Coach index.
+    t_max_k : float, default 1.0
+        Comfort half-band T_max. [K]
+
+    Returns
+    -------
+    dict
+        ``energy_kwh`` (kWh), ``mean_power_kw`` (kW), ``discomfort_kh`` (K·h, mean over decks),
+        ``avg_hourly_violation_k`` (K) and ``regular_mode_hours`` (h).
+    """
     s = len(result.time)
     in_service = result.env.mode[:s, coach] == MODE_REGULAR
     t_room, t_rule = result.t_room_c[:, coach], result.t_rule_c[:, coach]
@@ -31,7 +47,21 @@ def coach_kpis(result: SimulationResult, coach: int, t_max_k: float = 1.0) -> di
 
 
 def fleet_kpis(result: SimulationResult, t_max_k: float = 1.0) -> dict:
-    """The KPIs of every coach, and their mean over the coaches at the top level."""
+    """The KPIs of every coach of a simulation run, and their mean.
+
+    Parameters
+    ----------
+    result : SimulationResult
+        The run.
+    t_max_k : float, default 1.0
+        Comfort half-band T_max. [K]
+
+    Returns
+    -------
+    dict
+        The keys of :func:`coach_kpis`, averaged over the coaches, plus ``hours`` (h, the run's
+        length) and ``coaches`` (the list of per-coach dicts).
+    """
     per_coach = [coach_kpis(result, c, t_max_k) for c in range(result.t_ref_c.shape[1])]
     out = {key: float(np.mean([c[key] for c in per_coach])) for key in per_coach[0]}
     out["hours"] = len(result.time) * result.dt_s / 3600.0

@@ -41,14 +41,35 @@ U_BAND_K = 2.0
 
 @dataclass
 class TickLog:
-    """Every tick of every coach: time index, and the step's result fields."""
+    """Every tick of every coach, as three parallel lists.
+
+    Attributes
+    ----------
+    step : list of int
+        Simulator step index of each tick.
+    coach : list of int
+        Coach index of each tick.
+    results : list of StepResult
+        What the controller decided at each tick.
+    """
 
     step: list[int] = field(default_factory=list)
     coach: list[int] = field(default_factory=list)
     results: list[StepResult] = field(default_factory=list)
 
     def of_coach(self, coach: int) -> TickLog:
-        """The ticks of one coach."""
+        """The ticks of one coach.
+
+        Parameters
+        ----------
+        coach : int
+            Coach index.
+
+        Returns
+        -------
+        TickLog
+            A new log holding only that coach's ticks, in order.
+        """
         out = TickLog()
         for k, c, r in zip(self.step, self.coach, self.results, strict=True):
             if c == coach:
@@ -59,7 +80,21 @@ class TickLog:
 
 
 def interval_means(sim: FleetSimulator, steps_per_tick: int) -> np.ndarray:
-    """d over every tick interval of the run, (ticks, coaches, 5): T_amb, Q_Gt, Q_Gs, P, V."""
+    """The disturbance d averaged over every controller interval of the run.
+
+    Parameters
+    ----------
+    sim : FleetSimulator
+        Its environment gives the series.
+    steps_per_tick : int
+        Simulator steps per controller interval; a last incomplete interval is padded with the
+        last sample.
+
+    Returns
+    -------
+    numpy.ndarray of shape (ticks, coaches, 5)
+        [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h] per interval and coach.
+    """
     env = sim.env
     fields = (env.t_amb_c, env.q_roof_w_m2, env.q_side_w_m2, env.occupancy_pct, env.speed_kmh)
     s = len(env.time)
@@ -75,16 +110,51 @@ def interval_means(sim: FleetSimulator, steps_per_tick: int) -> np.ndarray:
 class ClosedLoop:
     """A setpoint policy running one controller per coach (see the module docstring).
 
-    ``controllers[c]`` the controller of coach c, or None for a coach under the rule-based
-    architecture (the deactivated coach of a pair); ``forecast`` ``perfect``, ``persistence`` or
-    ``noisy``, for all coaches or one per coach; ``tick_s`` the controller's period.
+    Pass it to :meth:`~trainclimate.sim.simulator.FleetSimulator.run`; called with the step
+    index and the simulator, it returns T_ref (coaches,) in °C.
 
-    Field events, each an optional (steps, coaches) bool array: ``disconnected`` — the link to the
-    coach is lost: no telemetry reaches the controller and no command the HVAC, which falls back
-    to its own T_rule; ``overridden`` — the coach's commands are overwritten by T_rule (a
-    communication error) while its telemetry still arrives. ``active_from`` (coaches,) the step
-    before which a controller only gathers its lead-in and the coach runs on T_rule (the paper
-    activated the layer at a chosen time).
+    Parameters
+    ----------
+    sim : FleetSimulator
+        The simulator it drives.
+    controllers : list of DDPCController or None
+        The controller of each coach, or None for a coach under the rule-based architecture
+        (the deactivated coach of a pair).
+    forecast : str or list of str, default "perfect"
+        ``"perfect"``, ``"persistence"`` or ``"noisy"``, for all coaches or one per coach.
+    tick_s : float, default 300.0
+        The controller's period, a multiple of the simulator's step. [s]
+    seed : int, default 0
+        Seed of the noisy forecasts (plus the coach index).
+    on_tick : callable, optional
+        Called with (step, coach, StepResult) after each controller step.
+    disconnected : numpy.ndarray of bool, shape (steps, coaches), optional
+        The link to the coach is lost: no telemetry reaches the controller and no command the
+        HVAC, which falls back to its own T_rule.
+    overridden : numpy.ndarray of bool, shape (steps, coaches), optional
+        The coach's commands are overwritten by T_rule (a communication error) while its
+        telemetry still arrives.
+    active_from : numpy.ndarray of int, shape (coaches,), optional
+        The step before which a controller only gathers its lead-in and the coach runs on
+        T_rule (the paper activated the layer at a chosen time).
+
+    Attributes
+    ----------
+    log : TickLog
+        Every tick of every coach.
+    d_true : numpy.ndarray of shape (ticks, coaches, 5)
+        The true interval means of d (:func:`interval_means`).
+
+    Raises
+    ------
+    ValueError
+        If the numbers of controllers or forecasts do not match the coaches, the period is not
+        a multiple of the step, an event mask has the wrong shape, or a forecast is unknown.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Sections IV.B and V, Figure 4.
     """
 
     def __init__(
@@ -139,6 +209,7 @@ class ClosedLoop:
         raise ValueError(f"unknown forecast {kind!r} (perfect, persistence, noisy)")
 
     def __call__(self, k: int, sim: FleetSimulator) -> np.ndarray:
+        """T_ref (coaches,) in °C for step ``k``: the held setpoint, or T_rule, within ±2 K."""
         if k % self.steps_per_tick == 0:
             self._tick(k, sim)
         rule = sim.t_rule(k)
@@ -207,7 +278,20 @@ class ClosedLoop:
 
 
 def controller_rule(sim: FleetSimulator, t_amb_forecast: np.ndarray) -> np.ndarray:
-    """T_rule(k|t), k = 0 … T, from the forecast ambient temperature (the rule curve)."""
+    """T_rule(k|t), k = 0 … T, from the forecast ambient temperature (the rule curve).
+
+    Parameters
+    ----------
+    sim : FleetSimulator
+        Gives the rule curve.
+    t_amb_forecast : numpy.ndarray of shape (T+1,)
+        Ambient temperature over the horizon. [°C]
+
+    Returns
+    -------
+    numpy.ndarray of shape (T+1,)
+        T_rule(k|t). [°C]
+    """
     return np.asarray(sim.rule(np.asarray(t_amb_forecast, dtype=float)), dtype=float)
 
 
@@ -240,8 +324,32 @@ def build_controllers(
     *,
     sampling_min: float = 5.0,
 ) -> list[DDPCController | None]:
-    """One controller per coach: ``rule`` (none: T_ref = T_rule), ``ddpc`` (needs a predictor)
-    or ``edge`` (the band-edge reference). The coaches share one coach model."""
+    """One controller per coach; the coaches share one coach model.
+
+    Parameters
+    ----------
+    kind : str
+        ``"rule"`` (no controller: T_ref = T_rule), ``"ddpc"`` (needs a predictor) or
+        ``"edge"`` (the band-edge reference).
+    n : int
+        Number of coaches.
+    predictor : MultistepPredictor, optional
+        The prediction model; for ``"edge"`` it only sets ρ and T (default 12 and 6).
+    settings : OCPSettings, optional
+        Weights and bounds.
+    sampling_min : float, default 5.0
+        The controller's period. [min]
+
+    Returns
+    -------
+    list of DDPCController or None
+        ``n`` controllers (``None`` for ``"rule"``).
+
+    Raises
+    ------
+    ValueError
+        For an unknown kind, or ``"ddpc"`` without a predictor.
+    """
     if kind == "rule":
         return [None] * n
     model = CoachModel(dt_s=sampling_min * 60.0)
@@ -265,7 +373,19 @@ def build_controllers(
 
 
 def tick_summary(log: TickLog) -> dict:
-    """Counts of the ticks by reason and the controller's solve and step times."""
+    """Summarise a tick log.
+
+    Parameters
+    ----------
+    log : TickLog
+        The ticks.
+
+    Returns
+    -------
+    dict
+        ``ticks`` (count), ``reasons`` (count by reason), ``median_solve_ms`` (over the ticks
+        that applied the optimum) and ``median_step_ms`` (ms; None without ticks).
+    """
     reasons: dict[str, int] = {}
     for r in log.results:
         reasons[r.reason] = reasons.get(r.reason, 0) + 1

@@ -52,10 +52,29 @@ def _drivers(p: CoachParams, t_amb: float, speed: float, **kw) -> thermal.Driver
 
 
 class CoachModel:
-    """The discrete linear coach model for one parameter set and step ``dt_s`` (seconds).
+    """The discrete linear coach model for one parameter set and step (see the module docstring).
 
-    ``params`` one coach's :class:`CoachParams` (default: the fleet's default coach — the
-    controller does not know each coach's own).
+    Parameters
+    ----------
+    params : CoachParams, optional
+        One coach's parameters (default: the fleet's default coach — the controller does not
+        know each coach's own).
+    dt_s : float, default 300.0
+        The step Δt. [s]
+
+    Attributes
+    ----------
+    A_d : numpy.ndarray of shape (G, 9, 9)
+        A_d(V, P) on the G points of the speed × occupancy grid.
+    B_d : numpy.ndarray of shape (G, 9, 10)
+        B_d(V, P): column 0 multiplies T_amb (°C), columns 1–9 the heat into each node (W).
+    S : numpy.ndarray of shape (9, 3)
+        Heat into each node (W) per unit of [Q_Gt (W/m²), Q_Gs (W/m²), P (%)].
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II.C, Eq. (1).
     """
 
     def __init__(self, params: CoachParams | None = None, dt_s: float = 300.0):
@@ -77,8 +96,24 @@ class CoachModel:
             self.A_d[i], self.B_d[i] = E[:N, :N], E[:N, N:]
 
     def continuous(self, speed_kmh: float, occupancy_pct: float = 0.0):
-        """(A_c, b_amb): dx/dt = A_c x + b_amb T_amb + C⁻¹ q at speed V (km/h) and occupancy P
-        (% of seats), with the minimum fresh air for P, read off the simulator (1/s)."""
+        """The continuous-time model dx/dt = A_c x + b_amb T_amb + C⁻¹ q, read off the simulator.
+
+        With the minimum fresh air for the occupancy P and the HVAC off.
+
+        Parameters
+        ----------
+        speed_kmh : float
+            Train speed V. [km/h]
+        occupancy_pct : float, default 0.0
+            Occupancy P. [% of seats]
+
+        Returns
+        -------
+        A_c : numpy.ndarray of shape (9, 9)
+            [1/s]
+        b_amb : numpy.ndarray of shape (9,)
+            [1/s]
+        """
         p, inv = self.p, self.inv_cap[None, :]
         passengers = occupancy_pct / 100.0 * p.seats
         fresh = float(hvac.minimum_fresh_fraction(passengers, p, base=True)[0])
@@ -93,7 +128,18 @@ class CoachModel:
         return A_c, b_amb
 
     def grid_index(self, d: np.ndarray) -> int:
-        """The tabulated model nearest to the speed and occupancy of disturbance sample d."""
+        """Index of the tabulated model nearest to a disturbance sample's speed and occupancy.
+
+        Parameters
+        ----------
+        d : numpy.ndarray of shape (5,)
+            [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h].
+
+        Returns
+        -------
+        int
+            Index into :attr:`A_d` and :attr:`B_d`.
+        """
         i = int(np.argmin(np.abs(SPEED_GRID_KMH - abs(float(d[4])))))
         j = int(np.argmin(np.abs(OCCUPANCY_GRID_PCT - max(float(d[3]), 0.0))))
         return i * len(OCCUPANCY_GRID_PCT) + j
@@ -109,7 +155,25 @@ class CoachModel:
         return np.column_stack(cols) - base[0][:, None]
 
     def ground_w(self, x: np.ndarray, t_amb_c: float) -> float:
-        """Ground radiation into the lower chassis (W) at state x (paper, Section II.C.4)."""
+        """Ground radiation into the lower chassis at state x, zero at or below the threshold.
+
+        Parameters
+        ----------
+        x : numpy.ndarray of shape (9,)
+            Temperatures; x[8] is the lower chassis. [°C]
+        t_amb_c : float
+            Ambient temperature. [°C]
+
+        Returns
+        -------
+        float
+            Heat flow. [W]
+
+        References
+        ----------
+        .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+           Energy Management, Section II.C.5.
+        """
         p = self.params
         if t_amb_c <= p.ground_threshold_c:
             return 0.0
@@ -118,15 +182,41 @@ class CoachModel:
         return p.ground_emissivity * STEFAN_BOLTZMANN * p.ground_area_m2 * (t_g**4 - t_c**4)
 
     def known_heat_w(self, x: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """External heat into each node (W, (9,)) from the disturbance sample
-        d = [T_amb, Q_Gt, Q_Gs, P, V] at state x: solar gains, passengers, ground radiation."""
+        """External heat into each node: solar gains, passengers and ground radiation.
+
+        Parameters
+        ----------
+        x : numpy.ndarray of shape (9,)
+            Temperatures. [°C]
+        d : numpy.ndarray of shape (5,)
+            [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h].
+
+        Returns
+        -------
+        numpy.ndarray of shape (9,)
+            Heat into each node. [W]
+        """
         q = self.S @ np.asarray(d[1:4], dtype=float)
         q[8] += self.ground_w(x, float(d[0]))
         return q
 
     def step(self, x: np.ndarray, d: np.ndarray, q_extra_w: np.ndarray | None = None) -> np.ndarray:
-        """x one step later under disturbance sample ``d`` held over the step, plus optional
-        unmeasured heat ``q_extra_w`` (W, (9,)) into the nodes."""
+        """Advance the state one step, x(k+1) = A_d x(k) + B_d [T_amb; q(k)].
+
+        Parameters
+        ----------
+        x : numpy.ndarray of shape (9,)
+            Temperatures. [°C]
+        d : numpy.ndarray of shape (5,)
+            [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h], held over the step.
+        q_extra_w : numpy.ndarray of shape (9,), optional
+            Unmeasured heat into the nodes (e.g. the HVAC's). [W]
+
+        Returns
+        -------
+        numpy.ndarray of shape (9,)
+            Temperatures one step later. [°C]
+        """
         i = self.grid_index(d)
         q = self.known_heat_w(x, d)
         if q_extra_w is not None:
@@ -134,7 +224,20 @@ class CoachModel:
         return self.A_d[i] @ x + self.B_d[i, :, 0] * d[0] + self.B_d[i, :, 1:] @ q
 
     def free_run(self, x0: np.ndarray, d_seq: np.ndarray) -> np.ndarray:
-        """States after each step of an open-loop run with the HVAC off, (len(d_seq), 9)."""
+        """Run the model open loop with the HVAC off (as for T_opt, Section III.C).
+
+        Parameters
+        ----------
+        x0 : numpy.ndarray of shape (9,)
+            Initial temperatures. [°C]
+        d_seq : numpy.ndarray of shape (n, 5)
+            Disturbance of each step, [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h].
+
+        Returns
+        -------
+        numpy.ndarray of shape (n, 9)
+            Temperatures after each step. [°C]
+        """
         out = np.empty((len(d_seq), N))
         x = np.asarray(x0, dtype=float)
         for k, d in enumerate(np.asarray(d_seq, dtype=float)):

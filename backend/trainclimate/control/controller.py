@@ -54,8 +54,35 @@ D_RANGES = ((-40.0, 50.0), (0.0, 1500.0), (0.0, 1500.0), (0.0, 300.0), (0.0, 250
 
 @dataclass
 class StepResult:
-    """What one step decided: ``t_ref_c`` (°C) and why (``source`` ``ddpc`` / ``rule`` /
-    ``fallback``, ``reason`` a key of :data:`REASONS`), with the trajectories behind it."""
+    """What one controller step decided, and why, with the trajectories behind it.
+
+    Attributes
+    ----------
+    t_ref_c : float
+        The setpoint T_ref to apply. [°C]
+    source : str
+        ``"ddpc"`` (the optimum), ``"rule"`` (lead-in or inactive), ``"fallback"`` or
+        ``"edge"`` (:class:`BandEdgeController`).
+    reason : str
+        A key of :data:`REASONS`.
+    t_rule_c : float
+        T_rule(0|t). [°C]
+    detail : str
+        Human-readable detail of the reason.
+    t_opt_c : numpy.ndarray of shape (T+1,) or None
+        T_opt(k|t), k = 0 … T, when computed. [°C]
+    u_plan_c : numpy.ndarray of shape (T+1,) or None
+        The optimal u(0|t) … u(T|t). [°C]
+    y_pred_c : numpy.ndarray of shape (T, 3) or None
+        The predicted room temperatures y(1|t) … y(T|t). [°C]
+    solve_time_s, step_time_s : float
+        Time of the solver and of the whole step. [s]
+    solver_status : str
+        The solver's status, when it ran.
+    extra : dict
+        ``objective`` (K²) and ``room_heat_w`` (estimated unmeasured heat per room, W) after a
+        solved step.
+    """
 
     t_ref_c: float
     source: str
@@ -79,9 +106,37 @@ def t_opt(
     t_rule: np.ndarray,
     t_max: float,
 ) -> np.ndarray:
-    """T_opt(k|t), k = 0 … T (°C): the mean room temperature of an open-loop run with the HVAC
-    off from state ``x0`` — d_now acting over [t, t+1), d_future[j] over [t+j+1, t+j+2) — projected
-    onto [T_rule − t_max, T_rule + t_max] (paper, Section III.C)."""
+    """The reference temperature T_opt(k|t), k = 0 … T, of the costs J_u and J_y.
+
+    The mean room temperature of an open-loop run of the coach model with the HVAC off
+    (Q_hvac = 0) from state ``x0``, projected onto [T_rule − t_max, T_rule + t_max].
+
+    Parameters
+    ----------
+    model : CoachModel
+        The controller's coach model, discretised at the controller's period.
+    x0 : numpy.ndarray of shape (9,)
+        Current temperatures [T_room; T_inv; T_chassis] (°C), e.g. the state estimate.
+    d_now : numpy.ndarray of shape (5,)
+        Disturbance acting over [t, t+1): [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats,
+        V km/h].
+    d_future : numpy.ndarray of shape (T, 5)
+        Forecast; row j acts over [t+j+1, t+j+2) (the last row is not needed).
+    t_rule : numpy.ndarray of shape (T+1,)
+        T_rule(k|t), k = 0 … T. [°C]
+    t_max : float
+        Comfort half-band T_max. [K]
+
+    Returns
+    -------
+    numpy.ndarray of shape (T+1,)
+        T_opt(k|t). [°C]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.C.
+    """
     T = len(t_rule) - 1
     run = model.free_run(x0, np.vstack([d_now, d_future[: T - 1]]))
     mean_room = np.concatenate([[x0[:3].mean()], run[:, :3].mean(axis=1)])
@@ -98,9 +153,38 @@ def _in_range(values: np.ndarray, ranges) -> bool:
 class DDPCController:
     """The DDPC layer of one coach (stateful: the state estimate and the solver's warm start).
 
-    ``predictor`` a fitted multistep predictor (or None: every step falls back);
-    ``settings`` the OCP's; ``sampling_min`` the controller's period; ``model`` the coach model
-    for T_opt and the estimator (default: the fleet's default coach, discretised at the period).
+    Receives T_rule and the measurements and outputs T_ref (Figure 4 [1]_); see the module
+    docstring for the step and its fallbacks.
+
+    Parameters
+    ----------
+    predictor : MultistepPredictor or None
+        A fitted multistep predictor; None makes every step fall back.
+    settings : OCPSettings, optional
+        The optimal control problem's weights and bounds (default: :class:`OCPSettings`).
+    sampling_min : float, default 5.0
+        The controller's period; must match the predictor's sampling time. [min]
+    model : CoachModel, optional
+        The coach model for T_opt and the estimator (default: the fleet's default coach,
+        discretised at the period).
+    rho, horizon : int, optional
+        ρ and T when there is no predictor (default 12 and 6); otherwise the predictor's.
+
+    Attributes
+    ----------
+    needs_predictor : bool
+        Whether steps without a (compatible) predictor fall back (True here).
+    problem : DDPCProblem or None
+        The optimal control problem, None without a compatible predictor.
+    estimator : StateEstimator
+        The state estimate of the coach.
+    period_s : float
+        The controller's period. [s]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.C, Figure 4.
     """
 
     needs_predictor = True
@@ -151,14 +235,33 @@ class DDPCController:
         t_rule: np.ndarray,
         u_prev: float,
     ) -> StepResult:
-        """One tick at time ``now_s`` (s since the epoch).
+        """One controller tick: measurements in, a safe T_ref out. Never raises.
 
-        ``sample_times_s`` (m,) the times of the measured samples, oldest first, the last one
-        normally ``now_s``; ``y`` (m, 3) the room temperatures measured by those times; ``u``
-        (m − 1,) the setpoints applied over the intervals between them; ``d`` (m, 5) the
-        disturbance over [sample, sample + period) — the last row the current interval's, as
-        forecast; ``d_future`` (T, 5) the forecast beyond; ``t_rule`` (T + 1,) T_rule for
-        k = 0 … T; ``u_prev`` the setpoint applied over the last interval.
+        Parameters
+        ----------
+        now_s : float
+            The tick's time, seconds since the Unix epoch (UTC). [s]
+        sample_times_s : numpy.ndarray of shape (m,)
+            Times of the measured samples, oldest first, the last one normally ``now_s``. [s]
+        y : numpy.ndarray of shape (m, 3)
+            Room temperatures up, mid, low measured by those times. [°C]
+        u : numpy.ndarray of shape (m − 1,)
+            Setpoints applied over the intervals between the samples. [°C]
+        d : numpy.ndarray of shape (m, 5)
+            Disturbance [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h] over
+            [sample, sample + period); the last row the current interval's, as forecast.
+        d_future : numpy.ndarray of shape (T, 5)
+            The forecast beyond, as ``d``.
+        t_rule : numpy.ndarray of shape (T+1,)
+            T_rule(k|t) for k = 0 … T. [°C]
+        u_prev : float
+            The setpoint applied over the last interval, u(t−1). [°C]
+
+        Returns
+        -------
+        StepResult
+            The setpoint (within T_rule ± ``u_band`` whenever T_rule is valid), its source
+            and reason; any error gives the fallback with reason ``"error"``.
         """
         t0 = time.perf_counter()
         try:
@@ -284,6 +387,23 @@ class BandEdgeController(DDPCController):
     projected onto the comfort band — computed like the DDPC layer's T_opt, but from the true
     future disturbances (give it a perfect forecast) and with no prediction model, no rate limit
     and no optimisation. It measures how much of the achievable saving the DDPC layer gets.
+    Steps report ``source`` ``"edge"``.
+
+    Parameters
+    ----------
+    settings : OCPSettings, optional
+        Gives T_max and ``u_band`` (default: :class:`OCPSettings`).
+    sampling_min : float, default 5.0
+        The controller's period. [min]
+    rho, horizon : int, default 12, 6
+        Lead-in ρ (samples before it acts) and horizon T.
+    model : CoachModel, optional
+        The coach model for T_opt (default: the fleet's default coach).
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.C.
     """
 
     needs_predictor = False

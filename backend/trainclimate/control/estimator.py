@@ -29,6 +29,24 @@ class StateEstimator:
 
     :meth:`reset` starts it from a measurement; :meth:`update` advances it one controller step
     with the disturbance that acted over the step and the new measurement.
+
+    Parameters
+    ----------
+    model : CoachModel
+        The controller's discrete coach model (its step is the filter's).
+    temp_noise_k : float, default 0.02
+        Process noise on the temperatures per step (standard deviation). [K]
+    heat_noise_w : float, default 2000.0
+        Process noise on q_u per step (standard deviation). [W]
+    meas_noise_k : float, default 0.06
+        Measurement noise (standard deviation). [K]
+
+    Attributes
+    ----------
+    x : numpy.ndarray of shape (12,)
+        The estimate [T_room; T_inv; T_chassis (°C); q_u (W)], NaN before :meth:`reset`.
+    P : numpy.ndarray of shape (12, 12)
+        Its covariance.
     """
 
     def __init__(
@@ -60,29 +78,48 @@ class StateEstimator:
 
     @property
     def ready(self) -> bool:
+        """Whether the filter holds a finite estimate (it has been reset)."""
         return bool(np.all(np.isfinite(self.x)))
 
     @property
     def temperatures(self) -> np.ndarray:
-        """The estimated nine temperatures (°C)."""
+        """The estimated nine temperatures [T_room; T_inv; T_chassis], a copy, shape (9,). [°C]"""
         return self.x[:N].copy()
 
     @property
     def room_heat_w(self) -> np.ndarray:
-        """The estimated unmeasured heat into each room (W): mostly the HVAC's output."""
+        """The estimated unmeasured heat into each room (mostly the HVAC's), shape (3,). [W]"""
         return self.x[N:].copy()
 
     def reset(self, y: np.ndarray, t_amb_c: float) -> None:
-        """Start from measured room temperatures ``y`` (°C): inventory at the room's temperature,
-        chassis halfway to ambient, no unmeasured heat — all with a wide uncertainty."""
+        """Start from a measurement, with a wide uncertainty.
+
+        The inventory starts at the room's temperature, the chassis halfway to ambient, with no
+        unmeasured heat.
+
+        Parameters
+        ----------
+        y : numpy.ndarray of shape (3,)
+            Measured room temperatures up, mid, low. [°C]
+        t_amb_c : float
+            Ambient temperature. [°C]
+        """
         y = np.asarray(y, dtype=float)
         chassis = 0.5 * (y + t_amb_c)
         self.x = np.concatenate([y, y, chassis, np.zeros(NQ)])
         self.P = np.diag([0.1**2] * 3 + [2.0**2] * 3 + [5.0**2] * 3 + [3000.0**2] * NQ)
 
     def update(self, d_prev: np.ndarray, y: np.ndarray) -> None:
-        """One step: predict over the interval just ended, under its disturbance ``d_prev``
-        (T_amb, Q_Gt, Q_Gs, P, V held), then correct with the new measurement ``y``."""
+        """One filter step: predict over the interval just ended, then correct.
+
+        Parameters
+        ----------
+        d_prev : numpy.ndarray of shape (5,)
+            The disturbance held over the interval just ended, [T_amb °C, Q_Gt W/m², Q_Gs W/m²,
+            P % of seats, V km/h].
+        y : numpy.ndarray of shape (3,)
+            The new measurement of the room temperatures. [°C]
+        """
         m = self.model
         i = m.grid_index(d_prev)
         temps = self.x[:N]
@@ -98,8 +135,15 @@ class StateEstimator:
         self.P = I_KC @ P_pred @ I_KC.T + K @ self.R @ K.T  # Joseph form: stays symmetric PSD
 
     def run(self, y_seq: np.ndarray, d_seq: np.ndarray) -> None:
-        """Reset on the first sample of a history and filter through the rest (oldest first):
-        ``y_seq`` (n, 3), ``d_seq`` (n, 5) with d_seq[k] acting over [k, k+1)."""
+        """Reset on the first sample of a history and filter through the rest.
+
+        Parameters
+        ----------
+        y_seq : numpy.ndarray of shape (n, 3)
+            Measured room temperatures, oldest first. [°C]
+        d_seq : numpy.ndarray of shape (n, 5)
+            Disturbances, d_seq[k] acting over [k, k+1); as in :meth:`update`.
+        """
         self.reset(y_seq[0], float(d_seq[0][0]))
         for k in range(1, len(y_seq)):
             self.update(d_seq[k - 1], y_seq[k])

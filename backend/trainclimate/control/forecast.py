@@ -25,17 +25,45 @@ Truth = Callable[[int, int], np.ndarray]
 
 
 class Forecaster(ABC):
-    """Produces d(t+1) … d(t+T), (T, 5), at a tick."""
+    """Base of the disturbance forecasters: produces d(t+1) … d(t+T) at a tick.
+
+    Attributes
+    ----------
+    name : str
+        The forecaster's name, one of :data:`FORECASTS`.
+    """
 
     name = "base"
 
     @abstractmethod
     def forecast(self, tick: int, horizon: int, last_measured: np.ndarray) -> np.ndarray:
-        """The forecast at controller tick ``tick``; ``last_measured`` is the newest d sample."""
+        """The forecast at a controller tick.
+
+        Parameters
+        ----------
+        tick : int
+            Controller tick index t.
+        horizon : int
+            Number of steps to forecast.
+        last_measured : numpy.ndarray of shape (5,)
+            The newest measured disturbance sample d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of
+            seats, V km/h].
+
+        Returns
+        -------
+        numpy.ndarray of shape (horizon, 5)
+            d(t+1) … d(t+horizon), same columns and units as ``last_measured``.
+        """
 
 
 class PerfectForecast(Forecaster):
-    """The true future disturbances."""
+    """The true future disturbances (the paper's simulation study, Section IV.B).
+
+    Parameters
+    ----------
+    truth : Truth
+        (tick index, number of steps) → (steps, 5) true disturbance samples.
+    """
 
     name = "perfect"
 
@@ -43,6 +71,23 @@ class PerfectForecast(Forecaster):
         self.truth = truth
 
     def forecast(self, tick: int, horizon: int, last_measured: np.ndarray) -> np.ndarray:
+        """The true d(t+1) … d(t+horizon); ``last_measured`` is ignored.
+
+        Parameters
+        ----------
+        tick : int
+            Controller tick index t.
+        horizon : int
+            Number of steps to forecast.
+        last_measured : numpy.ndarray of shape (5,)
+            The newest measured disturbance sample d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of
+            seats, V km/h].
+
+        Returns
+        -------
+        numpy.ndarray of shape (horizon, 5)
+            d(t+1) … d(t+horizon), same columns and units as ``last_measured``.
+        """
         return np.asarray(self.truth(tick + 1, horizon), dtype=float)
 
 
@@ -52,13 +97,47 @@ class PersistenceForecast(Forecaster):
     name = "persistence"
 
     def forecast(self, tick: int, horizon: int, last_measured: np.ndarray) -> np.ndarray:
+        """``last_measured`` repeated ``horizon`` times.
+
+        Parameters
+        ----------
+        tick : int
+            Controller tick index t.
+        horizon : int
+            Number of steps to forecast.
+        last_measured : numpy.ndarray of shape (5,)
+            The newest measured disturbance sample d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of
+            seats, V km/h].
+
+        Returns
+        -------
+        numpy.ndarray of shape (horizon, 5)
+            d(t+1) … d(t+horizon), same columns and units as ``last_measured``.
+        """
         return np.tile(np.asarray(last_measured, dtype=float), (horizon, 1))
 
 
 class NoisyForecast(Forecaster):
-    """The truth plus AR(1) errors along the lead time: ``temp_sigma_k`` (K) and ``temp_phi`` on
-    T_amb, ``solar_sigma`` (relative) and ``solar_phi`` on both irradiance projections; seeded,
-    a fresh error path at every tick (independent of earlier ticks)."""
+    """The truth plus AR(1) errors along the lead time, e(k) = φ e(k−1) + σ ε(k).
+
+    Seeded; a fresh error path at every tick (independent of earlier ticks). Occupancy and
+    speed are taken as known.
+
+    Parameters
+    ----------
+    truth : Truth
+        (tick index, number of steps) → (steps, 5) true disturbance samples.
+    seed : int, default 0
+        Seed of the errors (combined with the tick).
+    temp_sigma_k : float, default 0.5
+        σ of the additive error on T_amb. [K]
+    temp_phi : float, default 0.9
+        φ of the T_amb error. [–]
+    solar_sigma : float, default 0.15
+        σ of the relative error on both irradiance projections (clipped at zero). [–]
+    solar_phi : float, default 0.9
+        φ of the irradiance error. [–]
+    """
 
     name = "noisy"
 
@@ -78,6 +157,24 @@ class NoisyForecast(Forecaster):
         self.solar = (solar_sigma, solar_phi)
 
     def forecast(self, tick: int, horizon: int, last_measured: np.ndarray) -> np.ndarray:
+        """The true d(t+1) … d(t+horizon) with the tick's error path; ``last_measured`` is
+        ignored.
+
+        Parameters
+        ----------
+        tick : int
+            Controller tick index t.
+        horizon : int
+            Number of steps to forecast.
+        last_measured : numpy.ndarray of shape (5,)
+            The newest measured disturbance sample d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of
+            seats, V km/h].
+
+        Returns
+        -------
+        numpy.ndarray of shape (horizon, 5)
+            d(t+1) … d(t+horizon), same columns and units as ``last_measured``.
+        """
         d = np.array(self.truth(tick + 1, horizon), dtype=float)
         rng = np.random.default_rng([self.seed, tick])
         e_t = e_s = 0.0

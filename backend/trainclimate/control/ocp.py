@@ -41,10 +41,31 @@ from trainclimate.predict.hankel import NU, NY, NZ
 class OCPSettings:
     """Weights and bounds of the problem (paper, Eq. (4)–(9)).
 
-    ``sigma``, ``tau``, ``gamma``: weights of J_u, J_ε, J_Δu (J_y has weight 1); ``t_max`` the
-    comfort half-band T_max (K); ``du_max`` the rate limit ΔT_max (K per step); ``u_band`` the
-    limit on |u − T_rule| (K, the driver's ±2 K); ``time_limit_s`` the solver's time budget.
-    The default weights come from a closed-loop sweep over the five scenarios (docs/controller.md).
+    The default weights come from a closed-loop sweep over the five scenarios
+    (docs/controller.md).
+
+    Attributes
+    ----------
+    sigma, tau, gamma : float
+        Weights σ, τ, γ of J_u, J_ε and J_Δu in Eq. (9); J_y has weight 1. [–]
+    t_max : float
+        Comfort half-band T_max of Eq. (4). [K]
+    du_max : float
+        Rate limit ΔT_max of Eq. (7). [K per step]
+    u_band : float
+        Limit on |u − T_rule| of Eq. (6), the driver's ±2 K. [K]
+    time_limit_s : float
+        The solver's time budget per step. [s]
+
+    Raises
+    ------
+    ValueError
+        If a weight or bound is not positive and finite.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.C, Eqs. (4)–(9).
     """
 
     sigma: float = 3.0
@@ -66,9 +87,25 @@ class OCPSettings:
 
 @dataclass
 class Solution:
-    """The optimum: ``u`` (T+1,) u(0|t) … u(T|t); ``y`` (T, 3) and ``eps`` (T, 3) for k = 1 … T;
-    ``objective`` J including its constant terms; ``status`` (``"solved"`` when optimal, else the
-    solver's word); ``solve_time_s`` the solver's own time; ``iterations``."""
+    """The optimum of one step's problem.
+
+    Attributes
+    ----------
+    u : numpy.ndarray of shape (T+1,)
+        Setpoints u(0|t) … u(T|t). [°C]
+    y : numpy.ndarray of shape (T, 3)
+        Predicted room temperatures y(k|t), k = 1 … T. [°C]
+    eps : numpy.ndarray of shape (T, 3)
+        Slacks ε(k|t), k = 1 … T. [K]
+    objective : float
+        J including its constant terms. [K²]
+    status : str
+        ``"solved"`` when optimal, else the solver's word.
+    solve_time_s : float
+        The solver's own time. [s]
+    iterations : int
+        Solver iterations (0 where not reported).
+    """
 
     u: np.ndarray
     y: np.ndarray
@@ -80,6 +117,7 @@ class Solution:
 
     @property
     def solved(self) -> bool:
+        """Whether the solver reached the optimum (``status == "solved"``)."""
         return self.status == "solved"
 
 
@@ -141,12 +179,27 @@ def _difference(n: int) -> np.ndarray:
 
 
 class DDPCProblem:
-    """The production path: the condensed QP solved by OSQP, built once per predictor/settings.
+    """The production path: Eq. (10) as a condensed QP solved by OSQP.
 
-    ``DDPCProblem(predictor, settings).solve(y_past, u_past, d_past, d_future, t_rule, t_opt,
-    u_prev)`` per the contract: ``y_past`` (ρ×3), ``d_past`` (ρ×5) the measured samples
-    t−ρ+1 … t; ``u_past`` (ρ−1 × 1) the inputs applied t−ρ+1 … t−1; ``d_future`` (T×5) the
-    forecast t+1 … t+T; ``t_rule``, ``t_opt`` (T+1,) for k = 0 … T; ``u_prev`` = u(t−1).
+    Built once per predictor and settings (see the module docstring); each :meth:`solve`
+    updates only the vectors and warm-starts from the last solution.
+
+    Parameters
+    ----------
+    predictor : MultistepPredictor
+        A fitted predictor (its Ĥ is the model (3)).
+    settings : OCPSettings, optional
+        Weights and bounds (default: :class:`OCPSettings`).
+
+    Raises
+    ------
+    RuntimeError
+        If the predictor is not fitted.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.C, Eq. (10).
     """
 
     def __init__(self, predictor: MultistepPredictor, settings: OCPSettings | None = None):
@@ -190,14 +243,45 @@ class DDPCProblem:
 
     @property
     def rho(self) -> int:
+        """Lead-in ρ of the predictor."""
         return self._m.rho
 
     @property
     def horizon(self) -> int:
+        """Horizon T of the predictor."""
         return self._m.T
 
     def solve(self, y_past, u_past, d_past, d_future, t_rule, t_opt, u_prev) -> Solution:
-        """Solve Eq. (10) for one time step (see the class docstring for the arguments)."""
+        """Solve Eq. (10) for one time step.
+
+        Parameters
+        ----------
+        y_past : array-like of shape (ρ, 3)
+            Measured room temperatures at t−ρ+1 … t; the last is y(t) = y(0|t). [°C]
+        u_past : array-like of shape (ρ−1, 1) or (ρ−1,)
+            Setpoints applied at t−ρ+1 … t−1 (u(t) = u(0|t) is a decision). [°C]
+        d_past : array-like of shape (ρ, 5)
+            Measured disturbances [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h] at
+            t−ρ+1 … t.
+        d_future : array-like of shape (T, 5)
+            Forecast disturbances at t+1 … t+T, as ``d_past``.
+        t_rule : array-like of shape (T+1,)
+            T_rule(k|t) for k = 0 … T. [°C]
+        t_opt : array-like of shape (T+1,)
+            T_opt(k|t) for k = 0 … T. [°C]
+        u_prev : float
+            u(t−1), the setpoint applied over the last interval. [°C]
+
+        Returns
+        -------
+        Solution
+            The optimum; NaN arrays and a status other than ``"solved"`` when none was found.
+
+        Raises
+        ------
+        ValueError
+            If an array has the wrong shape or holds NaN or infinite values.
+        """
         m, s = self._m, self.settings
         T = m.T
         c, y0, t_rule, t_opt, u_prev = m.data(
@@ -241,9 +325,28 @@ class DDPCProblem:
 
 
 class ReferenceProblem:
-    """The readable cvxpy formulation of Eq. (10), DPP-compliant (compiled once), solved with
-    Clarabel (an interior-point method: accurate, the reference). ``rebuild=True`` constructs
-    and compiles the problem at every :meth:`solve` (the naive path)."""
+    """The readable cvxpy formulation of Eq. (10), the reference for :class:`DDPCProblem`.
+
+    DPP-compliant, so cvxpy compiles it once; solved with Clarabel by default (an interior-point
+    method: accurate).
+
+    Parameters
+    ----------
+    predictor : MultistepPredictor
+        A fitted predictor.
+    settings : OCPSettings, optional
+        Weights and bounds (default: :class:`OCPSettings`).
+    rebuild : bool, default False
+        Construct and compile the problem at every :meth:`solve` (the naive path, for the
+        benchmark).
+    solver : str, default "CLARABEL"
+        The cvxpy solver.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.C, Eq. (10).
+    """
 
     def __init__(
         self,
@@ -293,7 +396,36 @@ class ReferenceProblem:
         return problem, p, (u, y, eps)
 
     def solve(self, y_past, u_past, d_past, d_future, t_rule, t_opt, u_prev) -> Solution:
-        """Same arguments and result as :meth:`DDPCProblem.solve`."""
+        """Solve Eq. (10) for one time step, as :meth:`DDPCProblem.solve`.
+
+        Parameters
+        ----------
+        y_past : array-like of shape (ρ, 3)
+            Measured room temperatures at t−ρ+1 … t; the last is y(t) = y(0|t). [°C]
+        u_past : array-like of shape (ρ−1, 1) or (ρ−1,)
+            Setpoints applied at t−ρ+1 … t−1 (u(t) = u(0|t) is a decision). [°C]
+        d_past : array-like of shape (ρ, 5)
+            Measured disturbances [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h] at
+            t−ρ+1 … t.
+        d_future : array-like of shape (T, 5)
+            Forecast disturbances at t+1 … t+T, as ``d_past``.
+        t_rule : array-like of shape (T+1,)
+            T_rule(k|t) for k = 0 … T. [°C]
+        t_opt : array-like of shape (T+1,)
+            T_opt(k|t) for k = 0 … T. [°C]
+        u_prev : float
+            u(t−1), the setpoint applied over the last interval. [°C]
+
+        Returns
+        -------
+        Solution
+            The optimum; NaN arrays and a status other than ``"solved"`` when none was found.
+
+        Raises
+        ------
+        ValueError
+            If an array has the wrong shape or holds NaN or infinite values.
+        """
         import cvxpy as cp
 
         m, T = self._m, self._m.T

@@ -17,12 +17,36 @@ from trainclimate.predict.hankel import ND, NU, NY, NZ, TrajectoryLike
 
 
 class ARXPredictor(MultistepPredictor):
-    """Same API as :class:`~trainclimate.predict.transient.TransientPredictor`; :attr:`theta`
-    is the one-step map (3 × 9ρ, signals' units)."""
+    """A one-step ARX model of order ρ iterated over the horizon (the second baseline).
+
+    Same API as :class:`~trainclimate.predict.transient.TransientPredictor`.
+
+    Attributes
+    ----------
+    theta : numpy.ndarray of shape (3, 9ρ)
+        The one-step map Θ, y(t+1) = Θ z_p(t), in the signals' units, after :meth:`fit`.
+    """
 
     method = "arx"
 
     def fit(self, trajectories: Iterable[TrajectoryLike]) -> ARXPredictor:
+        """Fit Θ by least squares and compose Ĥ from T iterated steps.
+
+        Parameters
+        ----------
+        trajectories : iterable of TrajectoryLike
+            Training trajectories (``y`` n×3 °C, ``u`` n×1 °C, ``d`` n×5), one sampling time.
+
+        Returns
+        -------
+        ARXPredictor
+            ``self``, with :attr:`theta` and :attr:`H`.
+
+        Raises
+        ------
+        PredictorDataError
+            If the data are too few or rank-deficient.
+        """
         rho = self.rho
         n = NZ * rho
         L = self._factor(trajectories, rho + 1, np.arange(n + NY))

@@ -73,11 +73,44 @@ class _Tracker:
 
 
 class MultistepPredictor(ABC):
-    """Base of :class:`TransientPredictor`, :class:`SubspacePredictor` and :class:`ARXPredictor`.
+    """Base of the multistep linear predictors y_f = Ĥ [z_p; u_f; d_f] (Eq. (2)).
 
-    ``rho`` lead-in samples, ``horizon`` prediction steps T. After :meth:`fit`: :attr:`H`
-    (3T × (9ρ + 6T)), :attr:`sampling_min` (from the trajectories, if they say), and the
-    training data's size and SHA-256 (:attr:`data_hash`).
+    Subclassed by :class:`TransientPredictor`, :class:`SubspacePredictor` and
+    :class:`ARXPredictor`, which implement :meth:`fit`.
+
+    Parameters
+    ----------
+    rho : int
+        Number of lead-in samples ρ (≥ 1).
+    horizon : int
+        Number of prediction steps T (≥ 1).
+    chunk : int, default 4096
+        Hankel windows streamed into the factorisation at a time (memory, not results).
+
+    Attributes
+    ----------
+    method : str
+        Name of the method, a key of :data:`~trainclimate.predict.METHODS`.
+    H : numpy.ndarray of shape (3T, 9ρ + 6T) or None
+        Ĥ in the signals' own units (°C, W/m², % of seats, km/h), None before :meth:`fit`.
+    sampling_min : float or None
+        Sampling time of the training trajectories, if they say. [min]
+    n_trajectories, n_columns : int
+        Training trajectories and Hankel columns (windows) used by the fit.
+    data_hash : str
+        SHA-256 of the training data (every y, u, d in order).
+    metadata : dict
+        What a saved model file said about it (:mod:`~trainclimate.predict.artifact`).
+
+    Raises
+    ------
+    ValueError
+        If ``rho``, ``horizon`` or ``chunk`` is not a positive integer.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.B, Eq. (2).
     """
 
     method = "base"
@@ -100,7 +133,26 @@ class MultistepPredictor(ABC):
     # --- fitting ---------------------------------------------------------------------------
     @abstractmethod
     def fit(self, trajectories: Iterable[TrajectoryLike]) -> MultistepPredictor:
-        """Fit Ĥ from trajectories (any objects with ``y``, ``u``, ``d`` arrays on one grid)."""
+        """Fit Ĥ from training trajectories in one streaming pass.
+
+        Parameters
+        ----------
+        trajectories : iterable of TrajectoryLike
+            Objects with ``y`` (n×3, °C), ``u`` (n×1, °C) and ``d`` (n×5) arrays, each on one
+            uniform grid, all of one sampling time.
+
+        Returns
+        -------
+        MultistepPredictor
+            ``self``, fitted.
+
+        Raises
+        ------
+        PredictorDataError
+            If the data are too few for ρ + T, rank-deficient, or of mixed sampling times.
+        ValueError
+            If a trajectory is malformed or holds NaN or infinite values.
+        """
 
     def _factor(
         self, trajectories: Iterable[TrajectoryLike], depth: int, order: np.ndarray
@@ -151,16 +203,53 @@ class MultistepPredictor(ABC):
     # --- predicting ------------------------------------------------------------------------
     @property
     def n_inputs(self) -> int:
-        """Length of [z_p; u_f; d_f]: 9ρ + 6T."""
+        """Length of the regressor [z_p; u_f; d_f], 9ρ + 6T."""
         return NZ * self.rho + (NU + ND) * self.horizon
 
     def require_fit(self) -> np.ndarray:
+        """Return Ĥ, insisting the predictor is fitted.
+
+        Returns
+        -------
+        numpy.ndarray of shape (3T, 9ρ + 6T)
+            :attr:`H`.
+
+        Raises
+        ------
+        RuntimeError
+            If the predictor is not fitted.
+        """
         if self.H is None:
             raise RuntimeError(f"the {self.method} predictor is not fitted (call fit first)")
         return self.H
 
     def regressor(self, y_past, u_past, d_past, u_future, d_future) -> np.ndarray:
-        """[z_p; u_f; d_f] from the contract's arrays (shapes checked; see :meth:`predict`)."""
+        """Assemble the regressor [z_p; u_f; d_f] from the past and future samples.
+
+        Parameters
+        ----------
+        y_past : array-like of shape (ρ, 3)
+            Room temperatures y at t−ρ+1 … t, oldest first. [°C]
+        u_past : array-like of shape (ρ, 1) or (ρ,)
+            Setpoints u at t−ρ+1 … t; ``u_past[-1]`` is applied from t to t+1. [°C]
+        d_past : array-like of shape (ρ, 5)
+            Disturbances d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h] at
+            t−ρ+1 … t.
+        u_future : array-like of shape (T, 1) or (T,)
+            Setpoints at t+1 … t+T. [°C]
+        d_future : array-like of shape (T, 5)
+            Disturbances at t+1 … t+T, as ``d_past``.
+
+        Returns
+        -------
+        numpy.ndarray of shape (9ρ + 6T,)
+            z_p (y, u, d per step, oldest first), then u_f, then d_f (step by step).
+
+        Raises
+        ------
+        ValueError
+            If an array has the wrong shape.
+        """
         rho, T = self.rho, self.horizon
         arrays = {}
         for name, value, shape in (
@@ -180,21 +269,61 @@ class MultistepPredictor(ABC):
         return np.concatenate([z_p, arrays["u_future"].ravel(), arrays["d_future"].ravel()])
 
     def predict(self, y_past, u_past, d_past, u_future, d_future) -> np.ndarray:
-        """y(t+1) … y(t+T) as a (T, 3) array.
+        """Predict the room temperatures y(t+1) … y(t+T), y_f = Ĥ [z_p; u_f; d_f].
 
-        ``y_past`` (ρ×3), ``u_past`` (ρ×1), ``d_past`` (ρ×5): samples t−ρ+1 … t, oldest first
-        (``u_past[-1]`` is applied from t to t+1); ``u_future`` (T×1), ``d_future`` (T×5):
-        samples t+1 … t+T.
+        Parameters
+        ----------
+        y_past : array-like of shape (ρ, 3)
+            Room temperatures y at t−ρ+1 … t, oldest first. [°C]
+        u_past : array-like of shape (ρ, 1) or (ρ,)
+            Setpoints u at t−ρ+1 … t; ``u_past[-1]`` is applied from t to t+1. [°C]
+        d_past : array-like of shape (ρ, 5)
+            Disturbances d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h] at
+            t−ρ+1 … t.
+        u_future : array-like of shape (T, 1) or (T,)
+            Setpoints at t+1 … t+T. [°C]
+        d_future : array-like of shape (T, 5)
+            Disturbances at t+1 … t+T, as ``d_past``.
+
+        Returns
+        -------
+        numpy.ndarray of shape (T, 3)
+            Predicted T_room up, mid, low at t+1 … t+T. [°C]
+
+        Raises
+        ------
+        RuntimeError
+            If the predictor is not fitted.
+        ValueError
+            If an array has the wrong shape.
+
+        References
+        ----------
+        .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+           Energy Management, Eq. (2).
         """
         H = self.require_fit()
         x = self.regressor(y_past, u_past, d_past, u_future, d_future)
         return (H @ x).reshape(self.horizon, NY)
 
     def predict_windows(self, windows: np.ndarray) -> np.ndarray:
-        """Predictions for many (ρ+T)·9 Hankel windows at once → (m, T, 3).
+        """Predict for many Hankel windows at once.
 
-        Each window row holds z over t−ρ+1 … t+T (see :mod:`~trainclimate.predict.hankel`); the
-        future y in it is ignored.
+        Parameters
+        ----------
+        windows : numpy.ndarray of shape (m, (ρ+T)·9)
+            Each row holds z = [y, u, d] over t−ρ+1 … t+T (see
+            :mod:`~trainclimate.predict.hankel`); the future y in it is ignored.
+
+        Returns
+        -------
+        numpy.ndarray of shape (m, T, 3)
+            Predicted room temperatures at t+1 … t+T of each window. [°C]
+
+        Raises
+        ------
+        RuntimeError
+            If the predictor is not fitted.
         """
         H = self.require_fit()
         rho, T = self.rho, self.horizon
@@ -221,7 +350,19 @@ def _window_names(rho: int, depth: int) -> list[str]:
 
 
 def future_columns(rho: int, horizon: int) -> tuple[list[int], list[int], list[int]]:
-    """Indices, in a (ρ+T)·9 window, of y_f, u_f and d_f (each stacked step by step)."""
+    """Positions of the future outputs, inputs and disturbances in a Hankel window.
+
+    Parameters
+    ----------
+    rho, horizon : int
+        Lead-in ρ and horizon T.
+
+    Returns
+    -------
+    y, u, d : list of int
+        Indices into a (ρ+T)·9 window of y_f (3T), u_f (T) and d_f (5T), each stacked step by
+        step.
+    """
     base = NZ * rho
     y = [base + NZ * j + k for j in range(horizon) for k in range(NY)]
     u = [base + NZ * j + NY for j in range(horizon)]
@@ -230,7 +371,20 @@ def future_columns(rho: int, horizon: int) -> tuple[list[int], list[int], list[i
 
 
 def unscale_h(H_scaled: np.ndarray, rho: int, horizon: int) -> np.ndarray:
-    """Ĥ in the signals' units from Ĥ fitted on scaled signals (y's scale is 1 K)."""
+    """Convert Ĥ fitted on scaled signals back to the signals' own units.
+
+    Parameters
+    ----------
+    H_scaled : numpy.ndarray of shape (3T, 9ρ + 6T)
+        Ĥ on signals divided by :data:`Z_SCALE` (y's scale is 1 K, so rows need no change).
+    rho, horizon : int
+        Lead-in ρ and horizon T.
+
+    Returns
+    -------
+    numpy.ndarray of shape (3T, 9ρ + 6T)
+        Ĥ in °C per signal unit.
+    """
     _, u, d = future_columns(rho, horizon)
     scale = np.tile(Z_SCALE, rho + horizon)
     col_scale = np.concatenate([scale[: NZ * rho], scale[u], scale[d]])

@@ -22,8 +22,26 @@ from trainclimate.predict.hankel import NY, NZ, stacked, windows
 
 
 def held_out_coaches(trajectories: Sequence[Trajectory]) -> list[str]:
-    """The validation coaches: the last quarter (rounded up) of each campaign's coaches in
-    sorted order — 2 of the 8 Winter/Spring and 1 of the 4 Summer coaches."""
+    """The validation coaches: the last quarter (rounded up) of each campaign's coaches.
+
+    In sorted order — 2 of the 8 Winter/Spring and 1 of the 4 Summer coaches, as in the paper's
+    split (6 + 3 train, 2 + 1 validate). A campaign of one coach keeps it for training.
+
+    Parameters
+    ----------
+    trajectories : sequence of Trajectory
+        Trajectories with ``campaign`` and ``coach`` labels.
+
+    Returns
+    -------
+    list of str
+        The held-out coaches, sorted.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section IV.A.
+    """
     by_campaign: dict[str, set[str]] = {}
     for t in trajectories:
         by_campaign.setdefault(t.campaign, set()).add(t.coach)
@@ -38,7 +56,19 @@ def held_out_coaches(trajectories: Sequence[Trajectory]) -> list[str]:
 def split_by_coach(
     trajectories: Sequence[Trajectory], validation: Sequence[str] | None = None
 ) -> tuple[list[Trajectory], list[Trajectory]]:
-    """(training, validation) trajectories, split by coach (default: :func:`held_out_coaches`)."""
+    """Split trajectories by coach into training and validation sets.
+
+    Parameters
+    ----------
+    trajectories : sequence of Trajectory
+        All trajectories.
+    validation : sequence of str, optional
+        Validation coaches (default: :func:`held_out_coaches`).
+
+    Returns
+    -------
+    train, validation : list of Trajectory
+    """
     held = set(held_out_coaches(trajectories) if validation is None else validation)
     train = [t for t in trajectories if t.coach not in held]
     val = [t for t in trajectories if t.coach in held]
@@ -46,14 +76,50 @@ def split_by_coach(
 
 
 def validation_windows(trajectories: Sequence[Trajectory], depth: int) -> np.ndarray:
-    """Every window of ``depth`` samples of the trajectories, (m, depth·9)."""
+    """Every window of ``depth`` samples of the trajectories.
+
+    Parameters
+    ----------
+    trajectories : sequence of Trajectory
+        The trajectories; windows never straddle two of them.
+    depth : int
+        Window length ρ + T.
+
+    Returns
+    -------
+    numpy.ndarray of shape (m, depth·9)
+        One window per row (:func:`~trainclimate.predict.hankel.windows`).
+    """
     parts = [windows(stacked(t), depth) for t in trajectories]
     parts = [p for p in parts if len(p)]
     return np.concatenate(parts) if parts else np.empty((0, depth * NZ))
 
 
 def mae_per_step(predictor: MultistepPredictor, trajectories: Sequence[Trajectory]) -> np.ndarray:
-    """Mean absolute error (K) of each prediction step and deck, (T, 3), over every window."""
+    """Mean absolute prediction error of each step and deck over every validation window.
+
+    Parameters
+    ----------
+    predictor : MultistepPredictor
+        A fitted predictor.
+    trajectories : sequence of Trajectory
+        Validation trajectories.
+
+    Returns
+    -------
+    numpy.ndarray of shape (T, 3)
+        MAE of step 1 … T for the decks up, mid, low. [K]
+
+    Raises
+    ------
+    PredictorDataError
+        If no trajectory has the ρ + T samples of one window.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section IV.A.
+    """
     depth = predictor.rho + predictor.horizon
     w = validation_windows(trajectories, depth)
     if not len(w):
@@ -63,7 +129,19 @@ def mae_per_step(predictor: MultistepPredictor, trajectories: Sequence[Trajector
 
 
 def causality_violation(predictor: MultistepPredictor) -> float:
-    """Largest |Ĥ| entry mapping u(t+j) or d(t+j) to y(t+i) with j ≥ i (0 for a causal model)."""
+    """How far Ĥ is from causal: its largest entry mapping u(t+j) or d(t+j) to y(t+i), j ≥ i.
+
+    Parameters
+    ----------
+    predictor : MultistepPredictor
+        A fitted predictor.
+
+    Returns
+    -------
+    float
+        The largest such |Ĥ| entry; 0 for a causal model (the Transient Predictor). [K per
+        signal unit]
+    """
     H = predictor.require_fit()
     rho, T = predictor.rho, predictor.horizon
     worst = 0.0
@@ -79,7 +157,25 @@ def causality_violation(predictor: MultistepPredictor) -> float:
 
 
 def load_split(data_dir: str | Path, sampling_min: int):
-    """The trajectories of one sampling time under ``data_dir``, split by coach."""
+    """Read the trajectories of one sampling time and split them by coach.
+
+    Parameters
+    ----------
+    data_dir : str or pathlib.Path
+        Directory holding ``trajectories_{sampling_min}min.parquet``.
+    sampling_min : int
+        Sampling time, 1, 5 or 10. [min]
+
+    Returns
+    -------
+    train, validation : list of Trajectory
+        As :func:`split_by_coach`.
+
+    Raises
+    ------
+    PredictorDataError
+        If the file does not exist.
+    """
     path = Path(data_dir) / f"trajectories_{sampling_min}min.parquet"
     if not path.exists():
         raise PredictorDataError(f"no {sampling_min}-min trajectories in {data_dir} ({path.name})")
@@ -94,11 +190,42 @@ def evaluate(
     data_dir: str | Path,
     split=None,
 ) -> tuple[MultistepPredictor, dict]:
-    """Fit ``method`` on the training coaches and measure it on the held-out ones.
+    """Fit a predictor on the training coaches and measure it on the held-out ones.
 
-    Returns the fitted predictor and a JSON-ready dict with ``mae_per_step_c`` (T, mean over
-    decks), ``mae_per_step_deck_c`` (T × 3), their mean ``mae_mean_c`` and what it was fitted
-    and measured on. ``split`` reuses an already loaded (training, validation) pair.
+    Parameters
+    ----------
+    method : str
+        A key of :data:`~trainclimate.predict.METHODS`.
+    sampling_min : int
+        Sampling time. [min]
+    rho, horizon : int
+        Lead-in ρ and horizon T.
+    data_dir : str or pathlib.Path
+        Directory of the trajectory files (unused when ``split`` is given).
+    split : (list of Trajectory, list of Trajectory), optional
+        An already loaded (training, validation) pair to reuse.
+
+    Returns
+    -------
+    predictor : MultistepPredictor
+        The fitted predictor.
+    result : dict
+        JSON-ready: ``mae_per_step_c`` (T, mean over decks, K), ``mae_per_step_deck_c``
+        (T × 3, K), their mean ``mae_mean_c`` (K), ``prediction_minutes``,
+        ``causality_violation``, the coaches, trajectories and windows it was fitted and
+        measured on, ``fit_seconds`` (s) and ``data_hash``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown method.
+    PredictorDataError
+        If the data are missing, too few or rank-deficient.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section IV.A.
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r} (known: {', '.join(METHODS)})")

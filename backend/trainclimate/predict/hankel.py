@@ -25,7 +25,17 @@ Z_SIGNALS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c", "t_ref_c",
 
 
 class TrajectoryLike(Protocol):
-    """Anything with 2-D float arrays ``y`` (n×3), ``u`` (n×1), ``d`` (n×5) on one uniform grid."""
+    """Anything with 2-D float arrays ``y``, ``u``, ``d`` of n samples on one uniform grid.
+
+    Attributes
+    ----------
+    y : numpy.ndarray of shape (n, 3)
+        Room temperatures T_room up, mid, low. [°C]
+    u : numpy.ndarray of shape (n, 1)
+        Setpoint T_ref. [°C]
+    d : numpy.ndarray of shape (n, 5)
+        Disturbances [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h].
+    """
 
     y: np.ndarray
     u: np.ndarray
@@ -33,7 +43,23 @@ class TrajectoryLike(Protocol):
 
 
 def stacked(traj: TrajectoryLike) -> np.ndarray:
-    """The samples z^k = [y^k, u^k, d^k] of a trajectory as an (n, 9) float array."""
+    """The samples z^k = [y^k, u^k, d^k] of a trajectory.
+
+    Parameters
+    ----------
+    traj : TrajectoryLike
+        The trajectory.
+
+    Returns
+    -------
+    numpy.ndarray of shape (n, 9)
+        In the order of :data:`Z_SIGNALS`.
+
+    Raises
+    ------
+    ValueError
+        If ``y``, ``u``, ``d`` are not n×3, n×1, n×5 with one n.
+    """
     y, u, d = (np.asarray(getattr(traj, name), dtype=float) for name in ("y", "u", "d"))
     widths = tuple(a.shape[1] if a.ndim == 2 else -1 for a in (y, u, d))
     if widths != (NY, NU, ND):
@@ -47,9 +73,25 @@ def stacked(traj: TrajectoryLike) -> np.ndarray:
 
 
 def windows(z: np.ndarray, depth: int) -> np.ndarray:
-    """The (m, depth·9) windows of an (n, 9) sample array, each row [z^l, …, z^{l+depth-1}].
+    """The sliding windows of a sample array: the columns of its Hankel matrix, as rows.
 
-    A read-only view (no copy); m = n − depth + 1 (0 when the trajectory is too short).
+    Parameters
+    ----------
+    z : numpy.ndarray of shape (n, 9)
+        Samples, oldest first (:func:`stacked`).
+    depth : int
+        Window length ρ + T.
+
+    Returns
+    -------
+    numpy.ndarray of shape (m, depth·9)
+        Row l is [z^l, …, z^{l+depth-1}]; m = n − depth + 1 (0 when the trajectory is too
+        short). A read-only view, no copy.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.B.
     """
     if len(z) < depth:
         return np.empty((0, depth * z.shape[1]))
@@ -60,9 +102,28 @@ def windows(z: np.ndarray, depth: int) -> np.ndarray:
 def column_chunks(
     trajectories: Iterable[TrajectoryLike], depth: int, chunk: int = 4096
 ) -> Iterator[np.ndarray]:
-    """Blocks of the transposed extended Hankel matrix, at most ``chunk`` windows each.
+    """Blocks of the transposed extended Hankel matrix 𝒵ᵀ, at most ``chunk`` windows each.
 
-    Windows never straddle two trajectories. Yields C-contiguous (≤ chunk, depth·9) arrays.
+    Windows never straddle two trajectories.
+
+    Parameters
+    ----------
+    trajectories : iterable of TrajectoryLike
+        Consumed once, in order.
+    depth : int
+        Window length ρ + T.
+    chunk : int, default 4096
+        Maximum windows per block.
+
+    Yields
+    ------
+    numpy.ndarray of shape (≤ chunk, depth·9)
+        C-contiguous blocks of windows.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.B.
     """
     pending: list[np.ndarray] = []
     size = 0

@@ -17,9 +17,25 @@ import scipy.linalg as sla
 class StreamingLQ:
     """Accumulates the lower-triangular L of 𝒵 = L Q over blocks of 𝒵's columns.
 
-    ``n_rows``: the number of rows of 𝒵. Feed blocks of 𝒵ᵀ (windows as rows) to :meth:`add`;
-    :attr:`L` is the factor of everything added so far (rows × rows once at least ``n_rows``
-    columns were added). Row signs follow LAPACK; the predictors do not depend on them.
+    Feed blocks of 𝒵ᵀ (windows as rows) to :meth:`add`; :attr:`L` is the factor of everything
+    added so far. Row signs follow LAPACK; the predictors do not depend on them. This is step 1
+    of Algorithm 1 [1]_.
+
+    Parameters
+    ----------
+    n_rows : int
+        Number of rows of 𝒵.
+
+    Attributes
+    ----------
+    n_columns : int
+        Columns of 𝒵 added so far.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Algorithm 1.
+    .. [2] J. Demmel et al., 2012: communication-avoiding (tall-skinny) QR.
     """
 
     def __init__(self, n_rows: int):
@@ -28,7 +44,18 @@ class StreamingLQ:
         self._r = np.empty((0, self.n_rows))
 
     def add(self, block_t: np.ndarray) -> None:
-        """Fold in a block of columns of 𝒵, given transposed as a (m, n_rows) array."""
+        """Fold in a block of columns of 𝒵.
+
+        Parameters
+        ----------
+        block_t : numpy.ndarray of shape (m, n_rows)
+            The block, transposed (windows as rows); an empty block is ignored.
+
+        Raises
+        ------
+        ValueError
+            If the block does not have ``n_rows`` columns or holds NaN or infinite values.
+        """
         block_t = np.asarray(block_t, dtype=float)
         if block_t.ndim != 2 or block_t.shape[1] != self.n_rows:
             raise ValueError(f"blocks must have {self.n_rows} columns, got shape {block_t.shape}")
@@ -42,5 +69,5 @@ class StreamingLQ:
 
     @property
     def L(self) -> np.ndarray:  # noqa: N802 - the paper's name
-        """The lower-triangular factor (n_rows × min(n_rows, columns added))."""
+        """The lower-triangular factor, shape (n_rows, min(n_rows, columns added)); a copy."""
         return self._r.T.copy()

@@ -1,4 +1,4 @@
-"""The paper's three sensitivity studies of the prediction model (Section IV.A, Figure 6).
+"""The paper's three sensitivity studies of the prediction model (Section IV.A, Figure 5).
 
 1. Sampling time 1, 5 and 10 min with a 60-min lead-in and a 30-min horizon
    (ρ, T) = (60, 30), (12, 6), (6, 3).
@@ -6,7 +6,7 @@
 3. Horizon T ∈ {3, 6, 9, 12} at 5 min with ρ = 6.
 
 Each with all three methods, trained on the training coaches and measured on the held-out ones
-(:mod:`~trainclimate.predict.evaluate`); plus the target setting of the issue, 5 min, ρ = T = 12.
+(:mod:`~trainclimate.predict.evaluate`); plus a target setting, 5 min with ρ = T = 12.
 :func:`write_report` draws them as a self-contained HTML page with Plotly figures.
 """
 
@@ -45,7 +45,31 @@ METHOD_STYLE = {
 def run_studies(
     data_dir: str | Path, progress: Callable[[int], None] | None = None
 ) -> dict[str, list[dict]]:
-    """Every setting of :data:`STUDIES` with every method → evaluation dicts by study."""
+    """Evaluate every setting of :data:`STUDIES` with every method.
+
+    Parameters
+    ----------
+    data_dir : str or pathlib.Path
+        Directory of the trajectory files (:func:`~trainclimate.predict.evaluate.load_split`).
+    progress : callable, optional
+        Called with 1 after each of the :func:`n_runs` evaluations.
+
+    Returns
+    -------
+    dict of str to list of dict
+        Study name → the :func:`~trainclimate.predict.evaluate.evaluate` dicts of its settings
+        and methods.
+
+    Raises
+    ------
+    PredictorDataError
+        If a sampling time's data are missing, too few or rank-deficient.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section IV.A, Figure 5.
+    """
     splits: dict[int, tuple] = {}
     out: dict[str, list[dict]] = {}
     for study, settings in STUDIES.items():
@@ -64,6 +88,13 @@ def run_studies(
 
 
 def n_runs() -> int:
+    """Number of evaluations :func:`run_studies` performs.
+
+    Returns
+    -------
+    int
+        Settings of :data:`STUDIES` × methods of :data:`~trainclimate.predict.METHODS`.
+    """
     return sum(len(s) for s in STUDIES.values()) * len(METHODS)
 
 
@@ -77,7 +108,18 @@ def _label(result: dict, study: str) -> str:
 
 
 def figure(results: dict[str, list[dict]]) -> go.Figure:
-    """MAE (mean over decks) against prediction time: a column per study, a row per method."""
+    """Plot MAE (mean over decks, K) against prediction time (min).
+
+    Parameters
+    ----------
+    results : dict of str to list of dict
+        The output of :func:`run_studies`.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+        A column per study, a row per method, with the paper's 0.25 K line.
+    """
     studies = [s for s in STUDIES if s in results]
     methods = list(METHODS)
     fig = make_subplots(
@@ -114,7 +156,19 @@ def figure(results: dict[str, list[dict]]) -> go.Figure:
 
 
 def summary_rows(results: dict[str, list[dict]]) -> list[dict]:
-    """One row per study and setting: the mean MAE of each method and the best."""
+    """Tabulate the studies: one row per study and setting.
+
+    Parameters
+    ----------
+    results : dict of str to list of dict
+        The output of :func:`run_studies`.
+
+    Returns
+    -------
+    list of dict
+        ``study``, ``sampling_min``, ``rho``, ``horizon``, per method ``{m}_mean_mae_c`` and
+        ``{m}_max_step_mae_c`` (K), and ``best`` (the method of lowest mean MAE).
+    """
     rows = []
     for study, res in results.items():
         settings = {}
@@ -132,7 +186,20 @@ def summary_rows(results: dict[str, list[dict]]) -> list[dict]:
 
 
 def write_report(results: dict[str, list[dict]], path: str | Path) -> Path:
-    """A self-contained HTML page: the figure and the summary table."""
+    """Write a self-contained HTML page: the figure and the summary table.
+
+    Parameters
+    ----------
+    results : dict of str to list of dict
+        The output of :func:`run_studies`.
+    path : str or pathlib.Path
+        Destination file; its directory is created.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     rows = summary_rows(results)

@@ -25,8 +25,26 @@ from trainclimate.predict.hankel import ND, NU, NY, NZ, TrajectoryLike
 
 
 class SubspacePredictor(MultistepPredictor):
-    """Same API as :class:`~trainclimate.predict.transient.TransientPredictor`; ``causal``
-    restricts each step to causal regressors (an ablation, see the module docstring)."""
+    """The Subspace Predictor baseline: one least-squares fit of the whole y_f.
+
+    Same API as :class:`~trainclimate.predict.transient.TransientPredictor`.
+
+    Parameters
+    ----------
+    rho, horizon : int
+        Lead-in ρ and horizon T.
+    causal : bool, default False
+        Restrict each step to causal regressors (an ablation, see the module docstring;
+        :attr:`method` becomes ``"subspace-causal"``).
+    chunk : int, default 4096
+        Hankel windows streamed at a time.
+
+    References
+    ----------
+    .. [1] W. Favoreel, B. De Moor et al., 1999: the Subspace Predictor, as cited in [2].
+    .. [2] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.B.
+    """
 
     method = "subspace"
 
@@ -37,6 +55,23 @@ class SubspacePredictor(MultistepPredictor):
             self.method = "subspace-causal"
 
     def fit(self, trajectories: Iterable[TrajectoryLike]) -> SubspacePredictor:
+        """Fit Ĥ by least squares, min ‖Y_f − Ĥ X‖_F (per step on causal regressors if causal).
+
+        Parameters
+        ----------
+        trajectories : iterable of TrajectoryLike
+            Training trajectories (``y`` n×3 °C, ``u`` n×1 °C, ``d`` n×5), one sampling time.
+
+        Returns
+        -------
+        SubspacePredictor
+            ``self``, with :attr:`H`.
+
+        Raises
+        ------
+        PredictorDataError
+            If the data are too few or rank-deficient.
+        """
         rho, T = self.rho, self.horizon
         y, u, d = future_columns(rho, T)
         if not self.causal:

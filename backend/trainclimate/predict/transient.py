@@ -26,13 +26,44 @@ from trainclimate.predict.hankel import NY, NZ, TrajectoryLike
 
 
 class TransientPredictor(MultistepPredictor):
-    """``TransientPredictor(rho, horizon).fit(trajectories)``; then :meth:`predict` and
-    :attr:`H` (see :class:`~trainclimate.predict.base.MultistepPredictor`). :attr:`Phi` keeps
-    the one-step regressions Φ (3T × 9(ρ+T), in scaled units)."""
+    """The Transient Predictor, fitted by Algorithm 1 (see the module docstring).
+
+    ``TransientPredictor(rho, horizon).fit(trajectories)``, then :meth:`predict` and :attr:`H`;
+    parameters and attributes as :class:`~trainclimate.predict.base.MultistepPredictor`.
+
+    Attributes
+    ----------
+    Phi : numpy.ndarray of shape (3T, 9(ρ+T))
+        The one-step regressions Φ = [Φ_p, Φ_f] after :meth:`fit`, in scaled units.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section III.B, Algorithm 1.
+    .. [2] K. Moffat et al., 2024: the Transient Predictor, as cited in [1].
+    """
 
     method = "transient"
 
     def fit(self, trajectories: Iterable[TrajectoryLike]) -> TransientPredictor:
+        """Fit Φ and Ĥ by Algorithm 1: L = LQ(𝒵), Φ = L_y⁰ L⁻¹, Ĥ = (I − Φ_y)⁻¹ [Φ_p, Φ_u, Φ_d].
+
+        Parameters
+        ----------
+        trajectories : iterable of TrajectoryLike
+            Training trajectories (``y`` n×3 °C, ``u`` n×1 °C, ``d`` n×5), one sampling time.
+
+        Returns
+        -------
+        TransientPredictor
+            ``self``, with :attr:`H` and :attr:`Phi`.
+
+        Raises
+        ------
+        PredictorDataError
+            If the data are too few or rank-deficient (see
+            :meth:`~trainclimate.predict.base.MultistepPredictor.fit`).
+        """
         rho, T = self.rho, self.horizon
         depth = rho + T
         L = self._factor(trajectories, depth, np.arange(NZ * depth))  # Algorithm 1, step 1

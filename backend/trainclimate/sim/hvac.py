@@ -49,8 +49,25 @@ SUBSTATE_NAMES = {RECIRCULATED: "recirculated", OUTSIDE: "outside", MIXED_AIR: "
 
 
 def first_true(conditions, choices, default):
-    """Like :func:`numpy.select` (the first true condition picks its choice), as a chain of
-    :func:`numpy.where` — several times faster on the small arrays of one time step."""
+    """Pick, element-wise, the choice of the first true condition (like :func:`numpy.select`).
+
+    A chain of :func:`numpy.where`, several times faster than :func:`numpy.select` on the small
+    arrays of one time step.
+
+    Parameters
+    ----------
+    conditions : sequence of array-like of bool
+        Conditions, in priority order, broadcastable against each other.
+    choices : sequence of array-like or scalar
+        One value per condition.
+    default : array-like or scalar
+        The value where no condition holds.
+
+    Returns
+    -------
+    numpy.ndarray
+        The broadcast shape of conditions, choices and default.
+    """
     out = default
     for cond, choice in zip(reversed(conditions), reversed(choices), strict=True):
         out = np.where(cond, choice, out)
@@ -60,7 +77,19 @@ def first_true(conditions, choices, default):
 def interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     """Row-wise piecewise-linear interpolation, held constant outside the breakpoints.
 
-    ``x`` (N,); ``xp``, ``fp`` (N, k) with each row of ``xp`` increasing. Returns (N,).
+    Parameters
+    ----------
+    x : numpy.ndarray of shape (N,)
+        Where to interpolate, one point per row.
+    xp : numpy.ndarray of shape (N, k)
+        Breakpoints, each row increasing.
+    fp : numpy.ndarray of shape (N, k)
+        Values at the breakpoints.
+
+    Returns
+    -------
+    numpy.ndarray of shape (N,)
+        The interpolated value of each row.
     """
     out = np.where(x <= xp[:, 0], fp[:, 0], fp[:, -1])
     for j in range(xp.shape[1] - 1):
@@ -98,10 +127,7 @@ def next_state(
     t_amb_c: np.ndarray,
     p: CoachParams,
 ) -> np.ndarray:
-    """The HVAC state after this control step, shape (N,) int.
-
-    ``state`` (N,) the previous state; ``mode`` (N,) ``MODE_*``; ``t_room_c`` (N, 3) measured
-    deck temperatures (°C, the unit controls on their mean); ``t_ref_c``, ``t_amb_c`` (N,) °C.
+    """The HVAC state block: the HVAC state after this control step.
 
     Regular mode: preheating while T_room < T_ref − ``pre_enter_k`` until it reaches
     T_ref − ``pre_exit_k`` (likewise precooling above); otherwise heating below
@@ -109,6 +135,32 @@ def next_state(
     each switch with ``climate_hysteresis_k``. Slumber mode keeps a wide band: active heating
     below T_ref − ``slumber_enter_k`` until T_ref − ``slumber_exit_k``, active cooling likewise
     above, active ventilation when the coach is warm and outside air is cooler, off otherwise.
+    Off mode: off.
+
+    Parameters
+    ----------
+    state : numpy.ndarray of shape (N,)
+        The previous HVAC state (``OFF``, ``PREHEATING``, …).
+    mode : numpy.ndarray of shape (N,)
+        HVAC mode, ``MODE_*`` of :mod:`trainclimate.sim.rule`.
+    t_room_c : numpy.ndarray of shape (N, 3)
+        Measured deck temperatures; the unit controls on their mean. [°C]
+    t_ref_c : numpy.ndarray of shape (N,)
+        Setpoint T_ref. [°C]
+    t_amb_c : numpy.ndarray of shape (N,)
+        Ambient temperature. [°C]
+    p : CoachParams
+        Parameters stacked over the N coaches.
+
+    Returns
+    -------
+    numpy.ndarray of int, shape (N,)
+        The new HVAC state.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II.B.
     """
     t_avg = t_room_c.mean(axis=1)
     dev = t_avg - t_ref_c
@@ -147,10 +199,24 @@ def next_state(
 
 
 def minimum_fresh_fraction(passengers: np.ndarray, p: CoachParams, base: bool) -> np.ndarray:
-    """Minimum fresh-air fraction of the supply air, (N,): per passenger, plus a base if asked.
+    """Minimum fresh-air fraction of the supply air: per passenger, plus a base if asked.
 
-    ``passengers`` (N, 3) per deck. Per passenger ``fresh_air_per_passenger_m3_h`` (20 m³/h, the
-    order of EN 14750-1's requirement); the base share keeps the car body over-pressured.
+    Per passenger ``fresh_air_per_passenger_m3_h`` (20 m³/h, the order of EN 14750-1's
+    requirement); the base share ``fresh_air_base_fraction`` keeps the car body over-pressured.
+
+    Parameters
+    ----------
+    passengers : numpy.ndarray of shape (N, 3)
+        Passengers per deck.
+    p : CoachParams
+        Parameters stacked over the N coaches.
+    base : bool
+        Whether to add the base share.
+
+    Returns
+    -------
+    numpy.ndarray of shape (N,)
+        The fraction, clipped to [0, 1]. [–]
     """
     f = passengers.sum(axis=1) * p.fresh_air_per_passenger_m3_h / p.supply_air_m3_h
     if base:
@@ -166,7 +232,7 @@ def fresh_air_fraction(
     passengers: np.ndarray,
     p: CoachParams,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The substate: fresh-air fraction f ∈ [0, 1] of the supply air and its label, each (N,).
+    """The HVAC substate block: the fresh-air fraction of the supply air and its label.
 
     - off / slumber off: fans stopped, f = 0;
     - preheating / precooling: recirculated air, only the per-passenger minimum;
@@ -179,6 +245,33 @@ def fresh_air_fraction(
       minimum at T_ref to all outside air at T_ref + 1 K (continuous at T_ref: the heaters may
       still run in the mixed state, and free cooling must not fight them);
     - slumber ventilation: all outside air; slumber heating / cooling: the minimum.
+
+    Parameters
+    ----------
+    state : numpy.ndarray of shape (N,)
+        The HVAC state (after :func:`next_state`).
+    t_room_c : numpy.ndarray of shape (N, 3)
+        Measured deck temperatures; their mean is compared with T_amb. [°C]
+    t_ref_c : numpy.ndarray of shape (N,)
+        Setpoint T_ref. [°C]
+    t_amb_c : numpy.ndarray of shape (N,)
+        Ambient temperature. [°C]
+    passengers : numpy.ndarray of shape (N, 3)
+        Passengers per deck.
+    p : CoachParams
+        Parameters stacked over the N coaches.
+
+    Returns
+    -------
+    fraction : numpy.ndarray of shape (N,)
+        Fresh-air fraction f ∈ [0, 1] of the supply air. [–]
+    label : numpy.ndarray of shape (N,)
+        ``RECIRCULATED``, ``OUTSIDE`` or ``MIXED_AIR``.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II.B.
     """
     t_avg = t_room_c.mean(axis=1)
     f_min = minimum_fresh_fraction(passengers, p, base=True)
@@ -209,21 +302,63 @@ def fresh_air_fraction(
 
 
 def fresh_air_mass_flow(fraction: np.ndarray, p: CoachParams) -> np.ndarray:
-    """Outside air supplied to each deck, kg/s, shape (N, 3), for fresh-air ``fraction`` (N,)."""
+    """Outside air supplied to each deck.
+
+    Parameters
+    ----------
+    fraction : numpy.ndarray of shape (N,)
+        Fresh-air fraction of the supply air. [–]
+    p : CoachParams
+        Parameters stacked over the N coaches.
+
+    Returns
+    -------
+    numpy.ndarray of shape (N, 3)
+        Outside-air mass flow into each deck, split by ``air_share``. [kg/s]
+    """
     supply_kg_s = p.supply_air_m3_h / 3600.0 * AIR_DENSITY_KG_M3
     return (fraction * supply_kg_s)[:, None] * p.air_share
 
 
 def fans_running(state: np.ndarray) -> np.ndarray:
-    """Whether the supply fans run in ``state`` (N,) → bool (N,)."""
+    """Whether the supply fans run: in every HVAC state but off and slumber off.
+
+    Parameters
+    ----------
+    state : numpy.ndarray of shape (N,)
+        The HVAC state.
+
+    Returns
+    -------
+    numpy.ndarray of bool, shape (N,)
+    """
     return (state != OFF) & (state != SLUMBER_OFF)
 
 
 def floor_wall_heating(state: np.ndarray, t_amb_c: np.ndarray, p: CoachParams) -> np.ndarray:
-    """Floor and wall heating per deck, W, (N, 3).
+    """Floor and wall heating per deck, Q_fw.
 
-    Maximum in preheating; ``q_fw_max_w`` × a piecewise-linear fraction of T_amb (°C) in heating
-    (``fw_curve_*``); zero in every other state (paper, Section II.B).
+    Maximum in preheating; ``q_fw_max_w`` × a piecewise-linear fraction of T_amb in heating
+    (``fw_curve_*``); zero in every other state.
+
+    Parameters
+    ----------
+    state : numpy.ndarray of shape (N,)
+        The HVAC state.
+    t_amb_c : numpy.ndarray of shape (N,)
+        Ambient temperature. [°C]
+    p : CoachParams
+        Parameters stacked over the N coaches.
+
+    Returns
+    -------
+    numpy.ndarray of shape (N, 3)
+        Heat flow per deck (up, mid, low). [W]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II.B.
     """
     frac = interp_rows(t_amb_c, p.fw_curve_t_amb_c, p.fw_curve_fraction)
     level = first_true([state == PREHEATING, state == HEATING], [1.0, frac], 0.0)
@@ -231,7 +366,23 @@ def floor_wall_heating(state: np.ndarray, t_amb_c: np.ndarray, p: CoachParams) -
 
 
 def output_limits(state: np.ndarray, p: CoachParams) -> tuple[np.ndarray, np.ndarray]:
-    """PID output limits (W) per deck for each coach's state, each (N, 3)."""
+    """PID output limits per deck set by the HVAC state.
+
+    Heating states allow up to ``q_heat_max_w``, cooling states down to −``q_cool_max_w``, the
+    mixed state both, slumber heating/cooling ``slumber_capacity`` of them, other states zero.
+
+    Parameters
+    ----------
+    state : numpy.ndarray of shape (N,)
+        The HVAC state.
+    p : CoachParams
+        Parameters stacked over the N coaches.
+
+    Returns
+    -------
+    lo, hi : numpy.ndarray of shape (N, 3)
+        Lower (cooling, ≤ 0) and upper (heating, ≥ 0) limit of each deck's output. [W]
+    """
     qh, qc = p.q_heat_max_w, p.q_cool_max_w
     cap = p.slumber_capacity[:, None]
     s = state[:, None]
@@ -250,10 +401,24 @@ def output_limits(state: np.ndarray, p: CoachParams) -> tuple[np.ndarray, np.nda
 
 
 def pid_setpoint(state: np.ndarray, t_ref_c: np.ndarray, p: CoachParams) -> np.ndarray:
-    """The temperature each deck's PID tracks (°C), (N,): T_ref, or the slumber band's edge.
+    """The temperature each deck's PID tracks: T_ref, or the slumber band's edge.
 
     In slumber heating the PID heats to 0.5 K past the exit threshold, T_ref − slumber_exit_k
     + 0.5, so the state machine leaves active heating; slumber cooling mirrors it.
+
+    Parameters
+    ----------
+    state : numpy.ndarray of shape (N,)
+        The HVAC state.
+    t_ref_c : numpy.ndarray of shape (N,)
+        Setpoint T_ref. [°C]
+    p : CoachParams
+        Parameters stacked over the N coaches.
+
+    Returns
+    -------
+    numpy.ndarray of shape (N,)
+        The PID setpoint. [°C]
     """
     back = p.slumber_exit_k - 0.5
     return first_true(
@@ -264,7 +429,7 @@ def pid_setpoint(state: np.ndarray, t_ref_c: np.ndarray, p: CoachParams) -> np.n
 
 
 class PID:
-    """Three PIDs per coach (decks up, mid, low) in the form ``Q = kp·(e + ∫e/ti + td·ė)``.
+    """The PID sub-block: three PIDs per coach (decks up, mid, low), ``Q = kp·(e + ∫e/ti + td·ė)``.
 
     State per coach and deck: the integral term (W), the filtered derivative term (W), the last
     measurement (°C), error (K) and output (W). Discrete at the control step ``dt_s``:
@@ -278,6 +443,33 @@ class PID:
     - reset and initial conditions on a state change: preheating / precooling start at full
       output, slumber heating / cooling and the idle states from zero, and a change among
       heating, cooling and mixed is bumpless (the integral takes the clipped last output).
+
+    Parameters
+    ----------
+    n : int
+        Number of coaches N.
+    p : CoachParams
+        Parameters stacked over the N coaches.
+    dt_s : float
+        Control step. [s]
+
+    Attributes
+    ----------
+    integral : numpy.ndarray of shape (N, 3)
+        Integral term. [W]
+    deriv : numpy.ndarray of shape (N, 3)
+        Filtered derivative term. [W]
+    last_y : numpy.ndarray of shape (N, 3)
+        Last measurement, NaN before the first update. [°C]
+    last_e : numpy.ndarray of shape (N, 3)
+        Last error, setpoint − measurement. [K]
+    output : numpy.ndarray of shape (N, 3)
+        Last output. [W]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II.B.
     """
 
     def __init__(self, n: int, p: CoachParams, dt_s: float):
@@ -290,7 +482,13 @@ class PID:
         self.last_e = np.zeros((n, 3))
 
     def reset_on_transition(self, old: np.ndarray, new: np.ndarray) -> None:
-        """Apply the state-dependent reset / initial conditions for coaches whose state changed."""
+        """Apply the state-dependent reset and initial conditions where the state changed.
+
+        Parameters
+        ----------
+        old, new : numpy.ndarray of shape (N,)
+            HVAC state before and after :func:`next_state`.
+        """
         changed = old != new
         if not np.any(changed):
             return
@@ -310,8 +508,22 @@ class PID:
         self.output = np.where(c, np.clip(self.output, lo, hi), self.output)
 
     def update(self, setpoint_c: np.ndarray, y_c: np.ndarray, state: np.ndarray) -> np.ndarray:
-        """One control step: heat flow per deck (W, (N, 3)) for setpoints (N,) and measurements
-        ``y_c`` (N, 3) in °C."""
+        """Advance the PIDs by one control step.
+
+        Parameters
+        ----------
+        setpoint_c : numpy.ndarray of shape (N,)
+            Temperature to track (:func:`pid_setpoint`). [°C]
+        y_c : numpy.ndarray of shape (N, 3)
+            Measured deck temperatures. [°C]
+        state : numpy.ndarray of shape (N,)
+            The HVAC state, which sets the output limits.
+
+        Returns
+        -------
+        numpy.ndarray of shape (N, 3)
+            HVAC heat flow Q_hvac per deck; positive heats, negative cools. [W]
+        """
         p, dt = self.p, self.dt_s
         kp, ti, td, rate = p.pid_kp_w_k, p.pid_ti_s, p.pid_td_s, p.pid_rate_w_s
         e = setpoint_c[:, None] - y_c

@@ -59,10 +59,106 @@ def _default_distribution() -> np.ndarray:
 
 @dataclass(frozen=True)
 class CoachParams:
-    """Parameters of one half coach (or, after :func:`stack`, of N coaches on a leading axis).
+    """Parameters of one half coach of a Regio-Dosto double-deck car.
 
-    Units are in the field names: ``_j_k`` J/K, ``_w_k`` W/K, ``_w`` W, ``_m2`` m², ``_k`` K,
-    ``_c`` °C, ``_s`` s, ``_m3_h`` m³/h, ``_kg_s`` kg/s; fractions are dimensionless.
+    After :func:`stack` every field carries a leading coach axis of length N: a scalar becomes
+    shape (N,), an array of shape (k,) becomes (N, k). Per-deck arrays are ordered ``up, mid,
+    low``. Units are also in the field names: ``_j_k`` J/K, ``_w_k`` W/K, ``_w`` W, ``_m2`` m²,
+    ``_k`` K, ``_c`` °C, ``_s`` s, ``_m3_h`` m³/h, ``_kg_s`` kg/s; fractions are dimensionless.
+    The defaults are derived in docs/model.md.
+
+    Attributes
+    ----------
+    c_room_j_k, c_inv_j_k, c_chassis_j_k : numpy.ndarray of shape (3,)
+        Heat capacities m_p^d c_p^d of Eq. (1) [1]_ of the deck air, the inventory and the
+        chassis parts up, mid, low. [J/K]
+    ua_deck_deck_w_k : numpy.ndarray of shape (2,)
+        Air exchange between decks through the stairwells, [up–mid, mid–low]. [W/K]
+    ua_room_inv_w_k : numpy.ndarray of shape (3,)
+        Deck air ↔ inventory (seats, linings), per deck. [W/K]
+    ua_room_chassis_w_k : numpy.ndarray of shape (3, 3)
+        Deck air (rows up, mid, low) ↔ chassis part (columns up, mid, low); envelope U·A for the
+        outer parts, interior film for the middle floor. [W/K]
+    ua_chassis_chassis_w_k : numpy.ndarray of shape (3,)
+        Conduction between chassis parts, [up–mid, mid–low, up–low]. [W/K]
+    area_ext_m2 : numpy.ndarray of shape (2,)
+        Outer surface of the [upper, lower] chassis exchanging heat with the environment. [m²]
+    roof_area_m2 : float
+        Roof area receiving the roof irradiance Q_Gt. [m²]
+    roof_absorptance, side_absorptance : float
+        Solar absorptance of the roof and of the side walls. [–]
+    side_area_m2 : numpy.ndarray of shape (2,)
+        Sunlit opaque side wall of the [upper, lower] chassis (one side of the car). [m²]
+    window_area_m2 : numpy.ndarray of shape (3,)
+        Sunlit window area per deck (one side of the car). [m²]
+    window_g : float
+        Solar energy transmittance (g-value) of the windows. [–]
+    ground_area_m2, ground_emissivity : float
+        Effective emissivity × view factor × area of the underframe seen by the track, as an
+        area [m²] and an emissivity [–].
+    ground_threshold_c : float
+        Ground radiation acts only above this ambient temperature (paper: 20 °C). [°C]
+    ground_slope : float
+        s in the assumed track temperature T_G = T_amb + s · (T_amb − ground_threshold_c)
+        (docs/model.md). [K/K]
+    seats : numpy.ndarray of shape (3,)
+        Seats per deck; passengers = occupancy (% of seats) / 100 × seats.
+    heat_per_passenger_w : float
+        Heat given off by each passenger (paper: 100 W). [W]
+    door_mass_flow_kg_s : float
+        Air exchanged through the open lower-deck door. [kg/s]
+    supply_air_m3_h : float
+        Supply air flow of the HVAC unit. [m³/h]
+    air_share : numpy.ndarray of shape (3,)
+        Share of the supply air delivered to each deck; sums to 1. [–]
+    fresh_air_base_fraction : float
+        Base fresh-air share of the supply air (keeps the car body over-pressured). [–]
+    fresh_air_per_passenger_m3_h : float
+        Minimum fresh air per passenger. [m³/h]
+    q_heat_max_w, q_cool_max_w, q_fw_max_w : numpy.ndarray of shape (3,)
+        Maximum HVAC heating and cooling output and maximum floor/wall heating, per deck. [W]
+    fw_curve_t_amb_c, fw_curve_fraction : numpy.ndarray of shape (2,)
+        Floor/wall heating in the heating state, piecewise linear: T_amb breakpoints (strictly
+        increasing) [°C] and the fraction of ``q_fw_max_w`` at each [–].
+    distribution : numpy.ndarray of shape (6, 6)
+        Heat distribution Λ, Q_act = Λ Q_in (Section II.C [1]_): column j is where input j of
+        [Q_hvac up, mid, low; Q_fw up, mid, low] ends up, rows [Q_room up, mid, low; Q_chassis
+        up, mid, low]; every column sums to 1. [–]
+    pid_kp_w_k : numpy.ndarray of shape (3,)
+        Proportional gain of each deck's PID. [W/K]
+    pid_ti_s, pid_td_s : numpy.ndarray of shape (3,)
+        Integral and derivative time of each deck's PID. [s]
+    pid_rate_w_s : numpy.ndarray of shape (3,)
+        Rate limit of each PID's output. [W/s]
+    pre_enter_k, pre_exit_k : float
+        Preheating (precooling) starts when the mean room temperature is more than
+        ``pre_enter_k`` below (above) T_ref and ends within ``pre_exit_k`` of it. [K]
+    heat_below_k, cool_above_k, climate_hysteresis_k : float
+        Heating state for T_amb < T_ref − ``heat_below_k``, cooling for T_amb > T_ref −
+        ``cool_above_k``, mixed between; each switch with ``climate_hysteresis_k``. [K]
+    slumber_enter_k, slumber_exit_k, slumber_vent_k : float
+        Slumber-mode band around T_ref: active heating/cooling enter and exit thresholds and
+        the active-ventilation threshold. [K]
+    slumber_capacity : float
+        Fraction of the maximum HVAC output available in slumber mode. [–]
+    economiser_band_k : float
+        How much warmer (heating) or cooler (cooling) outside air must be than the coach to be
+        drawn in instead of recirculated air. [K]
+    heater_efficiency : float
+        Efficiency η of the resistive heaters. [–]
+    cop_a, cop_b, cop_min, cop_max : float
+        COP = clip(cop_a − cop_b · T_amb, cop_min, cop_max) of the cooling circuit, T_amb in
+        °C (``cop_b`` in 1/K). [–]
+    fan_supply_w, fan_condenser_w : float
+        Supply fans' power while the unit runs; condenser fans' power at full compressor
+        load. [W]
+    sensor_noise_k, sensor_quantum_k : float
+        Standard deviation of the room sensors' Gaussian noise and their quantisation step. [K]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II, Eq. (1).
     """
 
     # --- thermal capacities (Eq. (1): m_p^d c_p^d) -----------------------------------------
@@ -70,41 +166,29 @@ class CoachParams:
     c_inv_j_k: np.ndarray = field(default_factory=lambda: _a(0.42e6, 0.20e6, 0.38e6))
     c_chassis_j_k: np.ndarray = field(default_factory=lambda: _a(1.40e6, 0.70e6, 1.80e6))
     # --- convection and conduction ----------------------------------------------------------
-    #: air exchange between decks through the stairwells: [up–mid, mid–low]
     ua_deck_deck_w_k: np.ndarray = field(default_factory=lambda: _a(120.0, 120.0))
-    #: deck air ↔ inventory (seats, linings) per deck
     ua_room_inv_w_k: np.ndarray = field(default_factory=lambda: _a(240.0, 100.0, 232.0))
-    #: deck air (rows up, mid, low) ↔ chassis part (columns up, mid, low); envelope U·A for the
-    #: outer parts, interior film for the middle floor
     ua_room_chassis_w_k: np.ndarray = field(
         default_factory=lambda: np.array(
             [[86.0, 125.0, 0.0], [41.0, 0.0, 32.0], [0.0, 125.0, 88.0]]
         )
     )
-    #: conduction between chassis parts: [up–mid, mid–low, up–low]
     ua_chassis_chassis_w_k: np.ndarray = field(default_factory=lambda: _a(40.0, 40.0, 16.0))
-    #: outer surface of the [upper, lower] chassis exchanging heat with the environment
     area_ext_m2: np.ndarray = field(default_factory=lambda: _a(83.0, 87.0))
     # --- solar and ground radiation ---------------------------------------------------------
     roof_area_m2: float = 35.0
     roof_absorptance: float = 0.6
-    #: sunlit opaque side wall of the [upper, lower] chassis (one side of the car)
     side_area_m2: np.ndarray = field(default_factory=lambda: _a(17.7, 17.3))
     side_absorptance: float = 0.45
-    #: sunlit window area per deck (one side of the car)
     window_area_m2: np.ndarray = field(default_factory=lambda: _a(5.5, 2.5, 5.0))
     window_g: float = 0.40
-    #: effective emissivity × view factor × area of the underframe seen by the track
     ground_area_m2: float = 35.0
     ground_emissivity: float = 0.85
-    #: ground radiation acts only above this ambient temperature (paper: 20 °C)
     ground_threshold_c: float = 20.0
-    #: T_G = T_amb + ground_slope · (T_amb − ground_threshold_c) (assumption, docs/model.md)
     ground_slope: float = 1.0
     # --- passengers, doors, ventilation -----------------------------------------------------
     seats: np.ndarray = field(default_factory=lambda: _a(20.0, 8.0, 17.0))
     heat_per_passenger_w: float = 100.0
-    #: air exchanged through the open lower-deck door
     door_mass_flow_kg_s: float = 0.25
     supply_air_m3_h: float = 3600.0
     air_share: np.ndarray = field(default_factory=lambda: _a(0.36, 0.22, 0.42))
@@ -114,7 +198,6 @@ class CoachParams:
     q_heat_max_w: np.ndarray = field(default_factory=lambda: _a(9000.0, 5000.0, 10000.0))
     q_cool_max_w: np.ndarray = field(default_factory=lambda: _a(8500.0, 4500.0, 9000.0))
     q_fw_max_w: np.ndarray = field(default_factory=lambda: _a(2000.0, 1200.0, 2800.0))
-    #: floor/wall heating in the heating state: fraction of max vs T_amb (piecewise linear)
     fw_curve_t_amb_c: np.ndarray = field(default_factory=lambda: _a(-10.0, 15.0))
     fw_curve_fraction: np.ndarray = field(default_factory=lambda: _a(1.0, 0.0))
     distribution: np.ndarray = field(default_factory=_default_distribution)
@@ -136,7 +219,6 @@ class CoachParams:
     economiser_band_k: float = 1.0
     # --- electrical power -------------------------------------------------------------------
     heater_efficiency: float = 1.0
-    #: COP = clip(cop_a − cop_b · T_amb, cop_min, cop_max)
     cop_a: float = 4.4
     cop_b: float = 0.06
     cop_min: float = 1.5
@@ -149,7 +231,13 @@ class CoachParams:
 
     # ------------------------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        """The parameters as a JSON-ready dict (the ``coach-params`` file format)."""
+        """Return the parameters as a JSON-ready dict (the ``coach-params`` file format).
+
+        Returns
+        -------
+        dict
+            Field name → float, or nested list for array fields, in the field names' units.
+        """
         out = {}
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
@@ -158,10 +246,23 @@ class CoachParams:
 
     @classmethod
     def from_dict(cls, data: dict) -> CoachParams:
-        """Parameters from a (possibly partial) dict; missing keys take the defaults.
+        """Build parameters from a (possibly partial) dict; missing keys take the defaults.
 
-        Raises :class:`ParamsError` naming the first unknown key, wrong shape or non-physical
-        value.
+        Parameters
+        ----------
+        data : dict
+            Field name → number or nested list of the default's shape, in the units of
+            :class:`CoachParams` (e.g. the output of :meth:`to_dict`).
+
+        Returns
+        -------
+        CoachParams
+            The validated parameters of one coach.
+
+        Raises
+        ------
+        ParamsError
+            Naming the first unknown key, wrong shape, non-numeric or non-physical value.
         """
         if not isinstance(data, dict):
             raise ParamsError("coach parameters must be a JSON object")
@@ -194,7 +295,16 @@ class CoachParams:
         return params
 
     def validate(self) -> None:
-        """Raise :class:`ParamsError` if any value is non-physical (for one coach)."""
+        """Check that every value is physical (for one coach, not a stacked set).
+
+        Raises
+        ------
+        ParamsError
+            If a value is not finite, a capacity, flow or gain is not positive, a conductance or
+            area is negative, a fraction lies outside [0, 1], a column of Λ or ``air_share``
+            does not sum to 1, the floor/wall curve is not increasing, an exit threshold is not
+            below its entry threshold, or ``cop_min`` exceeds ``cop_max``.
+        """
         for f in dataclasses.fields(self):
             value = np.asarray(getattr(self, f.name), dtype=float)
             if not np.all(np.isfinite(value)):
@@ -305,12 +415,33 @@ VARIED = (
 
 
 def diversify(base: CoachParams, n: int, *, seed: int, spread: float = 0.15) -> list[CoachParams]:
-    """``n`` coach parameter sets scattered around ``base``.
+    """Draw ``n`` coach parameter sets scattered around ``base``.
 
     Each varied parameter (see :data:`VARIED`) is multiplied element-wise by an independent
-    factor drawn uniformly from [1 − spread, 1 + spread] (default ±15 %, inside the ±10–20 % the
-    fleet shows). Λ's entries are perturbed and its columns renormalised to sum to 1; fractions are
-    clipped to [0, 1]. Coach 0 is ``base`` itself only if ``spread`` is 0.
+    factor drawn uniformly from [1 − spread, 1 + spread]. Λ's entries are perturbed and its
+    columns renormalised to sum to 1; fractions are clipped to [0, 1].
+
+    Parameters
+    ----------
+    base : CoachParams
+        The parameters to scatter around (one coach).
+    n : int
+        Number of parameter sets to draw.
+    seed : int
+        Seed of the random generator; the same seed gives the same sets.
+    spread : float, default 0.15
+        Relative half-width of the uniform factor (±15 %, inside the ±10–20 % the fleet
+        shows). [–]
+
+    Returns
+    -------
+    list of CoachParams
+        ``n`` parameter sets; the first equals ``base`` only if ``spread`` is 0.
+
+    Raises
+    ------
+    ValueError
+        If ``spread`` is outside [0, 1).
     """
     if not 0 <= spread < 1:
         raise ValueError("spread must lie in [0, 1)")
@@ -332,7 +463,23 @@ def diversify(base: CoachParams, n: int, *, seed: int, spread: float = 0.15) -> 
 
 
 def stack(params: list[CoachParams]) -> CoachParams:
-    """One :class:`CoachParams` whose every field has a leading axis of length ``len(params)``."""
+    """Stack several coaches' parameters for the vectorised fleet simulator.
+
+    Parameters
+    ----------
+    params : list of CoachParams
+        One parameter set per coach, N = ``len(params)``.
+
+    Returns
+    -------
+    CoachParams
+        One set whose every field has a leading coach axis of length N.
+
+    Raises
+    ------
+    ValueError
+        If ``params`` is empty.
+    """
     if not params:
         raise ValueError("need at least one coach")
     kwargs = {
@@ -343,7 +490,24 @@ def stack(params: list[CoachParams]) -> CoachParams:
 
 
 def load_params(path: str | Path) -> CoachParams:
-    """Read a ``coach-params`` JSON file (the format of ``trainclimate coach-params --default``)."""
+    """Read a ``coach-params`` JSON file (the format of ``trainclimate coach-params --default``).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The JSON file; missing keys take the defaults (see :meth:`CoachParams.from_dict`).
+
+    Returns
+    -------
+    CoachParams
+        The validated parameters of one coach.
+
+    Raises
+    ------
+    ParamsError
+        If the file is missing, not valid JSON, or holds an unknown, malformed or non-physical
+        value.
+    """
     path = Path(path)
     try:
         data = json.loads(path.read_text())

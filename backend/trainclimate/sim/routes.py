@@ -23,6 +23,16 @@ DETOUR = 1.15
 
 @dataclass(frozen=True)
 class Station:
+    """A station on a line.
+
+    Attributes
+    ----------
+    name : str
+        Station name.
+    latitude_deg, longitude_deg : float
+        Position, north and east positive (approximate, ~0.01°). [°]
+    """
+
     name: str
     latitude_deg: float
     longitude_deg: float
@@ -30,6 +40,18 @@ class Station:
 
 @dataclass(frozen=True)
 class Line:
+    """An S-Bahn line served by Regio-Dosto trains.
+
+    Attributes
+    ----------
+    name : str
+        Line name, e.g. ``"S12"``.
+    stations : tuple of Station
+        Stations from one terminus to the other (sequence simplified).
+    v_max_kmh : float
+        Maximum running speed. [km/h]
+    """
+
     name: str
     stations: tuple[Station, ...]
     v_max_kmh: float
@@ -91,7 +113,18 @@ LINES: dict[str, Line] = {
 
 
 def haversine_m(lat1, lon1, lat2, lon2) -> np.ndarray:
-    """Great-circle distance in m between points given in degrees (numpy-vectorised)."""
+    """Great-circle distance between two points (haversine formula).
+
+    Parameters
+    ----------
+    lat1, lon1, lat2, lon2 : array-like
+        Latitudes and longitudes of the two points, broadcastable. [°]
+
+    Returns
+    -------
+    numpy.ndarray
+        Distance on a sphere of radius :data:`EARTH_RADIUS_M`. [m]
+    """
     p1, p2 = np.radians(lat1), np.radians(lat2)
     dp, dl = p2 - p1, np.radians(np.asarray(lon2) - np.asarray(lon1))
     a = np.sin(dp / 2) ** 2 + np.cos(p1) * np.cos(p2) * np.sin(dl / 2) ** 2
@@ -99,8 +132,18 @@ def haversine_m(lat1, lon1, lat2, lon2) -> np.ndarray:
 
 
 def bearing_deg(lat1, lon1, lat2, lon2) -> np.ndarray:
-    """Initial great-circle bearing from point 1 to point 2, degrees clockwise from north in
-    [0, 360) — the convention of pvlib's solar azimuth. Inputs in degrees, vectorised."""
+    """Initial great-circle bearing from point 1 to point 2.
+
+    Parameters
+    ----------
+    lat1, lon1, lat2, lon2 : array-like
+        Latitudes and longitudes of the two points, broadcastable. [°]
+
+    Returns
+    -------
+    numpy.ndarray
+        Bearing clockwise from north in [0, 360), the convention of pvlib's solar azimuth. [°]
+    """
     p1, p2 = np.radians(lat1), np.radians(lat2)
     dl = np.radians(np.asarray(lon2) - np.asarray(lon1))
     y = np.sin(dl) * np.cos(p2)
@@ -109,11 +152,24 @@ def bearing_deg(lat1, lon1, lat2, lon2) -> np.ndarray:
 
 
 def heading_from_positions(lat, lon, min_move_m: float = 1.0) -> np.ndarray:
-    """The heading θ (degrees from north, clockwise) of a sequence of positions.
+    """The heading θ of a train from a sequence of its positions.
 
     Forward differences between successive positions; while the train does not move (less than
     ``min_move_m`` between samples) the last known heading is held, and samples before the first
-    movement take the first movement's heading (0 if it never moves).
+    movement take the first movement's heading (0 if it never moves). The paper likewise computes
+    the train's direction from its latitude and longitude (Section III.A).
+
+    Parameters
+    ----------
+    lat, lon : array-like of shape (n,)
+        Positions in time order. [°]
+    min_move_m : float, default 1.0
+        Smallest distance between samples that counts as movement. [m]
+
+    Returns
+    -------
+    numpy.ndarray of shape (n,)
+        Heading clockwise from north. [°]
     """
     lat, lon = np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
     n = lat.size
@@ -130,8 +186,22 @@ def heading_from_positions(lat, lon, min_move_m: float = 1.0) -> np.ndarray:
 class OperationSeries:
     """A train's operation on a uniform UTC grid; every array has ``len(time)`` entries.
 
-    ``operation`` is one of ``"service"``, ``"layover"``, ``"parked"``; ``occupancy_pct`` in % of
-    seats (0–150); ``speed_kmh``; ``heading_deg`` clockwise from north; ``doors_open`` bool.
+    Attributes
+    ----------
+    time : pandas.DatetimeIndex
+        Timezone-aware (UTC) uniform grid of n samples.
+    latitude_deg, longitude_deg : numpy.ndarray of shape (n,)
+        Position. [°]
+    heading_deg : numpy.ndarray of shape (n,)
+        Heading θ clockwise from north. [°]
+    speed_kmh : numpy.ndarray of shape (n,)
+        Speed. [km/h]
+    doors_open : numpy.ndarray of bool, shape (n,)
+        Whether the lower-deck doors are open.
+    occupancy_pct : numpy.ndarray of shape (n,)
+        Occupancy, 0–150. [% of seats]
+    operation : numpy.ndarray of object, shape (n,)
+        ``"service"``, ``"layover"`` or ``"parked"``.
     """
 
     time: pd.DatetimeIndex
@@ -144,6 +214,13 @@ class OperationSeries:
     operation: np.ndarray
 
     def to_frame(self) -> pd.DataFrame:
+        """The series as a DataFrame.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Indexed by ``time``, one column per attribute (units as in the attribute names).
+        """
         return pd.DataFrame(
             {
                 k: getattr(self, k)
@@ -176,7 +253,33 @@ def stationary(
     heading_deg: float,
     operation: str = "service",
 ) -> OperationSeries:
-    """A train standing still, doors closed and empty (the paper's parked experiments)."""
+    """A train standing still, doors closed and empty (the paper's parked experiments).
+
+    Parameters
+    ----------
+    times : pandas.DatetimeIndex
+        Timezone-aware uniform grid.
+    latitude_deg, longitude_deg : float
+        Where it stands. [°]
+    heading_deg : float
+        Which way it points, clockwise from north (taken modulo 360). [°]
+    operation : str, default "service"
+        Operation label for every sample.
+
+    Returns
+    -------
+    OperationSeries
+
+    Raises
+    ------
+    ValueError
+        If ``times`` is not timezone-aware or not uniform.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section V.
+    """
     _check_grid(times)
     n = len(times)
     return OperationSeries(
@@ -192,7 +295,22 @@ def stationary(
 
 
 def run_profile(length_m: float, v_max_kmh: float) -> tuple[float, float, float, float]:
-    """Trapezoidal (or triangular) run: (peak speed m/s, t_accel s, t_cruise s, t_brake s)."""
+    """Trapezoidal (or, on a short run, triangular) speed profile between two stations.
+
+    Parameters
+    ----------
+    length_m : float
+        Track length of the run. [m]
+    v_max_kmh : float
+        Line speed. [km/h]
+
+    Returns
+    -------
+    v_peak : float
+        Peak speed. [m/s]
+    t_accel, t_cruise, t_brake : float
+        Durations of acceleration, cruising and braking. [s]
+    """
     v = v_max_kmh / 3.6
     if v**2 / (2 * ACCEL_M_S2) + v**2 / (2 * BRAKE_M_S2) > length_m:
         v = np.sqrt(2 * length_m * ACCEL_M_S2 * BRAKE_M_S2 / (ACCEL_M_S2 + BRAKE_M_S2))
@@ -244,15 +362,42 @@ def service_day(
     start_at_terminus: int = 0,
     preparation_min: float = 45.0,
 ) -> OperationSeries:
-    """A train running back and forth on ``line`` (see the module docstring), sampled on the
-    uniform tz-aware grid ``times``.
+    """A train running back and forth on ``line`` all day (see the module docstring).
 
     Parked at its first terminus until ``preparation_min`` before ``first_departure`` (HVAC
     preparation: in service, stationary, doors closed, empty); trips until ``last_arrival`` (the
     trip under way is finished); at an intermediate station a seeded 30–60 s dwell with the
     doors open for all but 10 s of it; at a terminus an 8–15 min turnaround (doors open the first
     and last 2 min) or, if a ``layovers`` window (start, end) begins within 30 min, a layover
-    until its end; parked after the last arrival.
+    until its end; parked after the last arrival. Occupancy is seeded per leg, with commuter
+    peaks near 07:45 and 17:45 local time.
+
+    Parameters
+    ----------
+    line : Line
+        The line served.
+    times : pandas.DatetimeIndex
+        Timezone-aware uniform grid to sample the operation on.
+    seed : int
+        Seed of the dwell times, turnarounds and occupancy.
+    first_departure, last_arrival : pandas.Timestamp
+        Timezone-aware times of the first departure and of the end of service.
+    layovers : sequence of (pandas.Timestamp, pandas.Timestamp), optional
+        Layover windows (start, end), spent at a terminus (operation ``"layover"``).
+    start_at_terminus : int, default 0
+        0 to start at the line's first station, anything else at its last.
+    preparation_min : float, default 45.0
+        HVAC preparation before the first departure. [min]
+
+    Returns
+    -------
+    OperationSeries
+
+    Raises
+    ------
+    ValueError
+        If ``times`` is not timezone-aware or uniform, or ``first_departure`` is not before
+        ``last_arrival``.
     """
     _check_grid(times)
     if first_departure >= last_arrival:

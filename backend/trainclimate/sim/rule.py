@@ -23,9 +23,30 @@ MODE_OF_OPERATION = {"service": MODE_REGULAR, "layover": MODE_SLUMBER, "parked":
 
 @dataclass(frozen=True)
 class RuleCurve:
-    """A non-decreasing piecewise-linear T_rule(T_amb), held constant outside its breakpoints.
+    """The rule-based controller: a non-decreasing piecewise-linear T_rule(T_amb).
 
-    ``t_amb_c`` (°C) strictly increasing, ``t_rule_c`` (°C) non-decreasing, same length ≥ 2.
+    The curve is held constant outside its breakpoints. Calling it maps ambient temperatures to
+    rule-based setpoints, ``RuleCurve()(t_amb_c)``.
+
+    Attributes
+    ----------
+    t_amb_c : tuple of float
+        Ambient-temperature breakpoints, strictly increasing, at least 2. [°C]
+    t_rule_c : tuple of float
+        T_rule at each breakpoint, non-decreasing, same length as ``t_amb_c``. [°C]
+    assumption : str
+        Note on where the curve comes from (ignored in comparisons).
+
+    Raises
+    ------
+    ValueError
+        On construction, if the breakpoints are fewer than 2, of unequal length, not strictly
+        increasing in T_amb, or T_rule decreases.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II.A.
     """
 
     t_amb_c: tuple[float, ...] = (19.0, 35.0)
@@ -47,14 +68,40 @@ class RuleCurve:
             raise ValueError("rule curve T_rule must be non-decreasing in T_amb")
 
     def __call__(self, t_amb_c: np.ndarray | float) -> np.ndarray:
-        """T_rule in °C for ambient temperature(s) ``t_amb_c`` in °C (any shape)."""
+        """Evaluate the curve.
+
+        Parameters
+        ----------
+        t_amb_c : array-like or float
+            Ambient temperature, any shape. [°C]
+
+        Returns
+        -------
+        numpy.ndarray
+            T_rule, same shape as ``t_amb_c``. [°C]
+        """
         return np.interp(t_amb_c, self.t_amb_c, self.t_rule_c)
 
 
 def mode_from_operation(operation: np.ndarray) -> np.ndarray:
-    """HVAC mode codes (``MODE_*``) for an array of operation labels.
+    """HVAC mode codes for an array of train operation labels.
 
-    Raises ValueError for an unknown label.
+    In service → regular, a layover → slumber, parked overnight → off (:data:`MODE_OF_OPERATION`).
+
+    Parameters
+    ----------
+    operation : array-like of str
+        Labels ``"service"``, ``"layover"`` or ``"parked"``, any shape.
+
+    Returns
+    -------
+    numpy.ndarray of int8
+        ``MODE_REGULAR``, ``MODE_SLUMBER`` or ``MODE_OFF``, same shape as ``operation``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown label (all unknown labels are named).
     """
     operation = np.asarray(operation)
     out = np.full(operation.shape, -1, dtype=np.int8)

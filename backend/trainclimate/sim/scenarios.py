@@ -34,6 +34,15 @@ class Service:
 
     Clock times are local (Europe/Zurich) ``"HH:MM"`` on the scenario's first day, with ``+1``
     for the next day (``"01:00+1"``).
+
+    Attributes
+    ----------
+    lines : tuple of str
+        Names of lines in :data:`~trainclimate.sim.routes.LINES`.
+    first_departure, last_arrival : str
+        Local clock times of the first departure and of the end of service.
+    layovers : tuple of (str, str)
+        Local clock (start, end) of each layover.
     """
 
     lines: tuple[str, ...]
@@ -44,7 +53,33 @@ class Service:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A reproducible simulation setting (see the module docstring)."""
+    """A reproducible simulation setting (see the module docstring).
+
+    Attributes
+    ----------
+    name, description : str
+        Key in :data:`SCENARIOS` and a one-line description.
+    site : str
+        Key in :data:`~trainclimate.sim.weather.SITES`.
+    date : str
+        Local date of the start, ``YYYY-MM-DD``.
+    start : str
+        Local clock time of the start, ``HH:MM``.
+    hours : float
+        Duration. [h]
+    t_min_c, t_max_c : float
+        Daily minimum and maximum ambient temperature for the weather generator. [°C]
+    cloud_cover : float
+        Mean cloud cover in [0, 1]. [–]
+    seed : int
+        Seed of the weather, the operation and the coach diversity.
+    service : Service or None
+        The in-service day, or None for an empty train parked outdoors.
+    parked_heading_deg : float
+        Heading of the parked train, clockwise from north. [°]
+    notes : tuple of str
+        Free-form notes.
+    """
 
     name: str
     description: str
@@ -66,6 +101,13 @@ class Scenario:
         return self.service is None
 
     def start_utc(self) -> pd.Timestamp:
+        """The start of the scenario.
+
+        Returns
+        -------
+        pandas.Timestamp
+            ``date`` and ``start`` (Europe/Zurich local time), converted to UTC.
+        """
         return pd.Timestamp(f"{self.date} {self.start}", tz=LOCAL_TZ).tz_convert("UTC")
 
 
@@ -152,7 +194,22 @@ SCENARIOS: dict[str, Scenario] = {
 
 
 def get(name: str) -> Scenario:
-    """The scenario called ``name``; :class:`ScenarioError` lists the known ones otherwise."""
+    """Look up a scenario by name.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`SCENARIOS`.
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    ScenarioError
+        For an unknown name, listing the known ones.
+    """
     try:
         return SCENARIOS[name]
     except KeyError:
@@ -160,7 +217,20 @@ def get(name: str) -> Scenario:
 
 
 def local_clock(day: pd.Timestamp, clock: str) -> pd.Timestamp:
-    """``"HH:MM"`` or ``"HH:MM+1"`` on the local calendar day of ``day`` → UTC timestamp."""
+    """Convert a local clock time on a given day to a UTC timestamp.
+
+    Parameters
+    ----------
+    day : pandas.Timestamp
+        Timezone-aware; its Europe/Zurich calendar day is used.
+    clock : str
+        ``"HH:MM"``, or ``"HH:MM+1"`` for the next day.
+
+    Returns
+    -------
+    pandas.Timestamp
+        UTC.
+    """
     hhmm, _, plus = clock.partition("+")
     local_day = day.tz_convert(LOCAL_TZ).normalize().tz_localize(None)
     stamp = local_day + pd.Timedelta(days=int(plus or 0)) + pd.Timedelta(f"{hhmm}:00")
@@ -168,7 +238,27 @@ def local_clock(day: pd.Timestamp, clock: str) -> pd.Timestamp:
 
 
 def time_grid(start: pd.Timestamp, hours: float, dt_s: float) -> pd.DatetimeIndex:
-    """Uniform UTC grid of ``hours`` from ``start`` with step ``dt_s`` seconds (end excluded)."""
+    """Uniform UTC time grid.
+
+    Parameters
+    ----------
+    start : pandas.Timestamp
+        Timezone-aware first time.
+    hours : float
+        Length of the grid, end excluded. [h]
+    dt_s : float
+        Step. [s]
+
+    Returns
+    -------
+    pandas.DatetimeIndex
+        ``round(hours · 3600 / dt_s)`` UTC times.
+
+    Raises
+    ------
+    ScenarioError
+        If ``hours`` is not positive or shorter than two steps.
+    """
     if hours <= 0:
         raise ScenarioError(f"hours must be positive, got {hours:g}")
     n = round(hours * 3600.0 / dt_s)
@@ -178,7 +268,23 @@ def time_grid(start: pd.Timestamp, hours: float, dt_s: float) -> pd.DatetimeInde
 
 
 def coach_params(base: CoachParams, n: int, seed: int) -> list[CoachParams]:
-    """Coach 0 is ``base`` itself; coaches 1…n−1 are seeded variations of it (±15 %)."""
+    """Parameter sets of a scenario's coaches.
+
+    Parameters
+    ----------
+    base : CoachParams
+        Coach 0's parameters.
+    n : int
+        Number of coaches.
+    seed : int
+        Seed of the variations.
+
+    Returns
+    -------
+    list of CoachParams
+        ``base`` itself, then n − 1 seeded variations of it (±15 %,
+        :func:`~trainclimate.sim.params.diversify`).
+    """
     return [base, *diversify(base, n - 1, seed=seed)] if n > 1 else [base]
 
 
@@ -191,12 +297,40 @@ def build(
     weather: Weather | None = None,
     base_params: CoachParams | None = None,
 ) -> tuple[Environment, list[CoachParams]]:
-    """The :class:`Environment` and per-coach parameters of ``scenario`` for ``n_coaches``.
+    """Build the environment and per-coach parameters of a scenario.
 
     With ``weather`` (e.g. a measured CSV) the run starts at its first time and lasts ``hours``
     (default: its span); the scenario still gives place, operation and occupancy, shifted to the
     weather's local date. Solar geometry is computed from time and the scenario's site (the
-    ≤ 50 km a train covers on its line shifts the sun by < 0.5°).
+    ≤ 50 km a train covers on its line shifts the sun by < 0.5°). Coaches of a parked scenario
+    are in regular mode throughout; in service the mode follows the operation.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The setting.
+    n_coaches : int, default 1
+        Number of coaches N; in service coach i runs the scenario's line i modulo their number.
+    dt_s : float, default 10.0
+        Simulator step. [s]
+    hours : float, optional
+        Duration (default: the scenario's, or the weather's span). [h]
+    weather : Weather, optional
+        Measured weather to use instead of the generator.
+    base_params : CoachParams, optional
+        Coach 0's parameters (default: :class:`CoachParams`).
+
+    Returns
+    -------
+    env : Environment
+        The disturbances and operation of the N coaches.
+    params : list of CoachParams
+        One parameter set per coach (:func:`coach_params`).
+
+    Raises
+    ------
+    ScenarioError
+        If ``n_coaches`` < 1, or ``hours`` is invalid or exceeds the weather's span.
     """
     if n_coaches < 1:
         raise ScenarioError(f"need at least one coach, got {n_coaches}")

@@ -37,9 +37,36 @@ SERIES_FIELDS = (
 class Environment:
     """The disturbances and the operation of N coaches on a uniform time grid of S steps.
 
-    ``time`` (S,) tz-aware UTC; every other field is (S, N): ``t_amb_c`` °C, ``ghi_w_m2`` W/m²,
-    solar ``zenith_deg`` / ``azimuth_deg``, train ``heading_deg`` (clockwise from north),
-    ``speed_kmh``, ``occupancy_pct`` (% of seats), ``door_open`` (0…1), ``mode`` (``MODE_*``).
+    Series given as (S,) or (S, 1) are broadcast to (S, N); the solar projections are derived
+    on construction.
+
+    Attributes
+    ----------
+    time : pandas.DatetimeIndex
+        Timezone-aware UTC times, shape (S,); its step is the simulator's.
+    t_amb_c : numpy.ndarray of shape (S, N)
+        Ambient temperature. [°C]
+    ghi_w_m2 : numpy.ndarray of shape (S, N)
+        Global horizontal irradiance. [W/m²]
+    zenith_deg, azimuth_deg : numpy.ndarray of shape (S, N)
+        Solar zenith and azimuth (clockwise from north). [°]
+    heading_deg : numpy.ndarray of shape (S, N)
+        Train heading, clockwise from north. [°]
+    speed_kmh : numpy.ndarray of shape (S, N)
+        Train speed. [km/h]
+    occupancy_pct : numpy.ndarray of shape (S, N)
+        Occupancy. [% of seats]
+    door_open : numpy.ndarray of shape (S, N)
+        Fraction of the step the lower-deck door is open, 0…1. [–]
+    mode : numpy.ndarray of shape (S, N)
+        HVAC mode, ``MODE_*`` of :mod:`trainclimate.sim.rule`.
+    q_roof_w_m2, q_side_w_m2 : numpy.ndarray of shape (S, N)
+        Derived roof and side irradiance Q_Gt, Q_Gs (:mod:`trainclimate.sim.solar`). [W/m²]
+
+    Raises
+    ------
+    ValueError
+        If ``time`` is not timezone-aware or a series does not have shape (S, coaches).
     """
 
     time: pd.DatetimeIndex
@@ -75,7 +102,18 @@ class Environment:
         )
 
     def coaches(self, index: list[int]) -> Environment:
-        """The environment of some of the coaches."""
+        """The environment of some of the coaches.
+
+        Parameters
+        ----------
+        index : list of int
+            Coach columns to keep.
+
+        Returns
+        -------
+        Environment
+            Same time grid, ``len(index)`` coaches.
+        """
         return Environment(
             time=self.time,
             **{name: np.ascontiguousarray(getattr(self, name)[:, index]) for name in SERIES_FIELDS},
@@ -83,11 +121,26 @@ class Environment:
 
     @classmethod
     def side_by_side(cls, envs: list[Environment]) -> Environment:
-        """Independent environments of equal length and step as the columns of one, so that
-        runs on different days are simulated together as one vectorised fleet.
+        """Join independent environments as the columns of one.
 
-        The result keeps the first environment's ``time``: the simulator only uses the grid's
-        step, so each column's own clock stays with whoever built it.
+        Runs on different days are so simulated together as one vectorised fleet. The result
+        keeps the first environment's ``time``: the simulator only uses the grid's step, so
+        each column's own clock stays with whoever built it.
+
+        Parameters
+        ----------
+        envs : list of Environment
+            Environments of equal length and step.
+
+        Returns
+        -------
+        Environment
+            Their coaches side by side, in order.
+
+        Raises
+        ------
+        ValueError
+            If ``envs`` is empty or their lengths or steps differ.
         """
         if not envs:
             raise ValueError("need at least one environment")
@@ -102,10 +155,12 @@ class Environment:
 
     @property
     def n_coaches(self) -> int:
+        """Number of coaches N."""
         return self.t_amb_c.shape[1]
 
     @property
     def dt_s(self) -> float:
+        """Step of the time grid. [s]"""
         return float((self.time[1] - self.time[0]).total_seconds())
 
 
@@ -119,7 +174,38 @@ SetpointPolicy = Callable[[int, "FleetSimulator"], np.ndarray]
 
 @dataclass
 class SimulationResult:
-    """Everything recorded by :class:`FleetSimulator`; arrays have leading axes (S, N)."""
+    """Everything recorded by :class:`FleetSimulator` over S steps for N coaches.
+
+    Index k holds the state at the start of step k and the inputs, heat flows and power over
+    [t_k, t_k + dt).
+
+    Attributes
+    ----------
+    time : pandas.DatetimeIndex
+        UTC start of each step, shape (S,).
+    dt_s : float
+        Step. [s]
+    env : Environment
+        The environment simulated (it may extend beyond ``time``).
+    states_c : numpy.ndarray of shape (S, N, 9)
+        True temperatures (:data:`~trainclimate.sim.thermal.STATE_NAMES`). [°C]
+    t_room_meas_c : numpy.ndarray of shape (S, N, 3)
+        Sensor readings of the deck temperatures. [°C]
+    t_ref_c, t_rule_c : numpy.ndarray of shape (S, N)
+        Applied setpoint T_ref and rule-based T_rule. [°C]
+    hvac_state, substate : numpy.ndarray of int8, shape (S, N)
+        HVAC state and substate codes (:mod:`trainclimate.sim.hvac`).
+    fresh_fraction : numpy.ndarray of shape (S, N)
+        Fresh-air fraction of the supply air. [–]
+    q_hvac_w, q_fw_w : numpy.ndarray of shape (S, N, 3)
+        HVAC heat flow (positive heats) and floor/wall heating per deck. [W]
+    power_w : dict of str to numpy.ndarray of shape (S, N)
+        Electrical power by component: heater, floor_wall, compressor, fans. [W]
+    flows_w : numpy.ndarray of shape (S, N, len(FLOW_NAMES)) or None
+        Step-mean heat flows, when recorded. [W]
+    final_states_c : numpy.ndarray of shape (N, 9)
+        Temperatures at the end of the last step. [°C]
+    """
 
     time: pd.DatetimeIndex
     dt_s: float
@@ -139,19 +225,33 @@ class SimulationResult:
 
     @property
     def t_room_c(self) -> np.ndarray:
+        """True deck temperatures T_room (up, mid, low), shape (S, N, 3). [°C]"""
         return self.states_c[:, :, thermal.ROOM]
 
     @property
     def total_power_w(self) -> np.ndarray:
+        """Total electrical power of the HVAC, shape (S, N). [W]"""
         return sum(self.power_w.values())
 
     @property
     def energy_kwh(self) -> np.ndarray:
-        """Electrical energy of each coach over the run, kWh, (N,)."""
+        """Electrical energy of each coach over the run, shape (N,). [kWh]"""
         return self.total_power_w.sum(axis=0) * self.dt_s / 3.6e6
 
     def frame(self, coach: int = 0) -> pd.DataFrame:
-        """The full time series of one coach as a DataFrame indexed by UTC time."""
+        """The full time series of one coach.
+
+        Parameters
+        ----------
+        coach : int, default 0
+            Coach index.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Indexed by UTC time; units in the column names (``_c`` °C, ``_w`` W, ``_kw`` kW,
+            ``_w_m2`` W/m², ``_deg`` °, ``_kmh`` km/h, ``_pct`` % of seats).
+        """
         cols: dict[str, np.ndarray] = {}
         for j, name in enumerate(thermal.STATE_NAMES):
             cols[name] = self.states_c[:, coach, j]
@@ -190,8 +290,23 @@ class SimulationResult:
 
 
 def initial_states(env: Environment, rule: RuleCurve) -> np.ndarray:
-    """A plausible start (N, 9) °C: a coach already in regular mode starts at T_rule throughout
-    its interior; any other starts 3 K above ambient (residual warmth); chassis 1 K above T_amb."""
+    """A plausible initial state of every coach.
+
+    A coach already in regular mode starts at T_rule throughout its interior; any other starts
+    3 K above ambient (residual warmth); the chassis 1 K above T_amb.
+
+    Parameters
+    ----------
+    env : Environment
+        Its first step's T_amb and mode are used.
+    rule : RuleCurve
+        The rule-based controller.
+
+    Returns
+    -------
+    numpy.ndarray of shape (N, 9)
+        Temperatures in :data:`~trainclimate.sim.thermal.STATE_NAMES` order. [°C]
+    """
     t_amb = env.t_amb_c[0]
     interior = np.where(env.mode[0] == MODE_REGULAR, rule(t_amb), t_amb + 3.0)
     return np.column_stack([interior] * 6 + [t_amb + 1.0] * 3)
@@ -200,9 +315,42 @@ def initial_states(env: Environment, rule: RuleCurve) -> np.ndarray:
 class FleetSimulator:
     """N half coaches under the two-level control architecture, stepped together.
 
-    ``params``: one :class:`CoachParams` per coach (or one, used for all). ``env``: the
-    :class:`Environment` (its time step is the simulator's). ``seed`` drives the sensor noise.
-    ``record_flows`` keeps every heat flow (memory S × N × 36 floats).
+    The SBB simulator of Figure 2 [1]_ (see the module docstring). Call :meth:`step` or
+    :meth:`run`, then :meth:`result`.
+
+    Parameters
+    ----------
+    params : CoachParams or list of CoachParams
+        One parameter set per coach, or one used for all.
+    env : Environment
+        The disturbances and operation; its time step is the simulator's.
+    rule : RuleCurve, optional
+        The rule-based controller (default: :class:`~trainclimate.sim.rule.RuleCurve`).
+    seed : int, default 0
+        Seed of the sensor noise.
+    initial_c : numpy.ndarray of shape (N, 9) or (9,), optional
+        Initial temperatures (default: :func:`initial_states`). [°C]
+    record_flows : bool, default False
+        Keep every heat flow (memory S × N × 36 floats).
+
+    Attributes
+    ----------
+    T : numpy.ndarray of shape (N, 9)
+        Current temperatures. [°C]
+    k : int
+        Index of the next step.
+    hvac_state : numpy.ndarray of int8, shape (N,)
+        Current HVAC state.
+
+    Raises
+    ------
+    ValueError
+        If the number of parameter sets does not match the environment's coaches.
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II and Figure 2.
     """
 
     def __init__(
@@ -252,10 +400,19 @@ class FleetSimulator:
 
     @property
     def n_steps(self) -> int:
+        """Number of steps S of the environment."""
         return len(self.env.time)
 
     def measure(self) -> np.ndarray:
-        """Deck temperature sensor readings (N, 3) °C: Gaussian noise, then quantisation."""
+        """Read the deck temperature sensors: Gaussian noise, then quantisation.
+
+        Draws from the sensor-noise generator.
+
+        Returns
+        -------
+        numpy.ndarray of shape (N, 3)
+            Readings. [°C]
+        """
         p = self.p
         noisy = (
             self.T[:, thermal.ROOM]
@@ -265,11 +422,33 @@ class FleetSimulator:
         return np.where(q > 0, np.round(noisy / np.where(q > 0, q, 1.0)) * q, noisy)
 
     def t_rule(self, k: int | None = None) -> np.ndarray:
-        """T_rule (N,) °C at step ``k`` (default: the current step)."""
+        """The rule-based setpoint T_rule from the step's ambient temperature.
+
+        Parameters
+        ----------
+        k : int, optional
+            Step index (default: the current step).
+
+        Returns
+        -------
+        numpy.ndarray of shape (N,)
+            T_rule. [°C]
+        """
         return self.rule(self.env.t_amb_c[self.k if k is None else k])
 
     def step(self, t_ref_c: np.ndarray | None = None) -> None:
-        """Advance one time step with setpoint ``t_ref_c`` (N,) °C; ``None`` → T_rule."""
+        """Advance one time step and record it.
+
+        Parameters
+        ----------
+        t_ref_c : array-like of shape (N,) or float, optional
+            Setpoint T_ref; None applies T_rule (the rule-based architecture). [°C]
+
+        Raises
+        ------
+        IndexError
+            If the simulation has reached the end of its environment.
+        """
         if self.k >= self.n_steps:
             raise IndexError("the simulation has reached the end of its environment")
         k, env, p = self.k, self.env, self.p
@@ -322,14 +501,29 @@ class FleetSimulator:
         self.k += 1
 
     def run(self, policy: SetpointPolicy | None = None, steps: int | None = None) -> None:
-        """Advance ``steps`` steps (default: to the end), T_ref from ``policy`` (None → T_rule)."""
+        """Advance several steps.
+
+        Parameters
+        ----------
+        policy : SetpointPolicy, optional
+            Called at every step with the step index and the simulator, returns T_ref (N,) in
+            °C; None applies T_rule.
+        steps : int, optional
+            Number of steps (default: to the end of the environment).
+        """
         end = self.n_steps if steps is None else min(self.n_steps, self.k + steps)
         while self.k < end:
             self.step(None if policy is None else policy(self.k, self))
 
     def snapshot(self) -> dict:
-        """The state that carries from one step to the next, as JSON-ready plain data (NaN as
-        None): temperatures, HVAC states, every PID's memory and the sensor noise generator."""
+        """The state that carries from one step to the next, as JSON-ready plain data.
+
+        Returns
+        -------
+        dict
+            ``T`` (temperatures, °C), ``hvac_state``, ``pid`` (every PID's memory, NaN as None)
+            and ``rng`` (the sensor-noise generator's state).
+        """
         pid = {
             name: [
                 [float(v) if np.isfinite(v) else None for v in row]
@@ -345,7 +539,18 @@ class FleetSimulator:
         }
 
     def restore(self, state: dict) -> None:
-        """Continue from a :meth:`snapshot` (of a simulator with as many coaches)."""
+        """Continue from a :meth:`snapshot`.
+
+        Parameters
+        ----------
+        state : dict
+            A snapshot of a simulator with as many coaches.
+
+        Raises
+        ------
+        ValueError
+            If the snapshot is of a different number of coaches.
+        """
         T = np.asarray(state["T"], dtype=float)
         if T.shape != self.T.shape:
             raise ValueError(f"snapshot of {T.shape[0]} coaches for {self.T.shape[0]}")
@@ -359,7 +564,13 @@ class FleetSimulator:
         self.rng.bit_generator.state = state["rng"]
 
     def result(self) -> SimulationResult:
-        """What has been simulated so far."""
+        """What has been simulated so far.
+
+        Returns
+        -------
+        SimulationResult
+            The first :attr:`k` steps.
+        """
         k = self.k
         rec = {name: arr[:k] for name, arr in self._rec.items()}
         return SimulationResult(

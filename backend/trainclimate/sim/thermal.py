@@ -95,22 +95,53 @@ N_INTERNAL = len(INTERNAL_LINKS)
 
 
 def h_ext_w_m2_k(speed_kmh: np.ndarray) -> np.ndarray:
-    """Outer convective heat-transfer coefficient of the car body, W/(m² K).
+    """Outer convective heat-transfer coefficient of the car body.
 
-    McAdams' wind correlation as given by Duffie & Beckman (Solar Engineering of Thermal
-    Processes, Eq. 3.15.1 ff.): ``h = 5.7 + 3.8 v`` for v ≤ 5 m/s and ``h = 7.2 v^0.78`` above,
-    with v the air speed over the surface (here the train speed, no wind), in m/s.
-    ``speed_kmh`` in km/h.
+    McAdams' wind correlation: ``h = 5.7 + 3.8 v`` for v ≤ 5 m/s and ``h = 7.2 v^0.78`` above,
+    with v the air speed over the surface in m/s (here the train speed, no wind). The paper only
+    states that the coefficient depends on the speed (Section II.C.2).
+
+    Parameters
+    ----------
+    speed_kmh : array-like
+        Train speed; its sign is ignored. [km/h]
+
+    Returns
+    -------
+    numpy.ndarray
+        h, same shape as ``speed_kmh``. [W/(m² K)]
+
+    References
+    ----------
+    .. [1] J. A. Duffie and W. A. Beckman, Solar Engineering of Thermal Processes,
+       Eq. 3.15.1 ff.
     """
     v = np.abs(np.asarray(speed_kmh, dtype=float)) / 3.6
     return np.where(v <= 5.0, 5.7 + 3.8 * v, 7.2 * np.power(np.maximum(v, 5.0), 0.78))
 
 
 def ground_temperature_c(t_amb_c: np.ndarray, params: CoachParams) -> np.ndarray:
-    """Track (ballast) temperature T_G in °C as a function of T_amb (°C), paper Section II.C.4.
+    """Track (ballast) temperature T_G as a function of T_amb.
 
     ASSUMPTION (documented in docs/model.md): T_G = T_amb + s · (T_amb − T_threshold) above the
     threshold, i.e. a sun-heated ballast ~12 K above a 32 °C afternoon for the default s = 1.
+
+    Parameters
+    ----------
+    t_amb_c : numpy.ndarray
+        Ambient temperature. [°C]
+    params : CoachParams
+        Gives s (``ground_slope``) and T_threshold (``ground_threshold_c``).
+
+    Returns
+    -------
+    numpy.ndarray
+        T_G, same shape as ``t_amb_c``; equal to T_amb at or below the threshold. [°C]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II.C.5.
     """
     excess = np.maximum(np.asarray(t_amb_c) - params.ground_threshold_c, 0.0)
     return t_amb_c + params.ground_slope * excess
@@ -118,12 +149,24 @@ def ground_temperature_c(t_amb_c: np.ndarray, params: CoachParams) -> np.ndarray
 
 @dataclass
 class Drivers:
-    """Everything that drives the coach block during one step, each with a leading coach axis.
+    """Everything that drives the coach block during one step, for N coaches.
 
-    ``q_act_w`` (N, 6) is Λ·Q_in; ``t_amb_c`` (N,) °C; ``speed_kmh`` (N,); ``q_roof_w_m2`` and
-    ``q_side_w_m2`` (N,) the roof and side solar projections Q_Gt, Q_Gs; ``passengers`` (N, 3)
-    per deck; ``door_open`` (N,) fraction of the step the lower-deck door is open (0…1);
-    ``fresh_air_kg_s`` (N, 3) outside air supplied to each deck.
+    Attributes
+    ----------
+    q_act_w : numpy.ndarray of shape (N, 6)
+        Q_act = Λ Q_in into the rooms and chassis parts up, mid, low. [W]
+    t_amb_c : numpy.ndarray of shape (N,)
+        Ambient temperature. [°C]
+    speed_kmh : numpy.ndarray of shape (N,)
+        Train speed. [km/h]
+    q_roof_w_m2, q_side_w_m2 : numpy.ndarray of shape (N,)
+        Roof and side solar projections Q_Gt, Q_Gs. [W/m²]
+    passengers : numpy.ndarray of shape (N, 3)
+        Passengers per deck.
+    door_open : numpy.ndarray of shape (N,)
+        Fraction of the step the lower-deck door is open, 0…1. [–]
+    fresh_air_kg_s : numpy.ndarray of shape (N, 3)
+        Outside air supplied to each deck. [kg/s]
     """
 
     q_act_w: np.ndarray
@@ -137,7 +180,18 @@ class Drivers:
 
 
 def capacities(params: CoachParams) -> np.ndarray:
-    """Heat capacities m·c of the nine nodes, J/K, shape (..., 9)."""
+    """Heat capacities m_p^d c_p^d of the nine nodes (Eq. (1)).
+
+    Parameters
+    ----------
+    params : CoachParams
+        One coach's, or stacked, parameters.
+
+    Returns
+    -------
+    numpy.ndarray of shape (..., 9)
+        Capacities in :data:`STATE_NAMES` order (rooms, inventory, chassis). [J/K]
+    """
     return np.concatenate([params.c_room_j_k, params.c_inv_j_k, params.c_chassis_j_k], axis=-1)
 
 
@@ -161,8 +215,21 @@ _COL = {name: j for j, name in enumerate(FLOW_NAMES)}
 
 
 def held_flows(drv: Drivers, p: CoachParams) -> np.ndarray:
-    """The heat flows that do not depend on the temperatures (W, (N, n_flows), zeros
-    elsewhere): inputs Q_act, solar gains and passengers. Constant over a step."""
+    """The heat flows that do not depend on the temperatures, constant over a step.
+
+    Parameters
+    ----------
+    drv : Drivers
+        The step's drivers.
+    p : CoachParams
+        Parameters stacked over the N coaches.
+
+    Returns
+    -------
+    numpy.ndarray of shape (N, len(FLOW_NAMES))
+        Inputs Q_act, solar gains and passengers in their :data:`FLOW_NAMES` columns, zeros
+        elsewhere. [W]
+    """
     out = np.zeros((drv.t_amb_c.shape[0], len(FLOW_NAMES)))
     c = _COL
     out[:, c["input_room_up"] : c["input_chassis_low"] + 1] = drv.q_act_w
@@ -183,10 +250,29 @@ def held_flows(drv: Drivers, p: CoachParams) -> np.ndarray:
 def heat_flows(
     T: np.ndarray, drv: Drivers, p: CoachParams, held: np.ndarray | None = None
 ) -> np.ndarray:
-    """Every heat flow of the coach block, W, shape (N, n_flows) in :data:`FLOW_NAMES` order.
+    """Every heat flow of the coach block (Section II.C.1–7).
 
-    ``T`` (N, 9) in °C; ``p`` stacked parameters (leading axis N); ``held`` the result of
-    :func:`held_flows` for these drivers when already computed.
+    Parameters
+    ----------
+    T : numpy.ndarray of shape (N, 9)
+        Node temperatures in :data:`STATE_NAMES` order. [°C]
+    drv : Drivers
+        The step's drivers.
+    p : CoachParams
+        Parameters stacked over the N coaches.
+    held : numpy.ndarray of shape (N, len(FLOW_NAMES)), optional
+        The result of :func:`held_flows` for these drivers, when already computed. [W]
+
+    Returns
+    -------
+    numpy.ndarray of shape (N, len(FLOW_NAMES))
+        Heat flows in :data:`FLOW_NAMES` order; internal flows are positive into their
+        receiving node (:data:`INTERNAL_LINKS`). [W]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Section II.C.
     """
     out = held_flows(drv, p) if held is None else held.copy()
     c = _COL
@@ -215,17 +301,57 @@ def heat_flows(
 
 
 def derivative(T: np.ndarray, drv: Drivers, p: CoachParams, inv_cap: np.ndarray) -> np.ndarray:
-    """dT/dt in K/s, shape (N, 9): Eq. (1) for every node. ``inv_cap`` = 1 / :func:`capacities`."""
+    """Rate of change of the nine temperatures, Eq. (1) for every node.
+
+    Parameters
+    ----------
+    T : numpy.ndarray of shape (N, 9)
+        Node temperatures. [°C]
+    drv : Drivers
+        The drivers.
+    p : CoachParams
+        Parameters stacked over the N coaches.
+    inv_cap : numpy.ndarray of shape (N, 9)
+        1 / :func:`capacities`. [K/J]
+
+    Returns
+    -------
+    numpy.ndarray of shape (N, 9)
+        dT/dt. [K/s]
+
+    References
+    ----------
+    .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
+       Energy Management, Eq. (1).
+    """
     return (heat_flows(T, drv, p) @ INCIDENCE) * inv_cap
 
 
 def rk4_step(
     T: np.ndarray, drv: Drivers, p: CoachParams, inv_cap: np.ndarray, dt_s: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Advance the nine temperatures by ``dt_s`` seconds with drivers held (classical RK4).
+    """Advance the nine temperatures by one step with the drivers held (classical RK4).
 
-    Returns the new state (N, 9) and the step-mean heat flows (N, n_flows) in W, weighted like
-    the RK4 update so that Σ C·ΔT = dt · Σ(external mean flows) holds to round-off.
+    Parameters
+    ----------
+    T : numpy.ndarray of shape (N, 9)
+        Node temperatures at the start of the step. [°C]
+    drv : Drivers
+        The drivers, held over the step.
+    p : CoachParams
+        Parameters stacked over the N coaches.
+    inv_cap : numpy.ndarray of shape (N, 9)
+        1 / :func:`capacities`. [K/J]
+    dt_s : float
+        Step length. [s]
+
+    Returns
+    -------
+    T_next : numpy.ndarray of shape (N, 9)
+        Node temperatures at the end of the step. [°C]
+    mean_flows : numpy.ndarray of shape (N, len(FLOW_NAMES))
+        Step-mean heat flows, weighted like the RK4 update so that Σ C·ΔT = dt · Σ(external mean
+        flows) holds to round-off. [W]
     """
     held = held_flows(drv, p)
     f1 = heat_flows(T, drv, p, held)

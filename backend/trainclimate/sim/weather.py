@@ -23,7 +23,17 @@ class WeatherError(ValueError):
 
 @dataclass(frozen=True)
 class Site:
-    """A place: name, latitude and longitude in degrees (north/east positive), altitude in m."""
+    """A place where trains run or stand.
+
+    Attributes
+    ----------
+    name : str
+        Display name.
+    latitude_deg, longitude_deg : float
+        Position, north and east positive. [°]
+    altitude_m : float
+        Altitude above sea level. [m]
+    """
 
     name: str
     latitude_deg: float
@@ -50,8 +60,17 @@ _LAPSE_K_PER_M = -0.0065
 
 @dataclass(frozen=True)
 class Weather:
-    """Ambient temperature ``t_amb_c`` (°C) and global horizontal irradiance ``ghi_w_m2``
-    (W/m²) at the UTC times ``time`` (strictly increasing)."""
+    """Ambient temperature and global horizontal irradiance on a time grid.
+
+    Attributes
+    ----------
+    time : pandas.DatetimeIndex
+        Timezone-aware UTC times, strictly increasing (any sampling interval), n samples.
+    t_amb_c : numpy.ndarray of shape (n,)
+        Ambient temperature T_amb. [°C]
+    ghi_w_m2 : numpy.ndarray of shape (n,)
+        Global horizontal irradiance Q_G. [W/m²]
+    """
 
     time: pd.DatetimeIndex
     t_amb_c: np.ndarray
@@ -59,12 +78,30 @@ class Weather:
 
     @property
     def span_hours(self) -> float:
+        """Time from the first to the last sample. [h]"""
         return float((self.time[-1] - self.time[0]).total_seconds() / 3600.0)
 
     def at(self, times: pd.DatetimeIndex) -> tuple[np.ndarray, np.ndarray]:
-        """Both signals linearly interpolated at ``times`` (tz-aware). A request outside the
-        weather's span by more than one of its steps is a ValueError; within that the end
-        values are held."""
+        """Both signals linearly interpolated at ``times``.
+
+        Parameters
+        ----------
+        times : pandas.DatetimeIndex
+            Timezone-aware times; up to one weather step outside the span the end values are
+            held.
+
+        Returns
+        -------
+        t_amb_c : numpy.ndarray of shape (len(times),)
+            Ambient temperature. [°C]
+        ghi_w_m2 : numpy.ndarray of shape (len(times),)
+            Global horizontal irradiance. [W/m²]
+
+        Raises
+        ------
+        ValueError
+            If ``times`` reaches outside the weather's span by more than one of its steps.
+        """
         x = times.tz_convert("UTC").as_unit("ns").asi8.astype(float)
         xp = self.time.as_unit("ns").asi8.astype(float)
         step = float(np.median(np.diff(xp))) if len(xp) > 1 else 0.0
@@ -106,7 +143,7 @@ def generate_weather(
     t_max_c: float | None = None,
     cloud_cover: float | None = None,
 ) -> Weather:
-    """Seeded synthetic weather at ``site`` from ``start`` to ``end`` (tz-aware, inclusive).
+    """Seeded synthetic weather at a Swiss site.
 
     - Each local day has a minimum near sunrise and a maximum at 15:00 local time, joined by
       half-cosines (continuous across days). Minimum and maximum are ``t_min_c`` / ``t_max_c``
@@ -116,6 +153,31 @@ def generate_weather(
     - Cloud cover C ∈ [0, 1]: a seeded hourly AR(1) in logit space with ~6 h persistence, mean
       ``cloud_cover`` (default 0.65 in winter, 0.5 in summer).
     - GHI = clear-sky GHI (pvlib, Ineichen) · (1 − 0.75 C^3.4) (Kasten & Czeplak 1980).
+
+    Parameters
+    ----------
+    site : Site
+        Where (latitude, longitude and altitude; see :data:`SITES`).
+    start, end : pandas.Timestamp
+        Timezone-aware first and last time, inclusive.
+    seed : int
+        Seed of the anomalies and clouds; the same seed gives the same weather.
+    step_s : float, default 600.0
+        Sampling interval. [s]
+    t_min_c, t_max_c : float, optional
+        Daily minimum and maximum temperature (default: climatology plus anomaly). [°C]
+    cloud_cover : float, optional
+        Mean cloud cover C in [0, 1] (default: seasonal). [–]
+
+    Returns
+    -------
+    Weather
+        On a UTC grid from ``start`` with step ``step_s``.
+
+    Raises
+    ------
+    ValueError
+        If ``start`` or ``end`` is not timezone-aware, or ``end`` is not after ``start``.
     """
     start, end = pd.Timestamp(start), pd.Timestamp(end)
     if start.tz is None or end.tz is None:
@@ -180,11 +242,25 @@ def generate_weather(
 
 
 def load_weather_csv(path: str | Path) -> Weather:
-    """Read a measured weather file: columns ``time`` (ISO 8601 with UTC offset), ``t_amb_c``
-    (°C), ``ghi_w_m2`` (W/m²); any sampling interval; extra columns ignored.
+    """Read a measured weather CSV file.
 
-    Raises :class:`WeatherError` with a one-line message naming the file, the problem and, where
-    it applies, the 1-based data row.
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        CSV with columns ``time`` (ISO 8601 with UTC offset), ``t_amb_c`` (°C, within
+        −60…60) and ``ghi_w_m2`` (W/m², within 0…1500); at least 2 rows, times strictly
+        increasing, any sampling interval; extra columns are ignored.
+
+    Returns
+    -------
+    Weather
+        With times converted to UTC.
+
+    Raises
+    ------
+    WeatherError
+        With a one-line message naming the file, the problem and, where it applies, the
+        1-based data row.
     """
     path = Path(path)
     try:
@@ -235,7 +311,15 @@ def load_weather_csv(path: str | Path) -> Weather:
 
 
 def write_weather_csv(weather: Weather, path: str | Path) -> None:
-    """Write ``weather`` in the format :func:`load_weather_csv` reads (times in UTC)."""
+    """Write weather in the format :func:`load_weather_csv` reads.
+
+    Parameters
+    ----------
+    weather : Weather
+        What to write; times are written in UTC, ISO 8601.
+    path : str or pathlib.Path
+        Destination CSV file.
+    """
     pd.DataFrame(
         {
             "time": [t.isoformat() for t in weather.time],
