@@ -85,6 +85,25 @@ function showSignIn(message = "") {
   if (!dialog.open) dialog.showModal();
 }
 
+// --- what the service is still preparing (GET /health, no sign-in needed) --------------------
+async function showPreparing() {
+  const box = document.getElementById("preparing");
+  let health;
+  try {
+    health = await (await fetch(`${API}/health`)).json();
+  } catch {
+    return;
+  }
+  const items = health.preparing || [];
+  box.hidden = items.length === 0;
+  box.classList.toggle("failed", items.some((p) => p.state === "failed"));
+  box.textContent = items.map((p) => (p.state === "failed"
+    ? `Preparing the ${p.task} failed: ${p.detail}. The coaches stay on the rule-based setpoint T_rule.`
+    : `Preparing the ${p.task}: ${p.stage}, ${Math.round(p.percent)} %. Until it is ready the coaches follow the rule-based setpoint T_rule; the layer takes over on its own.`)).join(" ");
+}
+showPreparing();
+setInterval(showPreparing, REFRESH_MS);
+
 // --- router --------------------------------------------------------------------------------
 function mount(templateId) {
   const view = document.getElementById("view");

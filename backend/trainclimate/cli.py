@@ -13,6 +13,8 @@ import json
 import logging
 import os
 import sys
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -20,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from trainclimate.data.pipeline import PipelineError
+from trainclimate.paths import StorageError, writable_dir, writable_file
 from trainclimate.predict import METHODS, PredictorDataError
 from trainclimate.predict.artifact import ArtifactError
 from trainclimate.sim.params import CoachParams, ParamsError, load_params
@@ -27,6 +30,7 @@ from trainclimate.sim.scenarios import SCENARIOS, ScenarioError
 from trainclimate.sim.weather import WeatherError
 
 CONTROLLERS = ("rule", "ddpc", "edge")
+OUT_HINT = "choose another path"
 
 
 class UsageError(Exception):
@@ -66,6 +70,18 @@ def _progress(total: int, desc: str, unit: str = "step"):
         disable=not sys.stderr.isatty(),
         mininterval=0.5,
     )
+
+
+def _out_file(path: str | None, what: str) -> Path | None:
+    """An output file named on the command line, its directory created (None if not given);
+    :class:`StorageError` (exit 2) when it cannot be written — before any work is done."""
+    return writable_file(path, what, hint=OUT_HINT) if path else None
+
+
+def _out_dir(path: str | None, what: str) -> Path | None:
+    """An output directory named on the command line, created with its parents (None if not
+    given); :class:`StorageError` (exit 2) when it cannot be."""
+    return writable_dir(path, what, hint=OUT_HINT) if path else None
 
 
 # --- commands -------------------------------------------------------------------------------
@@ -138,13 +154,12 @@ def cmd_simulate(args: argparse.Namespace) -> None:
         raise UsageError("--coaches must be at least 1")
     if args.hours is not None and not (np.isfinite(args.hours) and args.hours > 0):
         raise UsageError("--hours must be positive")
+    out = _out_file(args.out, "the simulation's Parquet file")
     scenario, result, ticks = run_simulation(args)
     data = {"scenario": scenario.name, "controller": args.controller, **fleet_kpis(result)}
     if ticks is not None:
         data["controller_ticks"] = ticks
-    if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
+    if out is not None:
         frames = []
         for c in range(len(data["coaches"])):
             frame = result.frame(c)
@@ -257,7 +272,7 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
 
     if (args.days is not None and args.days < 1) or (args.coaches is not None and args.coaches < 1):
         raise UsageError("--days and --coaches must be at least 1")
-    out = Path(args.out)
+    out = _out_dir(args.out, "the dataset")
     generated = None
     if args.raw:
         raw = Path(args.raw)
@@ -281,7 +296,12 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
             )
     groups, _ = pipeline.discover(raw)
     with _progress(len(groups), "pipeline", "coach-day") as bar:
-        summary = pipeline.build_dataset(raw, out, progress=bar.update)
+        summary = pipeline.build_dataset(
+            raw,
+            out,
+            progress=bar.update,
+            expected_unreadable=generated.corrupted if generated else (),
+        )
     data = {**summary.to_dict(), "raw": str(raw), "out": str(out)}
     if generated is not None:
         data["generated"] = {
@@ -299,21 +319,29 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
         ]
         lines.append("dropped: " + ", ".join(f"{k} {v}" for k, v in d["dropped_rows"].items()))
         lines.append("repaired: " + ", ".join(f"{k} {v}" for k, v in d["repaired_rows"].items()))
-        if d["unreadable_files"]:
-            lines.append(f"unreadable files: {len(d['unreadable_files'])} (see warnings)")
+        others = len(d["unreadable_files"]) - d["unreadable_as_generated"]
+        if d["unreadable_as_generated"]:
+            lines.append(f"corrupted files skipped, as generated: {d['unreadable_as_generated']}")
+        if others:
+            lines.append(f"unreadable files: {others} (see warnings)")
         lines.append(f"trajectories written under {d['out']}")
         return "\n".join(lines)
 
     _emit(args, data, human)
 
 
+def _given_dataset(value: str, flag: str) -> Path:
+    """A dataset directory named on the command line (usage error if it holds none)."""
+    path = Path(value)
+    if not (path / "dataset.json").exists() and not any(path.glob("trajectories_*min.parquet")):
+        raise UsageError(f"{flag}: {path} holds no dataset (run `trainclimate dataset build`)")
+    return path
+
+
 def _dataset_dir(args: argparse.Namespace) -> Path:
     """``--data DIR`` or the default dataset (built once, with a progress bar)."""
     if args.data:
-        path = Path(args.data)
-        if not (path / "dataset.json").exists() and not any(path.glob("trajectories_*min.parquet")):
-            raise UsageError(f"--data: {path} holds no dataset (run `trainclimate dataset build`)")
-        return path
+        return _given_dataset(args.data, "--data")
     from trainclimate.data.cache import default_dataset
 
     bars: dict[str, object] = {}
@@ -350,10 +378,17 @@ def _mae_human(d: dict) -> str:
 
 
 def cmd_predictor_evaluate(args: argparse.Namespace) -> None:
-    from trainclimate.predict.evaluate import evaluate
+    from trainclimate.predict.evaluate import evaluate, load_split
 
     _check_predictor_args(args)
-    _, data = evaluate(args.method, args.sampling_min, args.rho, args.horizon, _dataset_dir(args))
+    split = None
+    if args.train_data:  # fitted on another dataset's training coaches, measured on this one's
+        train, _ = load_split(_given_dataset(args.train_data, "--train-data"), args.sampling_min)
+        _, validation = load_split(_dataset_dir(args), args.sampling_min)
+        split = (train, validation)
+    _, data = evaluate(
+        args.method, args.sampling_min, args.rho, args.horizon, _dataset_dir(args), split
+    )
     _emit(args, data, _mae_human)
 
 
@@ -362,6 +397,7 @@ def cmd_predictor_fit(args: argparse.Namespace) -> None:
     from trainclimate.predict.evaluate import evaluate
 
     _check_predictor_args(args)
+    _out_file(args.out, "the model file")
     predictor, result = evaluate(
         args.method, args.sampling_min, args.rho, args.horizon, _dataset_dir(args)
     )
@@ -373,6 +409,7 @@ def cmd_predictor_fit(args: argparse.Namespace) -> None:
 def cmd_predictor_study(args: argparse.Namespace) -> None:
     from trainclimate.predict import study
 
+    _out_file(args.html, "the HTML report")
     data_dir = _dataset_dir(args)
     with _progress(study.n_runs(), "sensitivity studies", "fit") as bar:
         results = study.run_studies(data_dir, progress=bar.update)
@@ -418,6 +455,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
         raise UsageError("--hours must be positive")
     if not 0 <= args.coach_spread < 1:
         raise UsageError("--coach-spread must lie in [0, 1)")
+    _out_file(args.html, "the HTML report")
     pair = run_pair(
         args.scenario,
         _predictor(args),
@@ -435,8 +473,8 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
     from trainclimate.analysis.experiment import EXPERIMENTS, run_pair
     from trainclimate.analysis.report import write_experiment_report, write_summary
 
+    out = _out_dir(args.out, "the experiment reports")
     predictor = _predictor(args)
-    out = Path(args.out)
     rows = []
     with _progress(len(EXPERIMENTS), "paired experiments", "experiment") as bar:
         for name in EXPERIMENTS:
@@ -484,21 +522,29 @@ def cmd_serve(args: argparse.Namespace) -> None:
     except OperationalError as exc:
         first = str(exc.orig).strip().splitlines()[0] if exc.orig else type(exc).__name__
         raise UsageError(f"cannot use the database: {first}") from None
-    if args.predictor is None:
-        from trainclimate.control.models import default_model_path, default_predictor
-
-        if not default_model_path().exists():
-            # fitted once, before the server answers (a database without a model needs it)
-            print("trainclimate: building the default model once (3–6 min)…", file=sys.stderr)
-            default_predictor()
-    print(
-        f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})",
-        file=sys.stderr,
-    )
+    lines = [f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})"]
+    out = []
     if args.new_token:
         token = _create_token(settings.database_url, args.new_token, f"demo-{args.new_token}")
-        print(f"dashboard: {url}\n{args.new_token} token: {token['token']}", flush=True)
-    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
+        out = [f"dashboard: {url}", f"{args.new_token} token: {token['token']}"]
+    app = create_app(settings)
+    config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level)
+    server = uvicorn.Server(config)
+    threading.Thread(
+        target=_announce, args=(server, lines, out), name="announce", daemon=True
+    ).start()
+    server.run()
+
+
+def _announce(server, stderr_lines: list[str], stdout_lines: list[str]) -> None:
+    """Print the URL (and token) once the server accepts connections."""
+    while not server.started:
+        if server.should_exit:
+            return
+        time.sleep(0.05)
+    print("\n".join(stderr_lines), file=sys.stderr, flush=True)
+    if stdout_lines:
+        print("\n".join(stdout_lines), flush=True)
 
 
 def _create_token(url: str, role: str, name: str | None) -> dict:
@@ -521,9 +567,8 @@ def cmd_token_create(args: argparse.Namespace) -> None:
     url = _db_url(args)
     migrate(url)
     data = _create_token(url, args.role, args.name)
-    if args.out:  # for another process to read (the compose demo's gateways): owner-only
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
+    out = _out_file(args.out, "the token file")
+    if out is not None:  # for another process to read (the compose demo's gateways): owner-only
         out.touch(mode=0o600)
         out.write_text(data["token"] + "\n")
         data = {**data, "token": None, "file": str(out)}
@@ -581,6 +626,7 @@ def cmd_demo(args: argparse.Namespace) -> None:
     from trainclimate.analysis.report import write_simulation_report
     from trainclimate.analysis.summary import fleet_kpis
 
+    out = _out_dir(args.out, "the demo report")
     results = {}
     for controller in CONTROLLERS:
         ns = argparse.Namespace(
@@ -595,8 +641,6 @@ def cmd_demo(args: argparse.Namespace) -> None:
             forecast="perfect",
         )
         scenario, results[controller], _ = run_simulation(ns, record_flows=True)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     path = write_simulation_report(results, scenario, out / "winter-day.html")
     data = {
         "report": str(path.resolve()),
@@ -694,7 +738,13 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--horizon", type=int, default=12, help="prediction steps (default 12)")
         return p
 
-    add_predictor("evaluate", cmd_predictor_evaluate, "MAE per step on the held-out coaches")
+    p = add_predictor("evaluate", cmd_predictor_evaluate, "MAE per step on the held-out coaches")
+    p.add_argument(
+        "--train-data",
+        default=None,
+        help="fit on the training coaches of this dataset instead (measured on --data's "
+        "held-out coaches), e.g. the quick dataset the service starts with",
+    )
     p = add_predictor("fit", cmd_predictor_fit, "fit on the training coaches and save the model")
     p.add_argument("--out", required=True, help="model file to write (.npz)")
     p = add_predictor(
@@ -777,8 +827,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _LogFormat(logging.Formatter):
+    """``trainclimate: warning: …`` for warnings and errors, ``trainclimate: …`` for news."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        warning = record.levelno >= logging.WARNING
+        return ("trainclimate: warning: " if warning else "trainclimate: ") + super().format(record)
+
+
 def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.WARNING, format="trainclimate: warning: %(message)s")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_LogFormat())
+    logging.basicConfig(level=logging.WARNING, handlers=[handler], force=True)
+    logging.getLogger("trainclimate").setLevel(logging.INFO)
     try:
         args = build_parser().parse_args(argv)
         if args.command == "coach-params" and not (args.default or args.file):
@@ -792,6 +853,7 @@ def main(argv: list[str] | None = None) -> int:
         PipelineError,
         PredictorDataError,
         ArtifactError,
+        StorageError,
     ) as exc:
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"trainclimate: error: {message}", file=sys.stderr)

@@ -138,3 +138,16 @@ def test_the_same_seed_writes_the_same_files_and_the_same_dataset(raw, built, tm
     for step in (1, 5, 10):
         name = f"trajectories_{step}min.parquet"
         assert (tmp_path / "out" / name).read_bytes() == (root / "out" / name).read_bytes()
+
+
+def test_the_generator_names_the_files_it_corrupted(tmp_path):
+    rates = dataclasses.replace(fleetlogs.Defects(), unreadable_file=0.5)
+    summary = fleetlogs.generate(tmp_path / "raw", defects=rates, **SMALL)
+    assert summary.corrupted, "with half the files corrupted, some are"
+    unreadable = []
+    for path in sorted((tmp_path / "raw").rglob("*.csv")):
+        try:
+            read_source(path)
+        except (UnicodeDecodeError, ValueError):
+            unreadable.append(str(path))
+    assert sorted(summary.corrupted) == unreadable

@@ -504,3 +504,21 @@ def test_a_coach_day_parked_all_day_gives_nothing():
     trajectories, counts = run(hvac_log(120, mode="off"))
     assert trajectories == {1: [], 5: [], 10: []}
     assert nonzero(counts.dropped) == {} and nonzero(counts.repaired) == {}
+
+
+def test_files_corrupted_on_purpose_are_counted_in_one_line_others_still_warn(tmp_path, caplog):
+    raw = tmp_path / "raw"
+    write_coach_day(raw, "44", "44A")
+    noise = bytes(np.random.default_rng(7).integers(0, 256, 512, dtype=np.uint8))
+    generated = [write_coach_day(raw, "66", "66A"), write_coach_day(raw, "17", "17A")]
+    users = write_coach_day(raw, "31", "31A")
+    for path in (*generated, users):
+        path.write_bytes(noise)
+    with caplog.at_level(logging.INFO, logger="trainclimate.data.pipeline"):
+        summary = build_dataset(raw, tmp_path / "out", expected_unreadable=generated)
+    messages = [(r.levelno, r.getMessage()) for r in caplog.records]
+    assert (logging.INFO, "2 corrupted files skipped, as generated") in messages
+    warnings = [m for level, m in messages if level == logging.WARNING]
+    assert len(warnings) == 1 and str(users) in warnings[0] and "unreadable" in warnings[0]
+    assert sorted(summary.unreadable_files) == sorted(map(str, (*generated, users)))
+    assert summary.unreadable_as_generated == 2

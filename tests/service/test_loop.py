@@ -25,7 +25,7 @@ from service_support import (
     sim_rows,
 )
 from trainclimate.service import commands, loop
-from trainclimate.service.app import ensure_model
+from trainclimate.service.app import register_model_file
 from trainclimate.service.db import Database, migrate
 from trainclimate.service.loop import Scheduler
 from trainclimate.service.models import Coach, FleetClock, Override, PredictorModel, Setpoint, Train
@@ -40,7 +40,7 @@ def db(settings):
     migrate(settings.database_url)
     database = Database(settings.database_url)
     with database.transaction() as session:
-        ensure_model(session, settings)
+        register_model_file(session, settings)
     yield database
     database.dispose()
 

@@ -28,7 +28,7 @@ batches (as columns of one vectorised fleet), so memory is bounded by the batch,
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -485,6 +485,8 @@ class GenerationSummary:
     rows: int = 0
     coach_days: int = 0
     coach_days_logged: int = 0
+    #: the files made unreadable on purpose (the defect ``Defects.unreadable_file``)
+    corrupted: list[str] = field(default_factory=list)
 
 
 def generate(
@@ -579,6 +581,7 @@ def _simulate_and_write(batch, campaign, weather, params, rates, rule, out, sun_
             if unreadable:
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_bytes(bytes(rng.integers(0, 256, 512, dtype=np.uint8)))
+                summary.corrupted.append(str(path))
             else:
                 write_export(exported, path, campaign.fmt)
             summary.files += 1

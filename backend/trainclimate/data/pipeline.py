@@ -33,7 +33,7 @@ from __future__ import annotations
 import json
 import logging
 from collections import Counter, defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -48,6 +48,7 @@ from trainclimate.data.formats import (
     read_source,
 )
 from trainclimate.data.trajectory import D_NAMES, U_NAMES, Y_NAMES, Trajectory, TrajectoryWriter
+from trainclimate.paths import writable_dir
 from trainclimate.sim.routes import heading_from_positions
 from trainclimate.sim.solar import roof_irradiance, side_irradiance
 
@@ -371,6 +372,8 @@ class DatasetSummary:
     dropped_rows: dict[str, int]
     repaired_rows: dict[str, int]
     unreadable_files: list[str]
+    #: how many of ``unreadable_files`` were corrupted on purpose by the generator
+    unreadable_as_generated: int
     coach_days: int
     raw_rows: int
     #: the Parquet file of each sampling time, relative to the output directory
@@ -415,18 +418,23 @@ def build_dataset(
     settings: PipelineSettings | None = None,
     *,
     progress: Callable[[int], None] | None = None,
+    expected_unreadable: Collection[str] = (),
 ) -> DatasetSummary:
     """Run the pipeline over every raw file under ``raw``; write one Parquet file per sampling
     time (``trajectories_<S>min.parquet``) and ``dataset.json`` under ``out``.
 
     Coach-days are processed one at a time in a fixed order, so memory is bounded and the
     output byte-identical for the same input. Unreadable files are named in a warning and
-    counted; :class:`PipelineError` if nothing usable was found.
+    counted — except ``expected_unreadable``, the files the generator corrupted on purpose
+    (:attr:`~trainclimate.data.fleetlogs.GenerationSummary.corrupted`), which are counted in one
+    line; :class:`PipelineError` if nothing usable was found.
     """
     settings = settings or PipelineSettings()
     raw, out = Path(raw), Path(out)
     if not raw.is_dir():
         raise PipelineError(f"raw log directory not found: {raw}")
+    writable_dir(out, "the dataset", hint="choose another output directory")
+    expected = {str(Path(p).resolve()) for p in expected_unreadable}
     groups, skipped = discover(raw)
     for path in skipped:
         log.warning("skipped %s: not named <campaign>/<source>/<train>_<coach>_<day>.csv", path)
@@ -448,7 +456,8 @@ def build_dataset(
                     table = read_source(path)
                 except (FormatError, OSError, UnicodeDecodeError, ValueError) as exc:
                     unreadable.append(str(path))
-                    log.warning("unreadable raw file %s: %s", path, str(exc).splitlines()[0])
+                    if str(path.resolve()) not in expected:
+                        log.warning("unreadable raw file %s: %s", path, str(exc).splitlines()[0])
                     continue
                 if sources.get(table.source) is not None:
                     log.warning(
@@ -481,6 +490,11 @@ def build_dataset(
             f"no usable trajectory in {raw}: {len(groups)} coach-day(s), "
             f"{len(unreadable)} unreadable file(s), nothing in regular mode long enough"
         )
+    as_generated = sum(str(Path(p).resolve()) in expected for p in unreadable)
+    if as_generated:
+        log.info(
+            "%d corrupted file%s skipped, as generated", as_generated, "s"[: as_generated != 1]
+        )
     table = [
         {
             "campaign": c,
@@ -496,6 +510,7 @@ def build_dataset(
         dropped_rows={k: int(v) for k, v in sorted(total.dropped.items())},
         repaired_rows={k: int(v) for k, v in sorted(total.repaired.items())},
         unreadable_files=unreadable,
+        unreadable_as_generated=as_generated,
         coach_days=len(groups),
         raw_rows=raw_rows,
         files={f"{s}min": p.name for s, p in paths.items()},

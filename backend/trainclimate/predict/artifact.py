@@ -18,6 +18,7 @@ import numpy as np
 
 from trainclimate import __version__
 from trainclimate.data.trajectory import D_NAMES, U_NAMES, UNITS, Y_NAMES
+from trainclimate.paths import writable_file
 from trainclimate.predict import METHODS, MultistepPredictor
 
 FORMAT = "trainclimate-predictor/1"
@@ -28,7 +29,23 @@ class ArtifactError(ValueError):
 
 
 def metadata(predictor: MultistepPredictor, validation: dict | None = None) -> dict:
-    """The metadata saved beside Ĥ."""
+    """The metadata saved beside Ĥ.
+
+    Parameters
+    ----------
+    predictor : MultistepPredictor
+        A fitted predictor.
+    validation : dict, optional
+        Validation figures (e.g. MAE per step) to store with it.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``format``, ``method``, ``rho``, ``horizon``, ``sampling_min`` (min), the
+        signals' names and units in the order Ĥ expects them, Ĥ's layout, the training data's
+        SHA-256 and size, ``validation``, ``created_utc`` (ISO 8601, UTC) and the package
+        version.
+    """
     return {
         "format": FORMAT,
         "method": predictor.method,
@@ -55,15 +72,49 @@ def metadata(predictor: MultistepPredictor, validation: dict | None = None) -> d
 def save_predictor(
     predictor: MultistepPredictor, path: str | Path, validation: dict | None = None
 ) -> Path:
-    """Write a fitted predictor (and its validation figures) to ``path`` (``.npz``)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(predictor_bytes(predictor, validation))
+    """Write a fitted predictor (and its validation figures) to a model file.
+
+    Parameters
+    ----------
+    predictor : MultistepPredictor
+        A fitted predictor.
+    path : str or pathlib.Path
+        Destination ``.npz`` file.
+    validation : dict, optional
+        Validation figures to store in the metadata.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
+    path = writable_file(path, "the model file", hint="choose another path")
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_bytes(predictor_bytes(predictor, validation))
+    tmp.replace(path)  # whole or not at all, for a reader in another process
     return path
 
 
 def predictor_bytes(predictor: MultistepPredictor, validation: dict | None = None) -> bytes:
-    """A fitted predictor as the bytes of its model file (to store it in a database)."""
+    """A fitted predictor as the bytes of its model file (to store it in a database).
+
+    Parameters
+    ----------
+    predictor : MultistepPredictor
+        A fitted predictor.
+    validation : dict, optional
+        Validation figures to store in the metadata.
+
+    Returns
+    -------
+    bytes
+        An ``.npz`` archive holding ``H`` and the JSON metadata (:func:`metadata`).
+
+    Raises
+    ------
+    RuntimeError
+        If the predictor is not fitted.
+    """
     buffer = io.BytesIO()
     meta = json.dumps(metadata(predictor, validation))
     np.savez(buffer, H=predictor.require_fit(), metadata=np.array(meta))
@@ -71,13 +122,45 @@ def predictor_bytes(predictor: MultistepPredictor, validation: dict | None = Non
 
 
 def load_predictor_bytes(data: bytes) -> MultistepPredictor:
-    """:func:`load_predictor` from the bytes of a model file."""
+    """Load a predictor from the bytes of a model file, as :func:`load_predictor`.
+
+    Parameters
+    ----------
+    data : bytes
+        The content of a file written by :func:`save_predictor` (or :func:`predictor_bytes`).
+
+    Returns
+    -------
+    MultistepPredictor
+
+    Raises
+    ------
+    ArtifactError
+        If the bytes are not a valid model file.
+    """
     return _load(io.BytesIO(data), "the stored model")
 
 
 def load_predictor(path: str | Path) -> MultistepPredictor:
-    """A predictor ready to :meth:`~MultistepPredictor.predict`, from a file written by
-    :func:`save_predictor`; its metadata is in ``.metadata``. Raises :class:`ArtifactError`."""
+    """Load a predictor from a file written by :func:`save_predictor`.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.npz`` model file.
+
+    Returns
+    -------
+    MultistepPredictor
+        Ready to :meth:`~MultistepPredictor.predict`, of the saved method, ρ and T; its
+        metadata is in ``.metadata``.
+
+    Raises
+    ------
+    ArtifactError
+        If the file is missing, corrupt, of another format, or its Ĥ has the wrong shape or
+        non-finite entries.
+    """
     return _load(Path(path), str(path))
 
 

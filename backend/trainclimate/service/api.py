@@ -86,8 +86,16 @@ def _period(request: Request) -> timedelta:
 # --- health ----------------------------------------------------------------------------------
 @router.get("/health", response_model=schemas.Health, tags=["health"])
 def health(request: Request) -> dict:
-    """Liveness, without authentication."""
-    return {"status": "ok", "version": __version__, "database": request.app.state.db.dialect}
+    """Liveness, without authentication, and what the service is still preparing (e.g. the
+    predictor model, with how far it is)."""
+    status = request.app.state.preparation.status
+    preparing = [status] if status.state != "done" else []
+    return {
+        "status": "ok",
+        "version": __version__,
+        "database": request.app.state.db.dialect,
+        "preparing": preparing,
+    }
 
 
 @router.get(

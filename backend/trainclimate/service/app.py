@@ -1,9 +1,10 @@
 """The FastAPI application: the API, the dashboard's static files, and the loops behind them.
 
-At start (the lifespan): the Alembic migrations are applied, a predictor model is registered if
-the database has none (``--predictor FILE`` or the cached default model), the demo fleet is
-registered if asked for, and two threads start: the live fleet's loop and, with ``--fleet demo``,
-the demo fleet. They stop with the server.
+At start (the lifespan): the Alembic migrations are applied, the ``--predictor FILE`` model is
+registered if the database has none, the demo fleet is registered if asked for, and threads
+start: the live fleet's loop, with ``--fleet demo`` the demo fleet, and, if the database still has
+no model, its preparation in the background (:mod:`trainclimate.service.preparation`; the coaches
+run under T_rule until it is ready). They stop with the server.
 """
 
 from __future__ import annotations
@@ -21,14 +22,13 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
-from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
 
 from trainclimate import __version__
 from trainclimate.service import api, demo
 from trainclimate.service.db import Database, migrate
 from trainclimate.service.loop import Scheduler
-from trainclimate.service.models import PredictorModel
+from trainclimate.service.preparation import ModelPreparation, has_model, register_predictor
 from trainclimate.service.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -36,31 +36,14 @@ log = logging.getLogger(__name__)
 PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 
 
-def ensure_model(session, settings: Settings) -> None:
-    """Register a predictor model as version 1 (active) if the database has none."""
-    if session.scalar(select(PredictorModel.id).limit(1)) is not None:
+def register_model_file(session, settings: Settings) -> None:
+    """With ``--predictor FILE``: register that model as version 1 (active) if the database has
+    none. Without, :class:`~trainclimate.service.preparation.ModelPreparation` prepares one."""
+    if settings.predictor_path is None or has_model(session):
         return
-    from trainclimate.predict.artifact import load_predictor, predictor_bytes
+    from trainclimate.predict.artifact import load_predictor
 
-    if settings.predictor_path is not None:
-        predictor = load_predictor(settings.predictor_path)
-    else:
-        from trainclimate.control.models import default_predictor
-
-        log.warning("no model in the database: registering the default model (fitted once)")
-        predictor = default_predictor()
-    session.add(
-        PredictorModel(
-            version=1,
-            method=predictor.method,
-            rho=predictor.rho,
-            horizon=predictor.horizon,
-            sampling_min=predictor.sampling_min,
-            artifact=predictor_bytes(predictor, predictor.metadata.get("validation")),
-            info={k: predictor.metadata.get(k) for k in ("training", "validation", "created_utc")},
-            active=True,
-        )
-    )
+    register_predictor(session, load_predictor(settings.predictor_path), "--predictor file")
 
 
 @asynccontextmanager
@@ -69,11 +52,13 @@ async def lifespan(app: FastAPI):
     migrate(settings.database_url)
     db = Database(settings.database_url)
     with db.transaction() as session:
-        ensure_model(session, settings)
+        register_model_file(session, settings)
         if settings.fleet == "demo":
             demo.register(session)
+    preparation = ModelPreparation(db)
+    preparation.start()
     scheduler = Scheduler(db, settings)
-    app.state.db, app.state.scheduler = db, scheduler
+    app.state.db, app.state.scheduler, app.state.preparation = db, scheduler, preparation
     stop = threading.Event()
     threads = [threading.Thread(target=scheduler.run_live, args=(stop,), name="live-loop")]
     if settings.fleet == "demo":

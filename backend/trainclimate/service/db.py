@@ -13,6 +13,8 @@ from pathlib import Path
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.orm import Session, sessionmaker
 
+from trainclimate.paths import sqlite_file, writable_dir
+
 MIGRATIONS = Path(__file__).resolve().parents[3] / "migrations"
 
 
@@ -29,9 +31,7 @@ def make_engine(url: str) -> Engine:
     scheduler thread and the API share one file safely."""
     url = normalise_url(url)
     if url.startswith("sqlite"):
-        path = url.split("///", 1)[-1]
-        if path and path != ":memory:":
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
+        sqlite_directory(url)
         engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
 
         @event.listens_for(engine, "connect")
@@ -46,8 +46,18 @@ def make_engine(url: str) -> Engine:
     return create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=10)
 
 
+def sqlite_directory(url: str) -> None:
+    """Create the directory of a SQLite database file with its parents (a one-line
+    :class:`~trainclimate.paths.StorageError` when it cannot be)."""
+    path = sqlite_file(url)
+    if path is not None:
+        writable_dir(path.parent, "the SQLite database's directory")
+
+
 def alembic_config(url: str):
     from alembic.config import Config
+
+    sqlite_directory(url)
 
     cfg = Config()
     cfg.set_main_option("script_location", str(MIGRATIONS))

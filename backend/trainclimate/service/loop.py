@@ -14,8 +14,9 @@ telemetry, a restarted loop carries on where it stopped.
 
 Per tick and coach (:meth:`Scheduler.decide`), in this order: an active override; no telemetry
 for ``stale_periods`` periods (stale: T_rule); the layer switched off for the coach (T_ref =
-T_rule); not in regular mode (T_rule); otherwise the DDPC step, which falls back to T_rule itself
-on any problem. One coach's failure never stops the others: its decision becomes a fallback.
+T_rule); not in regular mode (T_rule); no predictor model yet (T_rule); otherwise the DDPC
+step, which falls back to T_rule itself on any problem. One coach's failure never stops the
+others: its decision becomes a fallback.
 """
 
 from __future__ import annotations
@@ -147,6 +148,9 @@ class Scheduler:
             return Decision(
                 t_rule, t_rule, "rule", "not_regular", "the HVAC is not in regular mode"
             )
+        if self._predictor is None:
+            detail = "no predictor model yet (it is being prepared)"
+            return Decision(t_rule, t_rule, "rule", "no_model", detail)
         ctl = self.controller(coach.id)
         T = ctl.horizon
         d_now = samples.d_now if samples.d_now is not None else np.full(5, np.nan)

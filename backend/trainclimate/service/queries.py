@@ -24,6 +24,7 @@ STATUS = {
     "override": "override",
     "inactive": "inactive",
     "not_regular": "not-regular",
+    "no_model": "preparing",
 }
 
 

@@ -30,10 +30,24 @@ def _finite(value: float | None) -> float | None:
     return value
 
 
+class Preparing(BaseModel):
+    """Work the service does in the background before it is fully itself."""
+
+    task: str = Field(examples=["predictor model"])
+    state: str = Field(examples=["running"], description="running, done or failed")
+    stage: str = Field(examples=["fitting the predictor model"])
+    percent: float = Field(examples=[40.0], description="0–100")
+    detail: str = Field(examples=[""])
+
+
 class Health(BaseModel):
     status: str = Field(examples=["ok"])
     version: str = Field(examples=["0.1.0"])
     database: str = Field(examples=["sqlite"])
+    preparing: list[Preparing] = Field(
+        description="background work still running or failed (empty when all is done); until "
+        "the predictor model is ready the coaches run under T_rule"
+    )
 
 
 class Ready(BaseModel):

@@ -8,7 +8,7 @@ from pathlib import Path
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from trainclimate.data.cache import home
+from trainclimate.paths import home
 
 
 def default_database_url() -> str:
