@@ -406,6 +406,33 @@ def cmd_predictor_fit(args: argparse.Namespace) -> None:
     _emit(args, data, lambda d: _mae_human(d) + f"\nmodel written: {d['out']}")
 
 
+def cmd_predictor_default(args: argparse.Namespace) -> None:
+    from trainclimate.control import models
+
+    path = models.quick_model_path() if args.quick else models.default_model_path()
+    built = not path.exists()
+    bars: dict[str, object] = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if stage not in bars:
+            bars[stage] = _progress(total, f"{stage} ({'quick' if args.quick else 'default'})")
+        bars[stage].update(done - bars[stage].n)
+
+    predictor = (models.quick_predictor if args.quick else models.default_predictor)(
+        progress=progress
+    )
+    for bar in bars.values():
+        bar.close()
+    data = {
+        "model": "quick" if args.quick else "default",
+        "path": str(path),
+        "built": built,
+        "trajectories": predictor.n_trajectories,
+        "hankel_columns": predictor.n_columns,
+    }
+    _emit(args, data, lambda d: f"{d['model']} model {'built' if built else 'cached'}: {d['path']}")
+
+
 def cmd_predictor_study(args: argparse.Namespace) -> None:
     from trainclimate.predict import study
 
@@ -747,6 +774,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p = add_predictor("fit", cmd_predictor_fit, "fit on the training coaches and save the model")
     p.add_argument("--out", required=True, help="model file to write (.npz)")
+    p = add_predictor(
+        "default",
+        cmd_predictor_default,
+        "build (once) and cache the model the controller and the service use by default",
+        setting=False,
+    )
+    p.add_argument(
+        "--quick", action="store_true", help="the quick model (a 4-day campaign, ≈ 1 min)"
+    )
     p = add_predictor(
         "study", cmd_predictor_study, "the paper's three sensitivity studies", setting=False
     )

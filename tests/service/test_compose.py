@@ -7,6 +7,7 @@ run's length changed), end to end over HTTP."""
 from __future__ import annotations
 
 import re
+import shutil
 import subprocess
 from pathlib import Path
 from urllib.parse import urlparse
@@ -18,6 +19,7 @@ import yaml
 from service_processes import CLI, Server, free_port
 from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database, wait_for
 from trainclimate.cli import build_parser
+from trainclimate.control import models
 from trainclimate.service.app import create_app
 from trainclimate.service.settings import Settings
 
@@ -25,6 +27,22 @@ ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
 SERVICES = COMPOSE["services"]
 GATEWAYS = sorted(name for name in SERVICES if name.startswith("gateway-1"))
+
+
+DOCKERFILE = (ROOT / "Dockerfile").read_text()
+
+
+def dockerfile_env() -> dict[str, str]:
+    """The image's ``ENV`` settings."""
+    pairs = re.findall(r"^ENV ((?:.+\\\n)*.+)$", DOCKERFILE, flags=re.MULTILINE)
+    words = " ".join(pairs).replace("\\\n", " ").split()
+    return dict(w.split("=", 1) for w in words if "=" in w)
+
+
+def dockerfile_exec(instruction: str) -> list[list[str]]:
+    """The exec-form commands (``["a", "b"]``) of every ``instruction`` line (RUN, CMD)."""
+    found = re.findall(rf"^{instruction} (\[.+\])$", DOCKERFILE, flags=re.MULTILINE)
+    return [yaml.safe_load(text) for text in found]
 
 
 def option(command: list[str], name: str) -> str:
@@ -81,10 +99,19 @@ def test_the_dockerfile_copies_what_exists_and_runs_a_valid_command():
     )
     for source in sources:
         assert (ROOT / source).exists(), source
-    cmd = re.search(r"^CMD (\[.+\])$", text, flags=re.MULTILINE).group(1)
-    args = yaml.safe_load(cmd)
+    [args] = dockerfile_exec("CMD")
     assert args[0] == "trainclimate"
     assert build_parser().parse_args(args[1:]).command == "serve"
+    assert args == SERVICES["backend"]["command"], "the compose backend runs the image's command"
+    # the image builds its default model at build time, into its home
+    [build] = [a for a in dockerfile_exec("RUN") if a[0] == "trainclimate"]
+    parsed = build_parser().parse_args(build[1:])
+    assert (parsed.command, parsed.predictor_command, parsed.quick) == (
+        "predictor",
+        "default",
+        False,
+    )
+    assert dockerfile_env()["TRAINCLIMATE_HOME"].startswith("/")
 
 
 def test_every_compose_command_is_one_the_cli_takes():
@@ -108,24 +135,42 @@ def test_every_compose_command_is_one_the_cli_takes():
     assert len(coaches) == 6  # three trains, two coaches each, none shared
 
 
+def image_home(tmp_path: Path, model_file: Path) -> Path:
+    """The image's ``TRAINCLIMATE_HOME`` re-rooted under ``tmp_path``, as its build leaves it:
+    nothing but the default model that ``trainclimate predictor default`` writes (the test's
+    small model in its place: the real build takes minutes)."""
+    home = tmp_path / "image" / dockerfile_env()["TRAINCLIMATE_HOME"].lstrip("/")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("TRAINCLIMATE_HOME", str(home))
+        target = models.default_model_path()
+    target.parent.mkdir(parents=True)
+    shutil.copy(model_file, target)
+    return home
+
+
 def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_env):
-    """PostgreSQL (a fresh database on the test server) + the backend + the token step + the
-    three gateways as child processes: every minute of every coach stored, the layer on in coach
-    A only, and the pair comparison of every train answered."""
+    """PostgreSQL (a fresh database on the test server) + the backend (the image's command, its
+    environment and its home with the model its build made) + the token step + the three
+    gateways as child processes: the backend registers the image's model, every minute of every
+    coach is stored, the layer is on in coach A only, and the pair comparison of every train is
+    answered."""
     if not PG_URL:
         pytest.skip(PG_SKIP)
     db_url, db_name = pg_database()
-    env = {**proc_env, "TRAINCLIMATE_DATABASE_URL": db_url}
+    home = image_home(tmp_path, model_file)
+    image_env = {**dockerfile_env(), "TRAINCLIMATE_HOME": str(home)}
+    env = {**proc_env, **image_env, "TRAINCLIMATE_DATABASE_URL": db_url}
     port = free_port()
-    backend = replaced(SERVICES["backend"]["command"], "--host", "127.0.0.1")
+    [backend] = dockerfile_exec("CMD")
+    backend = replaced(backend, "--host", "127.0.0.1")
     backend = replaced(backend, "--port", str(port))
-    server = Server(
-        [*CLI, *backend[1:], "--predictor", str(model_file)], env, port, tmp_path / "backend.log"
-    )
+    server = Server([*CLI, *backend[1:]], env, port, tmp_path / "backend.log")
     gateways: list[subprocess.Popen] = []
     try:
         server.start()  # the compose health check: /ready answers once migrated
         wait_for(lambda: httpx.get(f"{server.url}/api/v1/ready").status_code == 200, 30, "ready")
+        health = f"{server.url}/api/v1/health"
+        wait_for(lambda: httpx.get(health).json()["preparing"] == [], 30, "the image's model")
         token_file = tmp_path / "run" / "token"
         step = replaced(SERVICES["gateway-token"]["command"], "--out", str(token_file))
         done = subprocess.run(
@@ -152,6 +197,8 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
 
         headers = {"Authorization": f"Bearer {token_file.read_text().strip()}"}
         api = f"{server.url}/api/v1"
+        [model] = httpx.get(f"{api}/models", headers=headers).json()
+        assert model["info"]["source"] == "default model, prepared at start"
         coaches = httpx.get(f"{api}/coaches", headers=headers).json()
         assert sorted(c["id"] for c in coaches) == [
             f"{t}-{s}" for t in (124, 125, 126) for s in "AB"
