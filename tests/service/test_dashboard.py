@@ -229,3 +229,30 @@ def test_operator_overrides_and_it_is_applied_and_audited(browser, server):
     refused = "the server responded with a status of 422"
     assert [e for e in w.errors if refused not in e] == [] and len(w.errors) == 1
     w.close()
+
+
+def test_a_service_preparing_its_model_says_so_and_runs_the_coaches_under_t_rule(browser, tmp_path):
+    """A first start without a model (no ``--predictor``, nothing cached): the dashboard shows
+    the preparation's progress and the activated coaches as ``preparing`` under T_rule."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
+    env |= {"TRAINCLIMATE_HOME": str(tmp_path / "new" / "home"), "PYTHONUNBUFFERED": "1"}
+    port = free_port()
+    args = [*CLI, "serve", "--port", str(port), "--fleet", "demo", "--speedup", "600"]
+    srv = Server([*args, "--new-token", "operator"], env, port, tmp_path / "server.log")
+    try:
+        srv.start()
+        printed = re.search(r"operator token: (tc_\S+)", srv.output())
+        assert printed, srv.output()
+        srv.tokens = {"operator": printed.group(1)}
+        w = Watched(browser, srv, "operator")
+        notice = w.page.locator("#preparing")
+        notice.wait_for(state="visible", timeout=10_000)
+        assert re.match(r"Preparing the predictor model: .+, \d+ %\.", notice.inner_text())
+        assert "coaches follow the rule-based setpoint T_rule" in notice.inner_text()
+        w.page.wait_for_selector("tr[data-coach='D1-A'] .badge.preparing", timeout=20_000)
+        assert w.page.locator("tr[data-coach='D1-B'] .badge").inner_text() == "inactive"
+        w.shot("dashboard-preparing")
+        assert w.errors == []
+        w.close()
+    finally:
+        srv.stop()

@@ -79,6 +79,7 @@ def _dataset(name: str, max_days: int | None, progress: Progress | None) -> Path
 
         return advance
 
+    step("generate")(0)
     generated = fleetlogs.generate(tmp / "raw", max_days=max_days, progress=step("generate"))
     done[0] = 0
     pipeline.build_dataset(

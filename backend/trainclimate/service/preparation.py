@@ -92,7 +92,7 @@ class ModelPreparation:
         with self.db.transaction() as session:
             if has_model(session):
                 return
-        self._set(state="running", stage="starting", percent=0.0, detail="")
+        self._set(state="running", stage="looking for a cached model", percent=0.0, detail="")
         self.thread = threading.Thread(target=self.run, name="model-preparation", daemon=True)
         self.thread.start()
 
