@@ -148,7 +148,7 @@ async function showFleet() {
       .sort((a, b) => (a[key] > b[key] ? dir : a[key] < b[key] ? -dir : 0));
     body.replaceChildren(...rows.map((c) => {
       const temps = c.t_room_c ? c.t_room_c.map((t) => fmt(t)).join(" / ") : "–";
-      const band = c.t_rule_c === null ? "–" : `${fmt(c.t_rule_c - 1)} – ${fmt(c.t_rule_c + 1)}`;
+      const band = c.t_rule_c === null ? "–" : `${fmt(c.t_rule_c - c.comfort_band_k)} – ${fmt(c.t_rule_c + c.comfort_band_k)}`;
       return el("tr", { "data-coach": c.id },
         el("td", {}, el("a", { href: `#/coach/${encodeURIComponent(c.id)}`, text: c.id })),
         el("td", { text: c.train_id }),
@@ -235,15 +235,15 @@ async function showTrain(trainId) {
       kpi(`Avg hourly violation, deactivated ${deact}`, `${fmt(cmp.baseline_violation_k, 3)} K`),
       kpi("Energy activated / deactivated", `${fmt(cmp.energy_activated_kwh, 1)} / ${fmt(cmp.energy_deactivated_kwh, 1)} kWh`),
       kpi("Excluded", `${fmt(cmp.excluded_minutes, 0)} min`));
-    drawPair(view.querySelector("#pair-figure"), cmp, a, b, act, deact);
+    drawPair(view.querySelector("#pair-figure"), cmp, a, b, act, deact, coach.comfort_band_k);
   }
   await every(2 * REFRESH_MS, refresh);
 }
 
-function temperatureTraces(ts, axis, showlegend) {
+function temperatureTraces(ts, axis, showlegend, band) {
   const t = ts.time.map(local);
   const traces = [];
-  for (const [offset, name] of [[1, "upper bound"], [-1, "lower bound"]]) {
+  for (const [offset, name] of [[band, "upper bound"], [-band, "lower bound"]]) {
     traces.push({ x: t, y: ts.t_rule_c.map((r) => (r === null ? null : r + offset)), name, legendgroup: name, showlegend, yaxis: axis,
       line: { color: COLOUR.band, dash: "dot", width: 1 } });
   }
@@ -258,10 +258,10 @@ function cumulative(ts) {
   return ts.power_kw.map((p) => (sum += (p || 0) / 60));
 }
 
-function drawPair(node, cmp, a, b, act, deact) {
+function drawPair(node, cmp, a, b, act, deact, band) {
   const traces = [
-    ...temperatureTraces(b, "y", true),
-    ...temperatureTraces(a, "y2", false),
+    ...temperatureTraces(b, "y", true, band),
+    ...temperatureTraces(a, "y2", false, band),
     { x: a.time.map(local), y: a.t_amb_c, name: "T_amb", yaxis: "y3", line: { color: COLOUR.amb } },
     { x: a.time.map(local), y: a.ghi_w_m2, name: "global irradiance", yaxis: "y4", line: { color: COLOUR.ghi } },
     { x: b.time.map(local), y: cumulative(b), name: `energy ${deact} (deactivated)`, yaxis: "y5", line: { color: COLOUR.deact } },
@@ -329,12 +329,12 @@ async function showCoach(coachId) {
       kpi("Status", "", "kpi-status"),
       kpi("Layer", coach.ddpc_active ? "activated" : "deactivated"),
       kpi("T_ref", `${fmt(coach.t_ref_c, 2)} °C`),
-      kpi("T_rule band", coach.t_rule_c === null ? "–" : `${fmt(coach.t_rule_c - 1)} – ${fmt(coach.t_rule_c + 1)} °C`),
+      kpi("T_rule band", coach.t_rule_c === null ? "–" : `${fmt(coach.t_rule_c - coach.comfort_band_k)} – ${fmt(coach.t_rule_c + coach.comfort_band_k)} °C`),
       kpi("Last solve", `${fmt(coach.last_solve_ms, 3)} ms`));
     view.querySelector("#kpi-status .value").replaceChildren(badge(coach));
     view.querySelector("#layer-button").textContent = coach.ddpc_active ? "Switch the layer off" : "Switch the layer on";
     view.querySelector("#ov-band").textContent = coach.t_rule_c === null ? "" :
-      `Allowed: ${fmt(coach.t_rule_c - 2)} – ${fmt(coach.t_rule_c + 2)} °C (T_rule ± 2 K, the driver's limit).`;
+      `Allowed: ${fmt(coach.t_rule_c - coach.setpoint_band_k)} – ${fmt(coach.t_rule_c + coach.setpoint_band_k)} °C (T_rule ± ${fmt(coach.setpoint_band_k, 0)} K, the driver's limit).`;
     drawPrediction(view.querySelector("#prediction-figure"), ts, sp);
     drawSources(view.querySelector("#sources-figure"), sp);
     view.querySelector("#overrides tbody").replaceChildren(...(overrides.length ? overrides.map((o) => el("tr", {},

@@ -316,7 +316,7 @@ def bench_controller(n_steps: int = 1000, n_naive: int = 60, fleet: int = 1000) 
     from trainclimate.control.coach_model import CoachModel
     from trainclimate.control.controller import t_opt
     from trainclimate.control.estimator import StateEstimator
-    from trainclimate.control.models import default_predictor
+    from trainclimate.predict.default import default_predictor
 
     predictor = default_predictor()
     cases = _controller_instances(predictor, n_steps)
@@ -611,9 +611,9 @@ def _bench_model(directory: Path) -> tuple[Path, str]:
     needs."""
     from types import SimpleNamespace
 
-    from trainclimate.control.models import default_model_path
     from trainclimate.predict import TransientPredictor
     from trainclimate.predict.artifact import save_predictor
+    from trainclimate.predict.default import default_model_path
 
     path = default_model_path()
     if path.exists():

@@ -142,7 +142,7 @@ def _predictor(args: argparse.Namespace):
 
     if getattr(args, "predictor", None):
         return load_predictor(args.predictor)
-    from trainclimate.control.models import default_predictor
+    from trainclimate.predict.default import default_predictor
 
     return default_predictor()
 
@@ -407,7 +407,7 @@ def cmd_predictor_fit(args: argparse.Namespace) -> None:
 
 
 def cmd_predictor_default(args: argparse.Namespace) -> None:
-    from trainclimate.control import models
+    from trainclimate.predict import default as models
 
     path = models.quick_model_path() if args.quick else models.default_model_path()
     built = not path.exists()

@@ -19,7 +19,7 @@ import yaml
 from service_processes import CLI, Server, free_port
 from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database, wait_for
 from trainclimate.cli import build_parser
-from trainclimate.control import models
+from trainclimate.predict import default as models
 from trainclimate.service.app import create_app
 from trainclimate.service.settings import Settings
 

@@ -24,7 +24,7 @@ from service_support import (
     wait_for_tick,
 )
 from support import small_predictor
-from trainclimate.control import models
+from trainclimate.predict import default as models
 from trainclimate.service.app import create_app
 from trainclimate.service.db import Database, migrate
 from trainclimate.service.security import create_token

@@ -32,11 +32,12 @@ from trainclimate.control.forecast import (
 )
 from trainclimate.control.ocp import OCPSettings
 from trainclimate.predict.base import MultistepPredictor
+from trainclimate.predict.setting import HORIZON, RHO
 from trainclimate.sim.rule import MODE_REGULAR
+from trainclimate.sim.setpoint import apply_setpoint
 from trainclimate.sim.simulator import FleetSimulator
 
 #: Driver/operator limit around T_rule (K), also the HVAC interface's.
-U_BAND_K = 2.0
 
 
 @dataclass
@@ -215,13 +216,11 @@ class ClosedLoop:
         rule = sim.t_rule(k)
         applied = (
             (sim.env.mode[k] == MODE_REGULAR)
-            & np.isfinite(self.held)
             & (k >= self.active_from)
             & ~self.disconnected[k]
             & ~self.overridden[k]
         )
-        held = np.where(applied, self.held, rule)
-        return np.clip(held, rule - U_BAND_K, rule + U_BAND_K)
+        return apply_setpoint(self.held, rule, applied)
 
     def _tick(self, k: int, sim: FleetSimulator) -> None:
         tick = k // self.steps_per_tick
@@ -361,8 +360,8 @@ def build_controllers(
             for _ in range(n)
         ]
     if kind == "edge":
-        rho = predictor.rho if predictor is not None else 12
-        horizon = predictor.horizon if predictor is not None else 6
+        rho = predictor.rho if predictor is not None else RHO
+        horizon = predictor.horizon if predictor is not None else HORIZON
         return [
             BandEdgeController(
                 settings, sampling_min=sampling_min, rho=rho, horizon=horizon, model=model

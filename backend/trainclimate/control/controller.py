@@ -29,6 +29,10 @@ from trainclimate.control.coach_model import CoachModel
 from trainclimate.control.estimator import StateEstimator
 from trainclimate.control.ocp import DDPCProblem, OCPSettings
 from trainclimate.predict.base import MultistepPredictor
+from trainclimate.predict.setting import HORIZON, RHO, SAMPLING_MIN
+
+#: After how many sampling periods without a new sample the measurements are stale.
+STALE_PERIODS = 2
 
 #: Why a step gave the setpoint it gave.
 REASONS = {
@@ -194,12 +198,14 @@ class DDPCController:
         predictor: MultistepPredictor | None,
         settings: OCPSettings | None = None,
         *,
-        sampling_min: float = 5.0,
+        sampling_min: float = SAMPLING_MIN,
         model: CoachModel | None = None,
         rho: int | None = None,
         horizon: int | None = None,
+        stale_periods: int = STALE_PERIODS,
     ):
         self.settings = settings or OCPSettings()
+        self.stale_periods = int(stale_periods)
         self.sampling_min = float(sampling_min)
         self.period_s = self.sampling_min * 60.0
         self.model = model or CoachModel(dt_s=self.period_s)
@@ -219,8 +225,8 @@ class DDPCController:
             else:
                 self.problem = DDPCProblem(predictor, self.settings)
         self._last_sample_s: float | None = None
-        self.rho = predictor.rho if predictor is not None else int(rho or 12)
-        self.horizon = predictor.horizon if predictor is not None else int(horizon or 6)
+        self.rho = predictor.rho if predictor is not None else int(rho or RHO)
+        self.horizon = predictor.horizon if predictor is not None else int(horizon or HORIZON)
 
     # --- the step ------------------------------------------------------------------------------
     def step(
@@ -311,7 +317,7 @@ class DDPCController:
         d_future = np.asarray(d_future, dtype=float).reshape(-1, 5)
         if len(times) < rho or len(y) < rho or len(d) < rho or len(u) < rho - 1:
             return self._fallback("warmup", t_rule, u_prev, f"{len(times)} of {rho} samples")
-        if now_s - times[-1] >= 2 * self.period_s:
+        if now_s - times[-1] >= self.stale_periods * self.period_s:
             self._last_sample_s = None
             age = f"last sample {now_s - times[-1]:.0f} s old"
             return self._fallback("stale", t_rule, u_prev, age)
@@ -412,13 +418,20 @@ class BandEdgeController(DDPCController):
         self,
         settings: OCPSettings | None = None,
         *,
-        sampling_min: float = 5.0,
-        rho: int = 12,
-        horizon: int = 6,
+        sampling_min: float = SAMPLING_MIN,
+        rho: int = RHO,
+        horizon: int = HORIZON,
         model: CoachModel | None = None,
+        stale_periods: int = STALE_PERIODS,
     ):
         super().__init__(
-            None, settings, sampling_min=sampling_min, model=model, rho=rho, horizon=horizon
+            None,
+            settings,
+            sampling_min=sampling_min,
+            model=model,
+            rho=rho,
+            horizon=horizon,
+            stale_periods=stale_periods,
         )
 
     def _decide(self, y_p, u_p, d_p, d_future, t_rule, opt, u_prev) -> StepResult:

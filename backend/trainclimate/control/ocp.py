@@ -35,6 +35,7 @@ import scipy.sparse as sp
 
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.predict.hankel import NU, NY, NZ
+from trainclimate.sim.setpoint import U_BAND_K
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ class OCPSettings:
     gamma: float = 1.0
     t_max: float = 1.0
     du_max: float = 0.5
-    u_band: float = 2.0
+    u_band: float = U_BAND_K
     time_limit_s: float = 0.05
 
     def __post_init__(self) -> None:

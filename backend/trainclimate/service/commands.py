@@ -24,9 +24,9 @@ from trainclimate.service.models import (
 from trainclimate.service.queries import NotFoundError, RequestError, coach_or_404, fleet_clock
 from trainclimate.service.security import Principal, create_token
 from trainclimate.service.telemetry import insert_rows
+from trainclimate.sim.setpoint import U_BAND_K
 
 #: The driver's (and operator's) limit around T_rule, K.
-OVERRIDE_BAND_K = 2.0
 
 
 class ConflictError(Exception):
@@ -95,10 +95,10 @@ def create_override(
     t_rule = current_rule(session, coach, now)
     if t_rule is None:
         raise ConflictError(f"coach {coach_id!r} has no T_rule yet")
-    if abs(t_ref_c - t_rule) > OVERRIDE_BAND_K + 1e-9:
+    if abs(t_ref_c - t_rule) > U_BAND_K + 1e-9:
         raise RequestError(
-            f"t_ref_c {t_ref_c:g} °C is outside T_rule ± {OVERRIDE_BAND_K:g} K "
-            f"({t_rule - OVERRIDE_BAND_K:.1f} … {t_rule + OVERRIDE_BAND_K:.1f} °C)"
+            f"t_ref_c {t_ref_c:g} °C is outside T_rule ± {U_BAND_K:g} K "
+            f"({t_rule - U_BAND_K:.1f} … {t_rule + U_BAND_K:.1f} °C)"
         )
     for old in active_for(session, coach.id, now):
         old.cancelled_at, old.cancelled_by = now, who.name

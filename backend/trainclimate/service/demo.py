@@ -35,6 +35,7 @@ from trainclimate.service.telemetry import rows_from_simulation
 from trainclimate.sim import scenarios
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.scenarios import Scenario, Service
+from trainclimate.sim.setpoint import apply_setpoint
 from trainclimate.sim.simulator import Environment, FleetSimulator
 
 log = logging.getLogger(__name__)
@@ -43,7 +44,6 @@ FLEET = "demo"
 LOCAL_TZ = "Europe/Zurich"
 #: The demo's first simulated moment (local time).
 START_LOCAL = "2024-11-28 04:00"
-U_BAND_K = 2.0
 
 
 @dataclass(frozen=True)
@@ -178,10 +178,7 @@ class DemoFleet:
         start_k = self.sim.k
 
         def policy(k: int, sim: FleetSimulator) -> np.ndarray:
-            rule = sim.t_rule(k)
-            band = np.clip(t_ref, rule - U_BAND_K, rule + U_BAND_K)
-            held = np.where(np.isfinite(t_ref), band, rule)
-            return np.where(sim.env.mode[k] == MODE_REGULAR, held, rule)
+            return apply_setpoint(t_ref, sim.t_rule(k), sim.env.mode[k] == MODE_REGULAR)
 
         self.sim.run(policy, steps=steps)
         rows = rows_from_simulation(self.sim, start_k, self.sim.k, self.ids)

@@ -31,10 +31,10 @@ import pandas as pd
 from trainclimate.service.telemetry import rows_from_simulation, to_wire
 from trainclimate.sim import scenarios
 from trainclimate.sim.rule import MODE_REGULAR
+from trainclimate.sim.setpoint import apply_setpoint
 from trainclimate.sim.simulator import Environment, FleetSimulator
 
 log = logging.getLogger(__name__)
-U_BAND_K = 2.0
 
 
 @dataclass
@@ -104,12 +104,9 @@ class Gateway:
         return True
 
     def _policy(self, k: int, sim: FleetSimulator) -> np.ndarray:
-        rule = sim.t_rule(k)
         now = sim.env.time[k]
         valid = np.array([v is not None and now < v for v in self.valid_until])
-        band = np.clip(self.t_ref, rule - U_BAND_K, rule + U_BAND_K)
-        held = np.where(valid & np.isfinite(self.t_ref), band, rule)
-        return np.where(sim.env.mode[k] == MODE_REGULAR, held, rule)
+        return apply_setpoint(self.t_ref, sim.t_rule(k), valid & (sim.env.mode[k] == MODE_REGULAR))
 
     def _send(self) -> None:
         for cid, rows in self.buffer.items():

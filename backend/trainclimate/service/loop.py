@@ -36,6 +36,7 @@ from trainclimate.control import DDPCController, OCPSettings
 from trainclimate.control.coach_model import CoachModel
 from trainclimate.control.controller import StepResult
 from trainclimate.predict.artifact import load_predictor_bytes
+from trainclimate.predict.setting import RHO
 from trainclimate.service.db import Database
 from trainclimate.service.models import (
     Coach,
@@ -47,9 +48,9 @@ from trainclimate.service.models import (
 )
 from trainclimate.service.settings import Settings
 from trainclimate.service.telemetry import Samples, controller_samples, load_rows
+from trainclimate.sim.setpoint import U_BAND_K
 
 log = logging.getLogger(__name__)
-U_BAND_K = 2.0
 
 
 @dataclass
@@ -117,6 +118,7 @@ class Scheduler:
                     self.ocp,
                     sampling_min=self.settings.sampling_min,
                     model=self.coach_model,
+                    stale_periods=self.settings.stale_periods,
                 )
                 self._controllers[coach_id] = ctl
             return ctl
@@ -243,7 +245,7 @@ class Scheduler:
         return len(rows)
 
     def _rho(self) -> int:
-        return self._predictor.rho if self._predictor is not None else 12
+        return self._predictor.rho if self._predictor is not None else RHO
 
     # --- the live fleet ----------------------------------------------------------------------
     def live_clock(self, session: Session) -> datetime | None:

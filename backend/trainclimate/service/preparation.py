@@ -3,7 +3,7 @@
 A database without a model gets one in the background while the service already answers and
 the coaches run under the rule-based setpoint T_rule (what they do without the layer): the
 default model if it is cached on this machine, else the quick model, fitted on a quick generated
-campaign (:func:`trainclimate.control.models.startup_predictor`). It is registered as version 1,
+campaign (:func:`trainclimate.predict.default.startup_predictor`). It is registered as version 1,
 active; the scheduler picks it up at its next tick and the layer takes over on its own.
 :class:`ModelPreparation` holds how far it is, for ``GET /health`` and the dashboard.
 """
@@ -104,7 +104,7 @@ class ModelPreparation:
 
     def run(self) -> None:
         """Build or load the start-up model and register it (the thread's body)."""
-        from trainclimate.control.models import startup_predictor
+        from trainclimate.predict.default import startup_predictor
 
         try:
             predictor, which = startup_predictor(self._progress_until_fit)

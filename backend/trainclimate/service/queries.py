@@ -14,8 +14,13 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis.savings import CoachSeries, compare
+from trainclimate.control.ocp import OCPSettings
 from trainclimate.service.models import Coach, FleetClock, Override, Setpoint, Telemetry, Train
 from trainclimate.service.telemetry import load_frame
+from trainclimate.sim.setpoint import U_BAND_K
+
+#: The comfort bound the controller holds the decks to around T_rule (T_max of its problem). [K]
+COMFORT_BAND_K = OCPSettings().t_max
 
 STATUS = {
     "ok": "ok",
@@ -113,6 +118,8 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
         "reason": setpoint.reason if setpoint else None,
         "t_rule_c": setpoint.t_rule_c if setpoint else (row.t_rule_c if row else None),
         "t_ref_c": setpoint.t_ref_c if setpoint else None,
+        "comfort_band_k": COMFORT_BAND_K,
+        "setpoint_band_k": U_BAND_K,
         "t_room_c": [row.t_room_up_c, row.t_room_mid_c, row.t_room_low_c] if row else None,
         "last_tick": setpoint.tick if setpoint else None,
         "last_solve_ms": setpoint.solve_time_ms if setpoint else None,

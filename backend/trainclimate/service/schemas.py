@@ -66,7 +66,8 @@ class CoachOut(BaseModel):
     mode: str | None = Field(examples=["regular"], description="HVAC mode in the newest telemetry")
     status: str = Field(
         examples=["ok"],
-        description="ok, warm-up, stale, fallback, override, inactive or no-data",
+        description="ok, warm-up, stale, fallback, override, inactive, not-regular, preparing "
+        "or no-data",
     )
     reason: str | None = Field(examples=["ok"], description="the newest setpoint's reason code")
     t_rule_c: float | None = Field(examples=[22.0])
@@ -78,6 +79,12 @@ class CoachOut(BaseModel):
     last_solve_ms: float | None = Field(examples=[0.09])
     override_until: datetime | None = None
     clock: datetime | None = Field(description="the coach's fleet clock")
+    comfort_band_k: float = Field(
+        examples=[1.0], description="the decks are to stay within T_rule ± this (K)"
+    )
+    setpoint_band_k: float = Field(
+        examples=[2.0], description="T_ref and overrides stay within T_rule ± this (K)"
+    )
 
 
 class TrainOut(BaseModel):

@@ -8,6 +8,7 @@ from pathlib import Path
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
 
 
@@ -30,7 +31,7 @@ class Settings(BaseSettings):
     fleet: str | None = None
     speedup: float = 1.0
     sampling_min: float = 5.0
-    stale_periods: int = 2
+    stale_periods: int = STALE_PERIODS
     cors_origins: list[str] = Field(default_factory=list)
     predictor_path: Path | None = None
     scheduler_interval_s: float = 0.5

@@ -1,4 +1,4 @@
-"""The controller's default prediction models: fitted once on the generated datasets and cached.
+"""The default prediction models of the controller and the service, fitted once and cached.
 
 The Transient Predictor at the paper's controller setting — 5-min samples, a 60-min lead-in
 (ρ = 12) and a 30-min horizon (T = 6) — fitted on every coach of a generated fleet dataset
@@ -20,8 +20,7 @@ from trainclimate.data.trajectory import iter_trajectories
 from trainclimate.paths import home, writable_dir
 from trainclimate.predict import TransientPredictor
 from trainclimate.predict.artifact import load_predictor, save_predictor
-
-SAMPLING_MIN, RHO, HORIZON = 5, 12, 6
+from trainclimate.predict.setting import HORIZON, RHO, SAMPLING_MIN
 
 
 def model_store() -> Path:
