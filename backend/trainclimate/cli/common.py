@@ -1,0 +1,135 @@
+"""What every command shares: the parser class, the exit-2 error, JSON or text output, progress
+bars, checked output paths, and the inputs several commands take (a database URL, a dataset
+directory, a predictor model)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from collections.abc import Callable
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from trainclimate.paths import writable_dir, writable_file
+
+#: What to do when an output path named on the command line cannot be written.
+OUT_HINT = "choose another path"
+
+
+class UsageError(Exception):
+    """Bad input from the user: exit code 2 with a one-line message."""
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, exit 2
+        raise UsageError(message)
+
+
+def add_command(sub, name: str, func, help_: str) -> argparse.ArgumentParser:
+    """A subcommand ``name`` of ``sub`` running ``func``, with the ``--json`` every command has."""
+    p = sub.add_parser(name, help=help_, description=help_)
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.set_defaults(func=func)
+    return p
+
+
+def emit(args: argparse.Namespace, data: dict, human: Callable[[dict], str]) -> None:
+    if args.json:
+        print(json.dumps(data, default=json_default))
+    else:
+        print(human(data))
+
+
+def json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def progress_bar(total: int, desc: str, unit: str = "step"):
+    """A tqdm progress bar on stderr when it is a terminal, else a no-op."""
+    from tqdm import tqdm
+
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit=unit,
+        file=sys.stderr,
+        leave=False,
+        disable=not sys.stderr.isatty(),
+        mininterval=0.5,
+    )
+
+
+def out_file(path: str | None, what: str) -> Path | None:
+    """An output file named on the command line, its directory created (None if not given);
+    :class:`StorageError` (exit 2) when it cannot be written — before any work is done."""
+    return writable_file(path, what, hint=OUT_HINT) if path else None
+
+
+def out_dir(path: str | None, what: str) -> Path | None:
+    """An output directory named on the command line, created with its parents (None if not
+    given); :class:`StorageError` (exit 2) when it cannot be."""
+    return writable_dir(path, what, hint=OUT_HINT) if path else None
+
+
+def db_url(args: argparse.Namespace) -> str:
+    from trainclimate.service.settings import default_database_url
+
+    return args.db or os.environ.get("TRAINCLIMATE_DATABASE_URL") or default_database_url()
+
+
+def predictor_from(args: argparse.Namespace):
+    """``--predictor FILE`` or the cached default model (fitted once on the default dataset)."""
+    from trainclimate.predict.artifact import load_predictor
+
+    if getattr(args, "predictor", None):
+        return load_predictor(args.predictor)
+    from trainclimate.predict.default import default_predictor
+
+    return default_predictor()
+
+
+def given_dataset(value: str, flag: str) -> Path:
+    """A dataset directory named on the command line (usage error if it holds none)."""
+    path = Path(value)
+    if not (path / "dataset.json").exists() and not any(path.glob("trajectories_*min.parquet")):
+        raise UsageError(f"{flag}: {path} holds no dataset (run `trainclimate dataset build`)")
+    return path
+
+
+@contextmanager
+def stage_bars(label: str):
+    """A ``progress(stage, done, total)`` callback drawing one progress bar per stage (on stderr
+    when it is a terminal), for the builds of the generated datasets and models."""
+    bars: dict[str, object] = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if stage not in bars:
+            for bar in bars.values():
+                bar.close()
+            bars[stage] = progress_bar(total, f"{label}: {stage}", "coach-day")
+        bar = bars[stage]
+        bar.update(done - bar.n)
+
+    try:
+        yield progress
+    finally:
+        for bar in bars.values():
+            bar.close()
+
+
+def dataset_dir(args: argparse.Namespace) -> Path:
+    """``--data DIR`` or the default dataset (built once, with a progress bar)."""
+    if args.data:
+        return given_dataset(args.data, "--data")
+    from trainclimate.data.cache import default_dataset
+
+    with stage_bars("default dataset") as progress:
+        return default_dataset(progress)

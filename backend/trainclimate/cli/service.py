@@ -1,0 +1,188 @@
+"""``serve``, ``token create`` and ``gateway``: the service and its live feed."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trainclimate.cli.common import (
+    Parser,
+    UsageError,
+    add_command,
+    db_url,
+    emit,
+    out_file,
+)
+
+
+def cmd_serve(args: argparse.Namespace) -> None:
+    import uvicorn
+    from sqlalchemy.exc import OperationalError
+
+    from trainclimate.service.app import create_app
+    from trainclimate.service.db import migrate
+    from trainclimate.service.settings import Settings
+
+    if not (np.isfinite(args.speedup) and args.speedup > 0):
+        raise UsageError("--speedup must be positive")
+    settings = Settings(
+        database_url=db_url(args),
+        fleet=args.fleet,
+        speedup=args.speedup,
+        predictor_path=args.predictor,
+    )
+    url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
+    try:  # a database that cannot be reached is a one-line error, not a traceback
+        migrate(settings.database_url)
+    except OperationalError as exc:
+        first = str(exc.orig).strip().splitlines()[0] if exc.orig else type(exc).__name__
+        raise UsageError(f"cannot use the database: {first}") from None
+    lines = [f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})"]
+    out = []
+    if args.new_token:
+        token = _create_token(settings.database_url, args.new_token, f"demo-{args.new_token}")
+        out = [f"dashboard: {url}", f"{args.new_token} token: {token['token']}"]
+    app = create_app(settings)
+    config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level)
+    server = uvicorn.Server(config)
+    threading.Thread(
+        target=_announce, args=(server, lines, out), name="announce", daemon=True
+    ).start()
+    server.run()
+
+
+def _announce(server, stderr_lines: list[str], stdout_lines: list[str]) -> None:
+    """Print the URL (and token) once the server accepts connections."""
+    while not server.started:
+        if server.should_exit:
+            return
+        time.sleep(0.05)
+    print("\n".join(stderr_lines), file=sys.stderr, flush=True)
+    if stdout_lines:
+        print("\n".join(stdout_lines), flush=True)
+
+
+def _create_token(url: str, role: str, name: str | None) -> dict:
+    """A new token in the migrated database ``url``: {token, name, role}."""
+    from trainclimate.service.db import Database
+    from trainclimate.service.security import create_token
+
+    db = Database(url)
+    try:
+        with db.transaction() as session:
+            token, user = create_token(session, role, name)
+            return {"token": token, "name": user.name, "role": user.role}
+    finally:
+        db.dispose()
+
+
+def cmd_token_create(args: argparse.Namespace) -> None:
+    from trainclimate.service.db import migrate
+
+    url = db_url(args)
+    migrate(url)
+    data = _create_token(url, args.role, args.name)
+    out = out_file(args.out, "the token file")
+    if out is not None:  # for another process to read (the compose demo's gateways): owner-only
+        out.touch(mode=0o600)
+        out.write_text(data["token"] + "\n")
+        data = {**data, "token": None, "file": str(out)}
+        emit(args, data, lambda d: f"token written to {d['file']}")
+        return
+    emit(args, data, lambda d: d["token"])
+
+
+def cmd_gateway(args: argparse.Namespace) -> None:
+    import httpx
+
+    from trainclimate.service.gateway import Gateway
+    from trainclimate.sim import scenarios
+
+    scenarios.get(args.scenario)
+    coaches = [c for c in args.coaches.split(",") if c]
+    if not coaches:
+        raise UsageError("--coaches needs at least one coach id")
+    active = [c for c in (args.active or coaches[0]).split(",") if c]
+    if not set(active) <= set(coaches):
+        raise UsageError("--active must name coaches of --coaches")
+    token = args.token or os.environ.get("TRAINCLIMATE_TOKEN")
+    if args.token_file:
+        try:
+            token = Path(args.token_file).read_text().strip()
+        except OSError as exc:
+            raise UsageError(f"--token-file: {exc.strerror}: {args.token_file}") from None
+    if not token:
+        raise UsageError(
+            "--token, --token-file or TRAINCLIMATE_TOKEN is required: an operator token"
+        )
+    gateway = Gateway(
+        args.server,
+        token,
+        coaches,
+        train_id=args.train or coaches[0].split("-")[0],
+        active=active,
+        scenario=args.scenario,
+        speedup=args.speedup,
+        hours=args.hours,
+    )
+    try:
+        stats = gateway.run()
+    except httpx.HTTPStatusError as exc:  # a refusal: a bad token, a coach of another train
+        reply = exc.response
+        try:
+            detail = reply.json()["detail"]
+        except (ValueError, KeyError, TypeError):
+            detail = reply.reason_phrase
+        raise UsageError(f"the server refused the gateway: {reply.status_code} {detail}") from None
+    emit(args, dataclasses.asdict(stats), lambda d: json.dumps(d))
+
+
+def register(sub) -> None:
+    """Add ``serve``, ``token create`` and ``gateway`` to ``sub``."""
+    p = add_command(sub, "serve", cmd_serve, "run the service (API, dashboard, control loop)")
+    p.add_argument(
+        "--db",
+        default=None,
+        help="database URL (default: $TRAINCLIMATE_DATABASE_URL, then a SQLite file)",
+    )
+    p.add_argument("--fleet", choices=("demo",), default=None, help="add the simulated demo fleet")
+    p.add_argument("--speedup", type=float, default=1.0, help="demo clock × real time")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--predictor", default=None, help="model file (default: the cached model)")
+    p.add_argument("--log-level", default="warning")
+    p.add_argument(
+        "--new-token",
+        choices=("viewer", "operator", "admin"),
+        default=None,
+        help="create a token with this role at start and print it with the dashboard's URL",
+    )
+
+    token = sub.add_parser("token", help="API tokens")
+    tsub = token.add_subparsers(dest="token_command", required=True, parser_class=Parser)
+    p = add_command(tsub, "create", cmd_token_create, "create a token (shown once)")
+    p.add_argument("--role", required=True, choices=("viewer", "operator", "admin"))
+    p.add_argument("--name", default=None, help="user name (default: generated)")
+    p.add_argument("--db", default=None, help="database URL")
+    p.add_argument("--out", default=None, help="write the token to this file (mode 600)")
+
+    p = add_command(
+        sub, "gateway", cmd_gateway, "an onboard gateway emulator speaking the HTTP live feed"
+    )
+    p.add_argument("--server", required=True, help="the service's URL, e.g. http://127.0.0.1:8000")
+    p.add_argument("--coaches", required=True, help="coach ids, comma-separated (one train)")
+    p.add_argument("--active", default=None, help="coaches with the layer on (default: the first)")
+    p.add_argument("--train", default=None, help="train id (default: the first coach's prefix)")
+    p.add_argument("--token", default=None, help="an operator token (or $TRAINCLIMATE_TOKEN)")
+    p.add_argument("--token-file", default=None, help="a file holding the operator token")
+    p.add_argument("--scenario", default="parked-heating-nov", help="weather and operation")
+    p.add_argument("--speedup", type=float, default=60.0, help="clock × real time")
+    p.add_argument("--hours", type=float, default=None, help="how long (default: the scenario's)")
