@@ -9,15 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from trainclimate.cli import main
+from cli_support import call
 from trainclimate.paths import StorageError, home, sqlite_file, writable_dir, writable_file
 from trainclimate.service.db import migrate
-
-
-def call(capsys, *argv):
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_a_directory_is_made_with_its_parents(tmp_path):

@@ -9,7 +9,7 @@ import pytest
 
 from trainclimate.cli import main
 
-CONTRACT_KEYS = (
+DOCUMENTED_KEYS = (
     "energy_kwh",
     "avg_hourly_violation_k",
     "discomfort_kh",
@@ -36,7 +36,7 @@ def test_ddpc_with_a_model_file(capsys, predictor_file):
     data = simulate(
         capsys, "--hours", "2", "--controller", "ddpc", "--predictor", str(predictor_file)
     )
-    for key in CONTRACT_KEYS:
+    for key in DOCUMENTED_KEYS:
         assert key in data
     assert data["controller"] == "ddpc" and data["scenario"] == "parked-heating-nov"
     assert data["hours"] == pytest.approx(2.0)

@@ -1,4 +1,5 @@
-"""The plausibility figures of DESIGN.md for one half coach with the default parameters."""
+"""The plausibility targets of docs/model.md ("Plausibility, as measured") for one half coach with
+the default parameters."""
 
 import numpy as np
 import pandas as pd

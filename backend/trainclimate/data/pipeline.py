@@ -11,7 +11,7 @@ For each coach and day (bounded memory, whatever the fleet's size):
    is interpolated in time (never across a gap longer than ``max_weather_gap_min``), the heading θ
    comes from the train's successive positions, the solar projections are
    ``Q_Gt = |G cos z|`` and ``Q_Gs = |G sin z sin(β − θ)|`` with z the solar *zenith* angle
-   (90° − the logged elevation; see DESIGN.md), and the occupancy P is the trip's. A moving train
+   (90° − the logged elevation; see docs/model.md), and the occupancy P is the trip's. A moving train
    with no trip recorded has an unknown occupancy.
 2. **Aggregate** to 1 min (:func:`aggregate`): y is the mean of the samples measured in the
    minute up to t, u and d the means over the minute from t; a minute is in regular mode only
