@@ -13,6 +13,7 @@ from trainclimate.cli.common import (
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
+    """``bench TARGET``: run one benchmark and print its figures (``--json``: its dict)."""
     from trainclimate.bench import controller, pipeline, predictor, service, simulator
 
     if args.target == "simulator":

@@ -25,7 +25,10 @@ class UsageError(Exception):
 
 
 class Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, exit 2
+    """An argparse parser whose errors are a :class:`UsageError` (one line, exit 2)."""
+
+    def error(self, message: str) -> None:
+        """Raise :class:`UsageError` with argparse's message."""
         raise UsageError(message)
 
 
@@ -38,6 +41,7 @@ def add_command(sub, name: str, func, help_: str) -> argparse.ArgumentParser:
 
 
 def emit(args: argparse.Namespace, data: dict, human: Callable[[dict], str]) -> None:
+    """Print ``data`` as one JSON object with ``--json``, else ``human(data)``."""
     if args.json:
         print(json.dumps(data, default=json_default))
     else:
@@ -45,6 +49,7 @@ def emit(args: argparse.Namespace, data: dict, human: Callable[[dict], str]) -> 
 
 
 def json_default(value):
+    """JSON for numpy scalars and arrays (``json.dumps(default=…)``)."""
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -80,6 +85,7 @@ def out_dir(path: str | None, what: str) -> Path | None:
 
 
 def db_url(args: argparse.Namespace) -> str:
+    """``--db``, else ``$TRAINCLIMATE_DATABASE_URL``, else the embedded SQLite file."""
     from trainclimate.service.settings import default_database_url
 
     return args.db or os.environ.get("TRAINCLIMATE_DATABASE_URL") or default_database_url()

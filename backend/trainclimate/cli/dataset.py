@@ -16,6 +16,7 @@ from trainclimate.cli.common import (
 
 
 def cmd_dataset_build(args: argparse.Namespace) -> None:
+    """``dataset build``: generate (or read ``--raw``) raw logs and run the pipeline; Table I."""
     from trainclimate.data import fleetlogs, pipeline
 
     if (args.days is not None and args.days < 1) or (args.coaches is not None and args.coaches < 1):

@@ -32,6 +32,7 @@ def _experiment_text(d: dict) -> str:
 
 
 def cmd_experiment_run(args: argparse.Namespace) -> None:
+    """``experiment run``: one scenario as a paired experiment (savings, violations)."""
     from trainclimate.analysis.experiment import run_pair
     from trainclimate.analysis.report import write_experiment_report
     from trainclimate.sim import scenarios
@@ -56,6 +57,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
 
 
 def cmd_experiment_summary(args: argparse.Namespace) -> None:
+    """``experiment summary``: every paired experiment, the table and the reports."""
     from trainclimate.analysis.experiment import EXPERIMENTS, run_pair
     from trainclimate.analysis.report import write_experiment_report, write_summary
 

@@ -34,6 +34,7 @@ def _mae_human(d: dict) -> str:
 
 
 def cmd_predictor_evaluate(args: argparse.Namespace) -> None:
+    """``predictor evaluate``: MAE per step on the held-out coaches."""
     from trainclimate.predict.evaluate import evaluate, load_split
 
     _check_predictor_args(args)
@@ -49,6 +50,7 @@ def cmd_predictor_evaluate(args: argparse.Namespace) -> None:
 
 
 def cmd_predictor_fit(args: argparse.Namespace) -> None:
+    """``predictor fit``: fit on the training coaches, evaluate, save the model file."""
     from trainclimate.predict.artifact import save_predictor
     from trainclimate.predict.evaluate import evaluate
 
@@ -63,6 +65,7 @@ def cmd_predictor_fit(args: argparse.Namespace) -> None:
 
 
 def cmd_predictor_default(args: argparse.Namespace) -> None:
+    """``predictor default``: build (once) and cache the default or quick model."""
     from trainclimate.predict import default as models
 
     path = models.quick_model_path() if args.quick else models.default_model_path()
@@ -90,6 +93,7 @@ def cmd_predictor_default(args: argparse.Namespace) -> None:
 
 
 def cmd_predictor_study(args: argparse.Namespace) -> None:
+    """``predictor study``: the paper's three sensitivity studies, optionally as HTML."""
     from trainclimate.predict import study
 
     out_file(args.html, "the HTML report")

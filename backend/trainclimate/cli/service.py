@@ -24,6 +24,7 @@ from trainclimate.cli.common import (
 
 
 def cmd_serve(args: argparse.Namespace) -> None:
+    """``serve``: migrate, then run the API, the dashboard and the loops until Ctrl-C."""
     import uvicorn
     from sqlalchemy.exc import OperationalError
 
@@ -85,6 +86,7 @@ def _create_token(url: str, role: str, name: str | None) -> dict:
 
 
 def cmd_token_create(args: argparse.Namespace) -> None:
+    """``token create``: a new token for a new user, shown once (or written to ``--out``)."""
     from trainclimate.service.db import migrate
 
     url = db_url(args)
@@ -101,6 +103,7 @@ def cmd_token_create(args: argparse.Namespace) -> None:
 
 
 def cmd_gateway(args: argparse.Namespace) -> None:
+    """``gateway``: an onboard gateway emulator feeding the service over HTTP."""
     import httpx
 
     from trainclimate.service.gateway import Gateway

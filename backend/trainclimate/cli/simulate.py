@@ -22,6 +22,7 @@ from trainclimate.sim.scenarios import SCENARIOS
 
 
 def cmd_scenarios(args: argparse.Namespace) -> None:
+    """``scenarios``: the named scenarios with their descriptions."""
     data = {
         "scenarios": [{"name": s.name, "description": s.description} for s in SCENARIOS.values()]
     }
@@ -33,6 +34,7 @@ def cmd_scenarios(args: argparse.Namespace) -> None:
 
 
 def cmd_coach_params(args: argparse.Namespace) -> None:
+    """``coach-params``: the default coach parameters, or a parameter file validated."""
     params = load_params(args.file) if args.file else CoachParams()
     data = params.to_dict()
 
@@ -73,6 +75,7 @@ def _run(args: argparse.Namespace, scenario: str, controller: str, record_flows:
 
 
 def cmd_simulate(args: argparse.Namespace) -> None:
+    """``simulate``: a scenario under one controller; its KPIs, optionally the time series."""
     from trainclimate.analysis.summary import fleet_kpis
 
     if args.coaches < 1:
@@ -106,6 +109,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
 
 
 def cmd_demo(args: argparse.Namespace) -> None:
+    """``demo``: ``winter-day`` under the three controllers, as one HTML report."""
     from trainclimate.analysis.report import write_simulation_report
     from trainclimate.analysis.summary import fleet_kpis
 

@@ -75,6 +75,7 @@ class Campaign:
 
     @property
     def days(self) -> list[str]:
+        """The campaign's days, local dates ``YYYY-MM-DD``, first to last."""
         return [d.strftime("%Y-%m-%d") for d in pd.date_range(self.first_day, self.last_day)]
 
 
@@ -229,10 +230,12 @@ class CoachDay:
 
     @property
     def coach(self) -> str:
+        """The coach's id (e.g. ``44A``)."""
         return self.campaign.coaches[self.coach_index]
 
     @property
     def train(self) -> str:
+        """The train's id (e.g. ``44``)."""
         return self.campaign.trains[self.coach_index]
 
     @property

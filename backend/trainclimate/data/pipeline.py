@@ -11,8 +11,8 @@ For each coach and day (bounded memory, whatever the fleet's size):
    is interpolated in time (never across a gap longer than ``max_weather_gap_min``), the heading θ
    comes from the train's successive positions, the solar projections are
    ``Q_Gt = |G cos z|`` and ``Q_Gs = |G sin z sin(β − θ)|`` with z the solar *zenith* angle
-   (90° − the logged elevation; see docs/model.md), and the occupancy P is the trip's. A moving train
-   with no trip recorded has an unknown occupancy.
+   (90° − the logged elevation; see docs/model.md), and the occupancy P is the trip's. A moving
+   train with no trip recorded has an unknown occupancy.
 2. **Aggregate** to 1 min (:func:`aggregate`): y is the mean of the samples measured in the
    minute up to t, u and d the means over the minute from t; a minute is in regular mode only
    if every sample in it is.
@@ -98,6 +98,7 @@ class Counts:
     repaired: Counter = field(default_factory=Counter)
 
     def update(self, other: Counts) -> None:
+        """Add ``other``'s counts to these."""
         self.dropped.update(other.dropped)
         self.repaired.update(other.repaired)
 
@@ -380,6 +381,7 @@ class DatasetSummary:
     files: dict[str, str]
 
     def to_dict(self) -> dict:
+        """JSON-ready, as ``dataset.json`` holds it."""
         return asdict(self)
 
 

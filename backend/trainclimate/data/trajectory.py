@@ -141,6 +141,7 @@ class TrajectoryWriter:
         self.points = 0
 
     def write(self, trajectories: Iterable[Trajectory]) -> None:
+        """Append trajectories to the Parquet file."""
         frames = [t.frame() for t in trajectories]
         if not frames:
             return
@@ -152,6 +153,7 @@ class TrajectoryWriter:
         self.points += table.num_rows
 
     def close(self) -> None:
+        """Finish the Parquet file (also when nothing was written)."""
         self._writer.close()
 
     def __enter__(self) -> TrajectoryWriter:
