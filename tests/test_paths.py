@@ -115,28 +115,19 @@ def test_serve_with_a_home_in_the_way_exits_2_before_serving(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "argv",
+    "command",
     [
-        (
-            "simulate",
-            "--scenario",
-            "parked-heating-nov",
-            "--hours",
-            "0.5",
-            "--out",
-            "{f}/x.parquet",
-        ),
-        ("token", "create", "--role", "viewer", "--out", "{f}/token"),
-        ("experiment", "run", "--scenario", "parked-heating-nov", "--html", "{f}/r.html"),
-        ("dataset", "build", "--days", "1", "--coaches", "1", "--out", "{f}/data"),
-        ("demo", "--out", "{f}/demo"),
+        "simulate --scenario parked-heating-nov --hours 0.5 --out {f}/x.parquet",
+        "token create --role viewer --out {f}/token",
+        "experiment run --scenario parked-heating-nov --html {f}/r.html",
+        "dataset build --days 1 --coaches 1 --out {f}/data",
+        "demo --out {f}/demo",
     ],
 )
-def test_an_output_path_under_a_file_is_refused_before_any_work(capsys, tmp_path, argv):
+def test_an_output_path_under_a_file_is_refused_before_any_work(capsys, tmp_path, command):
     blocker = tmp_path / "file"
     blocker.write_text("in the way")
-    argv = [a.replace("{f}", str(blocker)) for a in argv]
-    code, out, err = call(capsys, *argv)
+    code, out, err = call(capsys, *command.format(f=blocker).split())
     assert code == 2 and out == ""
     [line] = err.strip().splitlines()
     assert f"a file is in the way ({blocker}); choose another path" in line
@@ -144,22 +135,12 @@ def test_an_output_path_under_a_file_is_refused_before_any_work(capsys, tmp_path
 
 def test_outputs_are_written_under_directories_that_do_not_exist_yet(capsys, tmp_path):
     target = tmp_path / "a" / "b" / "run.parquet"
-    code, _, err = call(
-        capsys,
-        "simulate",
-        "--scenario",
-        "parked-heating-nov",
-        "--hours",
-        "0.5",
-        "--out",
-        str(target),
-    )
+    simulate = f"simulate --scenario parked-heating-nov --hours 0.5 --out {target}"
+    code, _, err = call(capsys, *simulate.split())
     assert code == 0, err
     assert target.is_file()
     token = tmp_path / "c" / "d" / "token"
-    code, _, err = call(
-        capsys, "token", "create", "--role", "viewer", "--out", str(token),
-        "--db", f"sqlite:///{tmp_path / 'e' / 't.db'}",
-    )  # fmt: skip
+    create = f"token create --role viewer --out {token} --db sqlite:///{tmp_path / 'e' / 't.db'}"
+    code, _, err = call(capsys, *create.split())
     assert code == 0, err
     assert token.read_text().startswith("tc_")

@@ -13,6 +13,7 @@ from trainclimate.cli.common import (
     given_dataset,
     out_file,
     progress_bar,
+    stage_bars,
 )
 from trainclimate.predict import METHODS
 
@@ -70,20 +71,13 @@ def cmd_predictor_default(args: argparse.Namespace) -> None:
 
     path = models.quick_model_path() if args.quick else models.default_model_path()
     built = not path.exists()
-    bars: dict[str, object] = {}
-
-    def progress(stage: str, done: int, total: int) -> None:
-        if stage not in bars:
-            bars[stage] = progress_bar(total, f"{stage} ({'quick' if args.quick else 'default'})")
-        bars[stage].update(done - bars[stage].n)
-
-    predictor = (models.quick_predictor if args.quick else models.default_predictor)(
-        progress=progress
-    )
-    for bar in bars.values():
-        bar.close()
+    which = "quick" if args.quick else "default"
+    with stage_bars(f"{which} dataset") as progress:
+        predictor = (models.quick_predictor if args.quick else models.default_predictor)(
+            progress=progress
+        )
     data = {
-        "model": "quick" if args.quick else "default",
+        "model": which,
         "path": str(path),
         "built": built,
         "trajectories": predictor.n_trajectories,
