@@ -32,6 +32,12 @@ class Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
+def add_group(sub, name: str, help_: str):
+    """A command group ``trainclimate NAME …`` in ``sub``; returns its subcommands' parsers."""
+    group = sub.add_parser(name, help=help_)
+    return group.add_subparsers(dest=f"{name}_command", required=True, parser_class=Parser)
+
+
 def add_command(sub, name: str, func, help_: str) -> argparse.ArgumentParser:
     """A subcommand ``name`` of ``sub`` running ``func``, with the ``--json`` every command has."""
     p = sub.add_parser(name, help=help_, description=help_)

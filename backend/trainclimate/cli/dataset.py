@@ -6,9 +6,9 @@ import argparse
 from pathlib import Path
 
 from trainclimate.cli.common import (
-    Parser,
     UsageError,
     add_command,
+    add_group,
     emit,
     out_dir,
     progress_bar,
@@ -81,8 +81,7 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
 
 def register(sub) -> None:
     """Add ``dataset build`` to ``sub``."""
-    dataset = sub.add_parser("dataset", help="fleet logs and the data pipeline")
-    dsub = dataset.add_subparsers(dest="dataset_command", required=True, parser_class=Parser)
+    dsub = add_group(sub, "dataset", "fleet logs and the data pipeline")
     p = add_command(
         dsub,
         "build",

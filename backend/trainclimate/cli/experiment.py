@@ -7,9 +7,9 @@ import argparse
 import numpy as np
 
 from trainclimate.cli.common import (
-    Parser,
     UsageError,
     add_command,
+    add_group,
     emit,
     out_dir,
     out_file,
@@ -84,8 +84,7 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
 
 def register(sub) -> None:
     """Add ``experiment run|summary`` to ``sub``."""
-    experiment = sub.add_parser("experiment", help="paired experiments (activated vs deactivated)")
-    esub = experiment.add_subparsers(dest="experiment_command", required=True, parser_class=Parser)
+    esub = add_group(sub, "experiment", "paired experiments (activated vs deactivated)")
     for name, func, help_ in (
         ("run", cmd_experiment_run, "run one scenario as a paired experiment"),
         ("summary", cmd_experiment_summary, "run every paired experiment and write the table"),

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 
 from trainclimate.cli.common import (
-    Parser,
     UsageError,
     add_command,
+    add_group,
     dataset_dir,
     emit,
     given_dataset,
@@ -115,8 +115,7 @@ def cmd_predictor_study(args: argparse.Namespace) -> None:
 
 def register(sub) -> None:
     """Add ``predictor evaluate|fit|default|study`` to ``sub``."""
-    predictor = sub.add_parser("predictor", help="fit and evaluate the prediction models")
-    psub = predictor.add_subparsers(dest="predictor_command", required=True, parser_class=Parser)
+    psub = add_group(sub, "predictor", "fit and evaluate the prediction models")
 
     def add(name: str, func, help_: str, setting: bool = True) -> argparse.ArgumentParser:
         p = add_command(psub, name, func, help_)

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from trainclimate.cli.common import (
-    Parser,
     UsageError,
     add_command,
+    add_group,
     db_url,
     emit,
     out_file,
@@ -169,8 +169,7 @@ def register(sub) -> None:
         help="create a token with this role at start and print it with the dashboard's URL",
     )
 
-    token = sub.add_parser("token", help="API tokens")
-    tsub = token.add_subparsers(dest="token_command", required=True, parser_class=Parser)
+    tsub = add_group(sub, "token", "API tokens")
     p = add_command(tsub, "create", cmd_token_create, "create a token (shown once)")
     p.add_argument("--role", required=True, choices=("viewer", "operator", "admin"))
     p.add_argument("--name", default=None, help="user name (default: generated)")
