@@ -140,7 +140,7 @@ def setup_for(name: str) -> ExperimentSetup:
     Parameters
     ----------
     name : str
-        Scenario name.
+        Scenario name, a key of :data:`~trainclimate.sim.scenarios.SCENARIOS`.
 
     Returns
     -------

@@ -84,16 +84,8 @@ def avg_hourly_violation_k(
 
     Parameters
     ----------
-    t_room_c : numpy.ndarray of shape (S, 3)
-        Deck temperatures, sampled every ``dt_s``. [°C]
-    t_rule_c : numpy.ndarray of shape (S,)
-        T_rule. [°C]
-    dt_s : float
-        Sampling interval. [s]
-    t_max_k : float, default 1.0
-        Comfort half-band T_max. [K]
-    mask : numpy.ndarray of bool, shape (S,), optional
-        The counted samples (default: all).
+    t_room_c, t_rule_c, dt_s, t_max_k, mask
+        As in :func:`discomfort_kh` (units °C, °C, s, K; ``mask`` selects the counted samples).
 
     Returns
     -------

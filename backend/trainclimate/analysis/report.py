@@ -30,6 +30,23 @@ def _every(result: SimulationResult) -> slice:
     return slice(None, None, max(1, round(PLOT_STEP_S / result.dt_s)))
 
 
+def _add_deck_traces(fig: go.Figure, t, result: SimulationResult, coach: int, row: int, **extra):
+    """Add the deck temperatures of ``coach`` (every :func:`_every` sample) to row ``row``."""
+    e = _every(result)
+    for d, deck in enumerate(DECKS):
+        fig.add_trace(
+            go.Scatter(
+                x=t,
+                y=result.t_room_c[e, coach, d],
+                name=f"T_room {deck}",
+                line={"color": DECK_COLOURS[deck], "width": 1.2},
+                **extra,
+            ),
+            row=row,
+            col=1,
+        )
+
+
 def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
     """Deck temperatures (°C) with T_ref and the T_rule ± 1 K band; T_amb and irradiance below.
 
@@ -72,17 +89,7 @@ def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> 
         row=1,
         col=1,
     )
-    for d, deck in enumerate(DECKS):
-        fig.add_trace(
-            go.Scatter(
-                x=t,
-                y=result.t_room_c[e, coach, d],
-                name=f"T_room {deck}",
-                line={"color": DECK_COLOURS[deck], "width": 1.2},
-            ),
-            row=1,
-            col=1,
-        )
+    _add_deck_traces(fig, t, result, coach, 1)
     fig.add_trace(
         go.Scatter(
             x=t, y=result.t_ref_c[e, coach], name="T_ref", line={"color": "black", "dash": "dash"}
@@ -116,16 +123,7 @@ def temperature_figure(result: SimulationResult, title: str, coach: int = 0) -> 
 def power_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
     """Electrical power by component (stacked, kW) and cumulative energy (kWh).
 
-    Parameters
-    ----------
-    result : SimulationResult
-        The run, plotted at most once per :data:`PLOT_STEP_S` in local time (Europe/Zurich).
-    title : str
-    coach : int, default 0
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
+    Parameters and Returns as in :func:`temperature_figure`.
     """
     t = _local(result)
     fig = make_subplots(specs=[[{"secondary_y": True}]])
@@ -155,16 +153,7 @@ def power_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
 def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
     """HVAC mode and state over time, and the fresh-air fraction (substate).
 
-    Parameters
-    ----------
-    result : SimulationResult
-        The run, plotted at most once per :data:`PLOT_STEP_S` in local time (Europe/Zurich).
-    title : str
-    coach : int, default 0
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
+    Parameters and Returns as in :func:`temperature_figure`.
     """
     t = _local(result)
     s, e = len(result.time), _every(result)
@@ -207,16 +196,8 @@ def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
 def heat_balance_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Figure:
     """Heat entering the coach over the run by mechanism, kWh (negative: heat leaving).
 
-    Parameters
-    ----------
-    result : SimulationResult
-        A run with its heat flows recorded (``record_flows=True``).
-    title : str
-    coach : int, default 0
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
+    Parameters and Returns as in :func:`temperature_figure`; ``result`` must have its heat flows
+    recorded (``record_flows=True``).
     """
     ext = result.flows_w[:, coach, thermal.N_INTERNAL :].sum(axis=0) * result.dt_s / 3.6e6
     names = list(thermal.FLOW_NAMES[thermal.N_INTERNAL :])
@@ -350,18 +331,7 @@ def experiment_figure(pair, title: str = "") -> go.Figure:
                 row=row,
                 col=1,
             )
-        for d, deck in enumerate(DECKS):
-            fig.add_trace(
-                go.Scatter(
-                    x=t,
-                    y=result.t_room_c[e, coach, d],
-                    name=f"T_room {deck}",
-                    showlegend=row == 1,
-                    line={"color": DECK_COLOURS[deck], "width": 1.2},
-                ),
-                row=row,
-                col=1,
-            )
+        _add_deck_traces(fig, t, result, coach, row, showlegend=row == 1)
         fig.add_trace(
             go.Scatter(
                 x=t,
@@ -450,6 +420,11 @@ def experiment_figure(pair, title: str = "") -> go.Figure:
     return fig
 
 
+def _num(v, fmt: str) -> str:
+    """``v`` formatted with ``fmt``, or "–" when it is None."""
+    return "–" if v is None else format(v, fmt)
+
+
 def summary_table_html(rows: list[dict]) -> str:
     """The summary table in the paper's format (Table II) plus the KPIs beside it, as HTML.
 
@@ -471,13 +446,11 @@ def summary_table_html(rows: list[dict]) -> str:
         "<th>computational time ratio</th></tr>"
     )
 
-    def num(v, fmt):
-        return "–" if v is None else format(v, fmt)
-
     body = "".join(
-        f"<tr><td>{html.escape(r['scenario'])}</td><td>{num(r['savings_pct'], '.2f')}</td>"
+        f"<tr><td>{html.escape(r['scenario'])}</td><td>{_num(r['savings_pct'], '.2f')}</td>"
         f"<td>{r['avg_hourly_violation_k']:.4f}</td><td>{r['baseline_violation_k']:.4f}</td>"
-        f"<td>{num(r['edge_savings_pct'], '.2f')}</td><td>{num(r['share_of_edge_pct'], '.0f')}</td>"
+        f"<td>{_num(r['edge_savings_pct'], '.2f')}</td>"
+        f"<td>{_num(r['share_of_edge_pct'], '.0f')}</td>"
         f"<td>{r['energy_activated_kwh']:.1f} / {r['energy_deactivated_kwh']:.1f}</td>"
         f"<td>{', '.join(f'{v:.3f}' for v in r['discomfort_kh'])}</td>"
         f"<td>{r['excluded_minutes']:.0f}</td><td>{r['computational_time_ratio']:.1e}</td></tr>"
@@ -532,16 +505,13 @@ def summary_markdown(rows: list[dict]) -> str:
     Parameters
     ----------
     rows : list of dict
-        :meth:`~trainclimate.analysis.experiment.PairResult.to_dict` of each experiment.
+        As in :func:`summary_table_html`.
 
     Returns
     -------
     str
+        The Markdown text, ending with a newline.
     """
-
-    def num(v, fmt):
-        return "–" if v is None else format(v, fmt)
-
     lines = [
         "| scenario | savings (%) | paper (%) | avg hourly violation (K) | paper (K) | "
         "deactivated coach (K) | band-edge savings (%) | share of band-edge (%) | "
@@ -551,10 +521,10 @@ def summary_markdown(rows: list[dict]) -> str:
     for r in rows:
         paper = PAPER_TABLE.get(r["scenario"])
         lines.append(
-            f"| {r['scenario']} | {num(r['savings_pct'], '.2f')} | "
-            f"{num(paper and paper[0], '.2f')} | {r['avg_hourly_violation_k']:.4f} | "
-            f"{num(paper and paper[1], '.4f')} | {r['baseline_violation_k']:.4f} | "
-            f"{num(r['edge_savings_pct'], '.2f')} | {num(r['share_of_edge_pct'], '.0f')} | "
+            f"| {r['scenario']} | {_num(r['savings_pct'], '.2f')} | "
+            f"{_num(paper and paper[0], '.2f')} | {r['avg_hourly_violation_k']:.4f} | "
+            f"{_num(paper and paper[1], '.4f')} | {r['baseline_violation_k']:.4f} | "
+            f"{_num(r['edge_savings_pct'], '.2f')} | {_num(r['share_of_edge_pct'], '.0f')} | "
             f"{r['energy_activated_kwh']:.1f} / {r['energy_deactivated_kwh']:.1f} | "
             f"{sum(r['discomfort_kh']) / 3:.3f} | {r['excluded_minutes']:.0f} |"
         )

@@ -73,20 +73,7 @@ class PerfectForecast(Forecaster):
     def forecast(self, tick: int, horizon: int, last_measured: np.ndarray) -> np.ndarray:
         """The true d(t+1) … d(t+horizon); ``last_measured`` is ignored.
 
-        Parameters
-        ----------
-        tick : int
-            Controller tick index t.
-        horizon : int
-            Number of steps to forecast.
-        last_measured : numpy.ndarray of shape (5,)
-            The newest measured disturbance sample d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of
-            seats, V km/h].
-
-        Returns
-        -------
-        numpy.ndarray of shape (horizon, 5)
-            d(t+1) … d(t+horizon), same columns and units as ``last_measured``.
+        Parameters and Returns as in :meth:`Forecaster.forecast`.
         """
         return np.asarray(self.truth(tick + 1, horizon), dtype=float)
 
@@ -99,20 +86,7 @@ class PersistenceForecast(Forecaster):
     def forecast(self, tick: int, horizon: int, last_measured: np.ndarray) -> np.ndarray:
         """``last_measured`` repeated ``horizon`` times.
 
-        Parameters
-        ----------
-        tick : int
-            Controller tick index t.
-        horizon : int
-            Number of steps to forecast.
-        last_measured : numpy.ndarray of shape (5,)
-            The newest measured disturbance sample d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of
-            seats, V km/h].
-
-        Returns
-        -------
-        numpy.ndarray of shape (horizon, 5)
-            d(t+1) … d(t+horizon), same columns and units as ``last_measured``.
+        Parameters and Returns as in :meth:`Forecaster.forecast`.
         """
         return np.tile(np.asarray(last_measured, dtype=float), (horizon, 1))
 
@@ -160,20 +134,7 @@ class NoisyForecast(Forecaster):
         """The true d(t+1) … d(t+horizon) with the tick's error path; ``last_measured`` is
         ignored.
 
-        Parameters
-        ----------
-        tick : int
-            Controller tick index t.
-        horizon : int
-            Number of steps to forecast.
-        last_measured : numpy.ndarray of shape (5,)
-            The newest measured disturbance sample d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of
-            seats, V km/h].
-
-        Returns
-        -------
-        numpy.ndarray of shape (horizon, 5)
-            d(t+1) … d(t+horizon), same columns and units as ``last_measured``.
+        Parameters and Returns as in :meth:`Forecaster.forecast`.
         """
         d = np.array(self.truth(tick + 1, horizon), dtype=float)
         rng = np.random.default_rng([self.seed, tick])

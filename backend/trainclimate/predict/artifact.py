@@ -100,10 +100,8 @@ def predictor_bytes(predictor: MultistepPredictor, validation: dict | None = Non
 
     Parameters
     ----------
-    predictor : MultistepPredictor
-        A fitted predictor.
-    validation : dict, optional
-        Validation figures to store in the metadata.
+    predictor, validation
+        As in :func:`metadata`: the fitted predictor and the validation figures to store.
 
     Returns
     -------

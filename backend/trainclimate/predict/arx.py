@@ -32,20 +32,10 @@ class ARXPredictor(MultistepPredictor):
     def fit(self, trajectories: Iterable[TrajectoryLike]) -> ARXPredictor:
         """Fit Θ by least squares and compose Ĥ from T iterated steps.
 
-        Parameters
-        ----------
-        trajectories : iterable of TrajectoryLike
-            Training trajectories (``y`` n×3 °C, ``u`` n×1 °C, ``d`` n×5), one sampling time.
+        Sets :attr:`theta` and :attr:`H`.
 
-        Returns
-        -------
-        ARXPredictor
-            ``self``, with :attr:`theta` and :attr:`H`.
-
-        Raises
-        ------
-        PredictorDataError
-            If the data are too few or rank-deficient.
+        Parameters, Returns (``self``) and Raises as in
+        :meth:`~trainclimate.predict.base.MultistepPredictor.fit`.
         """
         rho = self.rho
         n = NZ * rho

@@ -273,17 +273,8 @@ class MultistepPredictor(ABC):
 
         Parameters
         ----------
-        y_past : array-like of shape (ρ, 3)
-            Room temperatures y at t−ρ+1 … t, oldest first. [°C]
-        u_past : array-like of shape (ρ, 1) or (ρ,)
-            Setpoints u at t−ρ+1 … t; ``u_past[-1]`` is applied from t to t+1. [°C]
-        d_past : array-like of shape (ρ, 5)
-            Disturbances d = [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h] at
-            t−ρ+1 … t.
-        u_future : array-like of shape (T, 1) or (T,)
-            Setpoints at t+1 … t+T. [°C]
-        d_future : array-like of shape (T, 5)
-            Disturbances at t+1 … t+T, as ``d_past``.
+        y_past, u_past, d_past, u_future, d_future : array-like
+            The past and future samples, shapes and units as in :meth:`regressor`.
 
         Returns
         -------

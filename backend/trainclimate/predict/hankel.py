@@ -45,6 +45,8 @@ class TrajectoryLike(Protocol):
 def stacked(traj: TrajectoryLike) -> np.ndarray:
     """The samples z^k = [y^k, u^k, d^k] of a trajectory.
 
+    One row per sample: the outputs, the input and the disturbances side by side.
+
     Parameters
     ----------
     traj : TrajectoryLike

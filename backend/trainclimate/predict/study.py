@@ -161,7 +161,7 @@ def summary_rows(results: dict[str, list[dict]]) -> list[dict]:
     Parameters
     ----------
     results : dict of str to list of dict
-        The output of :func:`run_studies`.
+        Study name → its results, as :func:`run_studies` returns them.
 
     Returns
     -------

@@ -57,20 +57,10 @@ class SubspacePredictor(MultistepPredictor):
     def fit(self, trajectories: Iterable[TrajectoryLike]) -> SubspacePredictor:
         """Fit Ĥ by least squares, min ‖Y_f − Ĥ X‖_F (per step on causal regressors if causal).
 
-        Parameters
-        ----------
-        trajectories : iterable of TrajectoryLike
-            Training trajectories (``y`` n×3 °C, ``u`` n×1 °C, ``d`` n×5), one sampling time.
+        Sets :attr:`H`.
 
-        Returns
-        -------
-        SubspacePredictor
-            ``self``, with :attr:`H`.
-
-        Raises
-        ------
-        PredictorDataError
-            If the data are too few or rank-deficient.
+        Parameters, Returns (``self``) and Raises as in
+        :meth:`~trainclimate.predict.base.MultistepPredictor.fit`.
         """
         rho, T = self.rho, self.horizon
         y, u, d = future_columns(rho, T)

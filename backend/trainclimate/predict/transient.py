@@ -48,21 +48,10 @@ class TransientPredictor(MultistepPredictor):
     def fit(self, trajectories: Iterable[TrajectoryLike]) -> TransientPredictor:
         """Fit Φ and Ĥ by Algorithm 1: L = LQ(𝒵), Φ = L_y⁰ L⁻¹, Ĥ = (I − Φ_y)⁻¹ [Φ_p, Φ_u, Φ_d].
 
-        Parameters
-        ----------
-        trajectories : iterable of TrajectoryLike
-            Training trajectories (``y`` n×3 °C, ``u`` n×1 °C, ``d`` n×5), one sampling time.
+        Sets :attr:`H` and :attr:`Phi`.
 
-        Returns
-        -------
-        TransientPredictor
-            ``self``, with :attr:`H` and :attr:`Phi`.
-
-        Raises
-        ------
-        PredictorDataError
-            If the data are too few or rank-deficient (see
-            :meth:`~trainclimate.predict.base.MultistepPredictor.fit`).
+        Parameters, Returns (``self``) and Raises as in
+        :meth:`~trainclimate.predict.base.MultistepPredictor.fit`.
         """
         rho, T = self.rho, self.horizon
         depth = rho + T

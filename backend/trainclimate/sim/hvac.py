@@ -250,12 +250,8 @@ def fresh_air_fraction(
     ----------
     state : numpy.ndarray of shape (N,)
         The HVAC state (after :func:`next_state`).
-    t_room_c : numpy.ndarray of shape (N, 3)
-        Measured deck temperatures; their mean is compared with T_amb. [°C]
-    t_ref_c : numpy.ndarray of shape (N,)
-        Setpoint T_ref. [°C]
-    t_amb_c : numpy.ndarray of shape (N,)
-        Ambient temperature. [°C]
+    t_room_c, t_ref_c, t_amb_c : numpy.ndarray
+        As in :func:`next_state` (°C); the mean of ``t_room_c`` is compared with T_amb.
     passengers : numpy.ndarray of shape (N, 3)
         Passengers per deck.
     p : CoachParams
@@ -343,12 +339,9 @@ def floor_wall_heating(state: np.ndarray, t_amb_c: np.ndarray, p: CoachParams) -
 
     Parameters
     ----------
-    state : numpy.ndarray of shape (N,)
-        The HVAC state.
-    t_amb_c : numpy.ndarray of shape (N,)
-        Ambient temperature. [°C]
-    p : CoachParams
-        Parameters stacked over the N coaches.
+    state, t_amb_c, p
+        The HVAC state, the ambient temperature (°C) and the parameters, as in
+        :func:`next_state`.
 
     Returns
     -------
@@ -410,10 +403,8 @@ def pid_setpoint(state: np.ndarray, t_ref_c: np.ndarray, p: CoachParams) -> np.n
     ----------
     state : numpy.ndarray of shape (N,)
         The HVAC state.
-    t_ref_c : numpy.ndarray of shape (N,)
-        Setpoint T_ref. [°C]
-    p : CoachParams
-        Parameters stacked over the N coaches.
+    t_ref_c, p
+        Setpoint T_ref (°C) and the parameters, as in :func:`next_state`.
 
     Returns
     -------

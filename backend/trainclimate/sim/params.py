@@ -500,7 +500,7 @@ def load_params(path: str | Path) -> CoachParams:
     Returns
     -------
     CoachParams
-        The validated parameters of one coach.
+        The file's parameters, completed with the defaults and validated.
 
     Raises
     ------

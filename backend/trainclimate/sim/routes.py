@@ -28,7 +28,7 @@ class Station:
     Attributes
     ----------
     name : str
-        Station name.
+        Station name as on the timetable, e.g. ``"Zürich HB"``.
     latitude_deg, longitude_deg : float
         Position, north and east positive (approximate, ~0.01°). [°]
     """
@@ -137,7 +137,7 @@ def bearing_deg(lat1, lon1, lat2, lon2) -> np.ndarray:
     Parameters
     ----------
     lat1, lon1, lat2, lon2 : array-like
-        Latitudes and longitudes of the two points, broadcastable. [°]
+        The two points, as in :func:`haversine_m`. [°]
 
     Returns
     -------
@@ -269,6 +269,7 @@ def stationary(
     Returns
     -------
     OperationSeries
+        Constant position and heading, zero speed and occupancy, doors closed.
 
     Raises
     ------
@@ -392,6 +393,7 @@ def service_day(
     Returns
     -------
     OperationSeries
+        The day's operation sampled on ``times``.
 
     Raises
     ------

@@ -75,12 +75,8 @@ def clear_sky_ghi(
 
     Parameters
     ----------
-    times : pandas.DatetimeIndex
-        Timezone-aware times.
-    latitude_deg, longitude_deg : float
-        Site position, north and east positive. [°]
-    altitude_m : float, default 400.0
-        Site altitude above sea level. [m]
+    times, latitude_deg, longitude_deg, altitude_m
+        The timezone-aware times and the site (°, °, m), as in :func:`solar_position`.
 
     Returns
     -------
@@ -90,7 +86,7 @@ def clear_sky_ghi(
     Raises
     ------
     ValueError
-        If ``times`` is not timezone-aware.
+        If ``times`` is naive (has no timezone).
 
     References
     ----------
@@ -100,6 +96,13 @@ def clear_sky_ghi(
     _check_tz(times)
     loc = pvlib.location.Location(latitude_deg, longitude_deg, altitude=altitude_m)
     return loc.get_clearsky(times, model="ineichen")["ghi"].to_numpy()
+
+
+def _lit(ghi_w_m2, zenith_deg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """G and the zenith angle as float arrays, and where the sun is up and G > 0."""
+    g = np.asarray(ghi_w_m2, dtype=float)
+    z = np.asarray(zenith_deg, dtype=float)
+    return g, z, (z < 90.0) & (g > 0.0)
 
 
 def roof_irradiance(ghi_w_m2, zenith_deg) -> np.ndarray:
@@ -124,9 +127,7 @@ def roof_irradiance(ghi_w_m2, zenith_deg) -> np.ndarray:
     .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
        Energy Management, Sections II.C.4 and III.B.
     """
-    g = np.asarray(ghi_w_m2, dtype=float)
-    z = np.asarray(zenith_deg, dtype=float)
-    up = (z < 90.0) & (g > 0.0)
+    g, z, up = _lit(ghi_w_m2, zenith_deg)
     return np.where(up, np.abs(g * np.cos(np.radians(z))), 0.0)
 
 
@@ -135,10 +136,8 @@ def side_irradiance(ghi_w_m2, zenith_deg, azimuth_deg, heading_deg) -> np.ndarra
 
     Parameters
     ----------
-    ghi_w_m2 : array-like
-        Global horizontal irradiance G. [W/m²]
-    zenith_deg : array-like
-        Solar zenith angle. [°]
+    ghi_w_m2, zenith_deg : array-like
+        G [W/m²] and the solar zenith angle [°], as in :func:`roof_irradiance`.
     azimuth_deg : array-like
         Solar azimuth β, clockwise from north. [°]
     heading_deg : array-like
@@ -155,8 +154,6 @@ def side_irradiance(ghi_w_m2, zenith_deg, azimuth_deg, heading_deg) -> np.ndarra
     .. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal
        Energy Management, Sections II.C.4 and III.B.
     """
-    g = np.asarray(ghi_w_m2, dtype=float)
-    z = np.asarray(zenith_deg, dtype=float)
+    g, z, up = _lit(ghi_w_m2, zenith_deg)
     rel = np.radians(np.asarray(azimuth_deg, dtype=float) - np.asarray(heading_deg, dtype=float))
-    up = (z < 90.0) & (g > 0.0)
     return np.where(up, np.abs(g * np.sin(np.radians(z)) * np.sin(rel)), 0.0)
