@@ -1,6 +1,7 @@
-"""Alembic environment: the schema of trainclimate's service (see backend/trainclimate/service).
+"""Alembic environment: the schema of trainclimate's service (see
+backend/trainclimate/service/store).
 
-The URL comes from the config built by :func:`trainclimate.service.db.alembic_config` (the
+The URL comes from the config built by :func:`trainclimate.service.store.db.alembic_config` (the
 service applies the migrations at start) or, from the command line, from
 ``TRAINCLIMATE_DATABASE_URL``.
 """
@@ -12,8 +13,8 @@ import os
 from alembic import context
 from sqlalchemy import engine_from_config, pool
 
-from trainclimate.service.db import normalise_url
-from trainclimate.service.models import Base
+from trainclimate.service.store.db import normalise_url
+from trainclimate.service.store.models import Base
 
 config = context.config
 if not config.get_main_option("sqlalchemy.url"):

@@ -1,11 +1,11 @@
 """Helpers of the service tests (importable as ``service_support``: pytest's ``pythonpath``
 includes ``tests``).
 
-Telemetry rows in the store's format (:data:`trainclimate.service.telemetry.FRAME_COLS`, one per
-coach and minute, stamped at the minute's end): realistic ones from a short simulation of three
-empty coaches parked outdoors in Zug on a cold November morning (:func:`sim_rows`, the rule-based
-HVAC in regular mode throughout), or hand-made constant ones (:func:`flat_row`); `to_wire`
-(from the telemetry module) turns a row into the body ``POST /api/v1/telemetry`` takes.
+Telemetry rows in the store's format (:data:`trainclimate.service.store.telemetry.FRAME_COLS`,
+one per coach and minute, stamped at the minute's end): realistic ones from a short simulation of
+three empty coaches parked outdoors in Zug on a cold November morning (:func:`sim_rows`, the
+rule-based HVAC in regular mode throughout), or hand-made constant ones (:func:`flat_row`);
+`to_wire` (from the telemetry module) turns a row into the body ``POST /api/v1/telemetry`` takes.
 :data:`T0` is a tick (a multiple of the 5-min period) and the simulation's start, so the row
 stamped ``T0 + k min`` is the k-th simulated minute.
 """
@@ -23,8 +23,8 @@ import psycopg
 import pytest
 
 from trainclimate.control.coach_model import CoachModel
-from trainclimate.service import loop
-from trainclimate.service.telemetry import rows_from_simulation, to_wire
+from trainclimate.service import scheduler
+from trainclimate.service.store.telemetry import rows_from_simulation, to_wire
 from trainclimate.sim import scenarios
 from trainclimate.sim.simulator import FleetSimulator
 
@@ -45,7 +45,7 @@ def shared_coach_model(monkeypatch):
     """Every scheduler of a test process shares one coach model per period (building it, some
     eighty matrix exponentials, is most of starting a scheduler, 0.1–0.3 s; it is read only).
     Autouse in the modules that import it."""
-    monkeypatch.setattr(loop, "CoachModel", lambda dt_s=300.0: _coach_model(float(dt_s)))
+    monkeypatch.setattr(scheduler, "CoachModel", lambda dt_s=300.0: _coach_model(float(dt_s)))
 
 
 PG_URL = os.environ.get("TRAINCLIMATE_TEST_PG_URL")
@@ -166,7 +166,7 @@ def count(url: str, model, **where) -> int:
     """How many rows of ``model`` (matching ``where``) the database at ``url`` holds."""
     from sqlalchemy import func, select
 
-    from trainclimate.service.db import Database
+    from trainclimate.service.store.db import Database
 
     db = Database(url)
     try:

@@ -11,7 +11,7 @@ import pytest
 
 from cli_support import call
 from trainclimate.paths import StorageError, home, sqlite_file, writable_dir, writable_file
-from trainclimate.service.db import migrate
+from trainclimate.service.store.db import migrate
 
 
 def test_a_directory_is_made_with_its_parents(tmp_path):

@@ -17,9 +17,9 @@ from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database
 from support import small_predictor
 from trainclimate.predict.artifact import save_predictor
 from trainclimate.service.app import create_app
-from trainclimate.service.db import Database, migrate
-from trainclimate.service.security import create_token
 from trainclimate.service.settings import Settings
+from trainclimate.service.store.db import Database, migrate
+from trainclimate.service.store.tokens import create_token
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

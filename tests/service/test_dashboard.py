@@ -18,8 +18,8 @@ import pytest
 
 from service_processes import CLI, Server, free_port
 from service_support import wait_for
-from trainclimate.service.db import Database, migrate
-from trainclimate.service.security import create_token
+from trainclimate.service.store.db import Database, migrate
+from trainclimate.service.store.tokens import create_token
 
 CHROMIUM = Path("/usr/bin/chromium")
 if not CHROMIUM.exists():

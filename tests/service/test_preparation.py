@@ -26,9 +26,9 @@ from service_support import (
 from support import small_predictor
 from trainclimate.predict import default as models
 from trainclimate.service.app import create_app
-from trainclimate.service.db import Database, migrate
-from trainclimate.service.security import create_token
 from trainclimate.service.settings import Settings
+from trainclimate.service.store.db import Database, migrate
+from trainclimate.service.store.tokens import create_token
 
 
 @pytest.fixture

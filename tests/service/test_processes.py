@@ -29,10 +29,10 @@ from sqlalchemy import select
 from service_processes import CLI, free_port, token_cli
 from service_support import wait_for
 from support import RHO
-from trainclimate.service import demo
-from trainclimate.service.db import Database, migrate
-from trainclimate.service.models import Coach, FleetClock, Setpoint, Telemetry
-from trainclimate.service.security import create_token
+from trainclimate.service.adapters import demo
+from trainclimate.service.store.db import Database, migrate
+from trainclimate.service.store.models import Coach, FleetClock, Setpoint, Telemetry
+from trainclimate.service.store.tokens import create_token
 from trainclimate.sim import scenarios
 
 PERIOD = timedelta(minutes=5)

@@ -29,8 +29,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
     from sqlalchemy.exc import OperationalError
 
     from trainclimate.service.app import create_app
-    from trainclimate.service.db import migrate
     from trainclimate.service.settings import Settings
+    from trainclimate.service.store.db import migrate
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
         raise UsageError("--speedup must be positive")
@@ -73,8 +73,8 @@ def _announce(server, stderr_lines: list[str], stdout_lines: list[str]) -> None:
 
 def _create_token(url: str, role: str, name: str | None) -> dict:
     """A new token in the migrated database ``url``: {token, name, role}."""
-    from trainclimate.service.db import Database
-    from trainclimate.service.security import create_token
+    from trainclimate.service.store.db import Database
+    from trainclimate.service.store.tokens import create_token
 
     db = Database(url)
     try:
@@ -87,7 +87,7 @@ def _create_token(url: str, role: str, name: str | None) -> dict:
 
 def cmd_token_create(args: argparse.Namespace) -> None:
     """``token create``: a new token for a new user, shown once (or written to ``--out``)."""
-    from trainclimate.service.db import migrate
+    from trainclimate.service.store.db import migrate
 
     url = db_url(args)
     migrate(url)
@@ -106,7 +106,7 @@ def cmd_gateway(args: argparse.Namespace) -> None:
     """``gateway``: an onboard gateway emulator feeding the service over HTTP."""
     import httpx
 
-    from trainclimate.service.gateway import Gateway
+    from trainclimate.service.adapters.gateway import Gateway
     from trainclimate.sim import scenarios
 
     scenarios.get(args.scenario)

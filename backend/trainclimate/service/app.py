@@ -25,11 +25,12 @@ from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
 
 from trainclimate import __version__
-from trainclimate.service import api, demo
-from trainclimate.service.db import Database, migrate
-from trainclimate.service.loop import Scheduler
+from trainclimate.service import api
+from trainclimate.service.adapters import demo
 from trainclimate.service.preparation import ModelPreparation, has_model, register_predictor
+from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
+from trainclimate.service.store.db import Database, migrate
 
 log = logging.getLogger(__name__)
 #: Plotly.js as the installed plotly package ships it (served at /vendor/plotly.min.js).
@@ -48,6 +49,8 @@ def register_model_file(session, settings: Settings) -> None:
 
 @asynccontextmanager
 async def lifespan(app: FastAPI):
+    """Migrate, register the model file and the demo fleet, start the loops (see the module
+    docstring); stop them and close the database when the server stops."""
     settings: Settings = app.state.settings
     migrate(settings.database_url)
     db = Database(settings.database_url)

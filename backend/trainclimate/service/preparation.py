@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
-from trainclimate.service.db import Database
-from trainclimate.service.models import PredictorModel
+from trainclimate.service.store.db import Database
+from trainclimate.service.store.models import PredictorModel
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +79,7 @@ class ModelPreparation:
 
     @property
     def status(self) -> Status:
+        """A copy of how far the preparation is."""
         with self._lock:
             return Status(**asdict(self._status))
 

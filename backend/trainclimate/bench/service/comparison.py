@@ -1,0 +1,134 @@
+"""Part 2 of the service benchmark: the latency (ms) of a 24-h pair comparison with a month of
+fleet data stored, against the same with one pair × one day stored; the COPY load rate."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trainclimate.bench.common import latency_ms
+from trainclimate.bench.service.database import (
+    copy_block,
+    copy_telemetry,
+    in_schema,
+    sql,
+    table_size,
+)
+from trainclimate.bench.service.fleet import app, pair_ids, register, synthetic, tokens
+
+
+def run(url: str, model: Path, trains: int, days: int, requests: int, progress) -> dict:
+    """p95 latency (ms) of a 24-h pair comparison with ``trains`` pairs × ``days`` stored, against
+    the same with 1 pair × 1 day stored (its own tables, in schema ``bench_small`` of the same
+    database), ``requests`` requests of each taking turns; the COPY load rate of the large data
+    set (rows/s, MB sent, s for VACUUM ANALYZE). ``progress(1)`` after the load and after the
+    requests."""
+    from trainclimate.service.store.db import migrate
+
+    small_url = in_schema(url, "bench_small")
+    sql(url, "CREATE SCHEMA bench_small")
+    try:
+        migrate(small_url)
+        register(small_url, pair_ids("C", 1)[0], "archive")
+        copy_telemetry(small_url, _rows(1, 1, seed=2))
+        sql(small_url, "VACUUM ANALYZE telemetry", autocommit=True)
+
+        ids = pair_ids("C", trains)[0]
+        register(url, ids, "archive")  # not the live fleet: the tick later leaves them alone
+        n_rows = len(ids) * days * 1440
+        sent, copy_s = copy_telemetry(url, _rows(trains, days, seed=2))
+        t0 = time.perf_counter()
+        sql(url, "VACUUM ANALYZE telemetry", autocommit=True)
+        vacuum_s = time.perf_counter() - t0
+        if progress:
+            progress(1)
+        timed = _time_requests(
+            model, {"large": (url, trains, days), "small": (small_url, 1, 1)}, requests, seed=3
+        )
+        large, small = timed["large"], timed["small"]
+        large["rows_stored"], large["table"] = n_rows, table_size(url)
+        small["rows_stored"], small["table"] = 2 * 1440, table_size(small_url)
+        if progress:
+            progress(1)
+    finally:
+        sql(url, "DROP SCHEMA IF EXISTS bench_small CASCADE")
+    return {
+        "coaches": len(ids),
+        "days": days,
+        "window_hours": 24,
+        "large": large,
+        "small": small,
+        "p95_large_vs_small": large["p95_ms"] / small["p95_ms"],
+        "median_large_vs_small": large["median_ms"] / small["median_ms"],
+        "copy": {
+            "rows": n_rows,
+            "seconds": copy_s,
+            "rows_per_s": n_rows / copy_s,
+            "mb_sent": sent / 2**20,
+            "vacuum_analyze_s": vacuum_s,
+        },
+    }
+
+
+def _rows(trains: int, days: int, seed: int):
+    """Blocks for :func:`~.database.copy_telemetry`: ``trains`` pairs × ``days`` of 1-minute
+    rows, one block per day, in the order a live feed stores them (hour by hour, coach after
+    coach)."""
+    import pandas as pd
+
+    ids, train, active = pair_ids("C", trains)
+    start_s = pd.Timestamp("2024-11-01T00:00Z").timestamp()
+    rng = np.random.default_rng(seed)
+    hour, coach, minute = np.meshgrid(
+        np.arange(24), np.arange(len(ids)), np.arange(1, 61), indexing="ij"
+    )
+    coach, day_minute = coach.ravel(), (hour * 60 + minute).ravel()
+    id_array = np.asarray(ids, dtype="S")[coach]
+    for day in range(days):
+        m = day * 1440 + day_minute
+        v = synthetic(rng, train[coach], active[coach], m)
+        yield copy_block(id_array, start_s + 60.0 * m, v)
+
+
+def _time_requests(model: Path, databases: dict, n: int, seed: int) -> dict:
+    """``n`` GET /trains/{id}/comparison on each of ``databases`` (name → (URL, trains, days)),
+    taking turns request by request, each of a random train over a random 24-h window (after a
+    few untimed ones): latency per database in ms, and the windows per reply."""
+    import contextlib
+
+    import pandas as pd
+    from fastapi.testclient import TestClient
+
+    rng = np.random.default_rng(seed)
+    start = pd.Timestamp("2024-11-01T00:00Z")
+    latencies: dict[str, list[float]] = {name: [] for name in databases}
+    windows: dict[str, int] = {}
+    with contextlib.ExitStack() as stack:
+        clients = {
+            name: (stack.enter_context(TestClient(app(url, model))), tokens(url, "viewer")[0])
+            for name, (url, _, _) in databases.items()
+        }
+        for i in range(n + 5):
+            for name, (_, trains, days) in databases.items():
+                client, viewer = clients[name]
+                train = f"C{int(rng.integers(trains)):03d}"
+                first = start + pd.Timedelta(minutes=int(rng.integers(0, (days - 1) * 1440 + 1)))
+                params = {
+                    "start": first.isoformat(),
+                    "end": (first + pd.Timedelta(hours=24)).isoformat(),
+                }
+                path = f"/api/v1/trains/{train}/comparison"
+                t0 = time.perf_counter()
+                reply = client.get(path, params=params, headers=viewer)
+                elapsed = time.perf_counter() - t0
+                if reply.status_code != 200:
+                    raise RuntimeError(f"comparison failed: {reply.status_code} {reply.text[:200]}")
+                if i >= 5:
+                    latencies[name].append(elapsed)
+                    windows[name] = len(reply.json()["windows"])
+    return {
+        name: {**latency_ms(latencies[name]), "windows_per_reply": windows[name]}
+        for name in databases
+    }

@@ -1,0 +1,11 @@
+"""Adapters: where telemetry comes from and setpoints go, besides the API's live feed.
+
+- :mod:`.demo` — the demo fleet (``trainclimate serve --fleet demo``): simulated trains in the
+  service's process, on an accelerated clock, writing their telemetry to the store and driving
+  the scheduler's ticks;
+- :mod:`.gateway` — the onboard gateway emulator (``trainclimate gateway``): a separate process
+  that speaks only the live feed's HTTP protocol.
+
+They build on the store and the scheduler; nothing in the store, the scheduler or the API imports
+them (the app starts the demo fleet, the CLI the gateway).
+"""

@@ -1,0 +1,129 @@
+"""Coaches: the fleet's list, one coach, registering a live coach, its time series, its setpoint
+now (the live feed's pull) and its history, and switching the DDPC layer for it."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request, Response
+from pydantic import AwareDatetime
+from sqlalchemy import select
+
+from trainclimate.service.api import schemas
+from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, Operator, Viewer, period, settings
+from trainclimate.service.store import commands, queries
+from trainclimate.service.store.models import Coach
+
+router = APIRouter()
+
+
+@router.get("/coaches", response_model=list[schemas.CoachOut], tags=["coaches"], responses=AUTH)
+def list_coaches(request: Request, s: DB, _: Viewer) -> list:
+    """Every coach with its train, layer, status (ok, warm-up, stale, fallback, override,
+    inactive, not-regular, no-data), latest readings and setpoint."""
+    cfg = settings(request)
+    coaches = s.scalars(select(Coach).order_by(Coach.id)).all()
+    return [queries.coach_view(s, c, period(request), cfg.stale_periods) for c in coaches]
+
+
+@router.post(
+    "/coaches",
+    response_model=schemas.CoachOut,
+    tags=["coaches"],
+    status_code=201,
+    responses={**AUTH, 200: {"model": schemas.CoachOut}, 409: {"model": schemas.Message}},
+)
+def register_coach(
+    body: schemas.CoachCreate,
+    request: Request,
+    response: Response,
+    s: DB,
+    who: Operator,
+) -> dict:
+    """Register a live coach (and its train); an existing coach is returned as it is (200)."""
+    coach, created = commands.register_coach(s, who, body.id, body.train_id, body.ddpc_active)
+    if not created:
+        response.status_code = 200
+    s.flush()
+    return queries.coach_view(s, coach, period(request), settings(request).stale_periods)
+
+
+@router.get(
+    "/coaches/{coach_id}",
+    response_model=schemas.CoachOut,
+    tags=["coaches"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
+    """One coach, as in the list."""
+    coach = queries.coach_or_404(s, coach_id)
+    return queries.coach_view(s, coach, period(request), settings(request).stale_periods)
+
+
+@router.get(
+    "/coaches/{coach_id}/timeseries",
+    response_model=schemas.TimeSeries,
+    tags=["coaches"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def coach_timeseries(
+    coach_id: str,
+    s: DB,
+    _: Viewer,
+    start: Annotated[AwareDatetime | None, Query(description="ISO 8601 with offset")] = None,
+    end: Annotated[AwareDatetime | None, Query(description="default: the coach's clock")] = None,
+) -> dict:
+    """The coach's telemetry, default the last 24 h of its clock."""
+    coach = queries.coach_or_404(s, coach_id)
+    start, end = queries.time_range(s, coach, start, end)
+    return queries.timeseries(s, coach, start, end)
+
+
+@router.get(
+    "/coaches/{coach_id}/setpoint",
+    response_model=schemas.SetpointOut,
+    tags=["live feed"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def coach_setpoint(coach_id: str, request: Request, s: DB, _: Viewer) -> dict:
+    """The setpoint the coach's gateway should apply now (the live feed's pull)."""
+    coach = queries.coach_or_404(s, coach_id)
+    return queries.current_setpoint(s, coach, period(request), settings(request).stale_periods)
+
+
+@router.get(
+    "/coaches/{coach_id}/setpoints",
+    response_model=schemas.SetpointHistory,
+    tags=["coaches"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def coach_setpoints(
+    coach_id: str,
+    s: DB,
+    _: Viewer,
+    start: AwareDatetime | None = None,
+    end: AwareDatetime | None = None,
+) -> dict:
+    """Issued setpoints with their source, reason, solve time and predicted trajectory."""
+    coach = queries.coach_or_404(s, coach_id)
+    start, end = queries.time_range(s, coach, start, end)
+    return queries.setpoint_history(s, coach, start, end)
+
+
+@router.put(
+    "/coaches/{coach_id}/controller",
+    response_model=schemas.CoachOut,
+    tags=["coaches"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def set_controller(
+    coach_id: str,
+    body: schemas.ControllerChange,
+    request: Request,
+    s: DB,
+    who: Operator,
+) -> dict:
+    """Switch the DDPC layer on or off for a coach; audited."""
+    coach = commands.set_controller(s, who, coach_id, body.active, body.reason)
+    request.app.state.scheduler.forget(coach.id)
+    return queries.coach_view(s, coach, period(request), settings(request).stale_periods)

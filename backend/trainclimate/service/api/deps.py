@@ -1,0 +1,48 @@
+"""What the routes share: the request's transaction, the caller's role, the settings, and the
+error answers they document."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from datetime import timedelta
+from typing import Annotated
+
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from trainclimate.service.api import schemas
+from trainclimate.service.api.security import require
+from trainclimate.service.settings import Settings
+from trainclimate.service.store.tokens import Principal
+
+UNAUTHORIZED = {401: {"model": schemas.Message, "description": "no valid token"}}
+FORBIDDEN = {403: {"model": schemas.Message, "description": "the token's role is too low"}}
+NOT_FOUND = {404: {"model": schemas.Message, "description": "no such coach or train"}}
+AUTH = {**UNAUTHORIZED, **FORBIDDEN}
+#: The largest id, version or offset taken: the columns are 32-bit integers (a larger value
+#: cannot exist, and PostgreSQL refuses to compare with it).
+INT32_MAX = 2**31 - 1
+
+
+def session(request: Request) -> Iterator[Session]:
+    """One transaction per request: committed when the route returns, rolled back on error.
+    Its scope is the route function (``DB``), so the commit happens before the response is
+    sent: a commit that fails gives an error response, never a 2xx for a write not stored."""
+    with request.app.state.db.transaction() as s:
+        yield s
+
+
+DB = Annotated[Session, Depends(session, scope="function")]
+Viewer = Annotated[Principal, Depends(require("viewer"))]
+Operator = Annotated[Principal, Depends(require("operator"))]
+Admin = Annotated[Principal, Depends(require("admin"))]
+
+
+def settings(request: Request) -> Settings:
+    """The running app's settings."""
+    return request.app.state.settings
+
+
+def period(request: Request) -> timedelta:
+    """The controller's sampling period (``sampling_min`` of the settings)."""
+    return timedelta(minutes=settings(request).sampling_min)

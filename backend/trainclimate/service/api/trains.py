@@ -1,0 +1,66 @@
+"""Trains: the list, one train with its activated and deactivated coaches, and the pair's
+activated-vs-deactivated comparison."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+from pydantic import AwareDatetime
+from sqlalchemy import select
+
+from trainclimate.service.api import schemas
+from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, Viewer
+from trainclimate.service.store import queries
+from trainclimate.service.store.models import Train
+
+router = APIRouter()
+
+
+@router.get("/trains", response_model=list[schemas.TrainOut], tags=["trains"], responses=AUTH)
+def list_trains(s: DB, _: Viewer) -> list:
+    """Every train with its activated and deactivated coaches."""
+    return [_train(t) for t in s.scalars(select(Train).order_by(Train.id))]
+
+
+@router.get(
+    "/trains/{train_id}",
+    response_model=schemas.TrainOut,
+    tags=["trains"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def get_train(train_id: str, s: DB, _: Viewer) -> dict:
+    """One train with its activated and deactivated coaches."""
+    return _train(queries.train_or_404(s, train_id))
+
+
+def _train(t: Train) -> dict:
+    return {
+        "id": t.id,
+        "name": t.name,
+        "coaches": [c.id for c in t.coaches],
+        "activated": [c.id for c in t.coaches if c.ddpc_active],
+        "deactivated": [c.id for c in t.coaches if not c.ddpc_active],
+    }
+
+
+@router.get(
+    "/trains/{train_id}/comparison",
+    response_model=schemas.Comparison,
+    tags=["trains"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def train_comparison(
+    train_id: str,
+    s: DB,
+    _: Viewer,
+    start: AwareDatetime | None = None,
+    end: AwareDatetime | None = None,
+    window_min: Annotated[float, Query(gt=0, le=24 * 60)] = 30.0,
+) -> dict:
+    """Activated vs deactivated coach: energy and savings per window (30 min by default),
+    overall savings, average hourly violation of both, excluded minutes."""
+    train = queries.train_or_404(s, train_id)
+    act, _deact = queries.pair_of(train)
+    start, end = queries.time_range(s, act, start, end)
+    return queries.comparison(s, train, start, end, window_min)

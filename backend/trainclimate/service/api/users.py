@@ -1,0 +1,75 @@
+"""Users and their tokens: who a token belongs to, and issuing, listing and revoking tokens."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path
+from sqlalchemy import select
+
+from trainclimate.service.api import schemas
+from trainclimate.service.api.deps import (
+    AUTH,
+    DB,
+    INT32_MAX,
+    NOT_FOUND,
+    UNAUTHORIZED,
+    Admin,
+    Viewer,
+)
+from trainclimate.service.store import commands
+from trainclimate.service.store.models import ApiToken, User
+
+router = APIRouter()
+
+
+@router.get("/me", response_model=schemas.Me, tags=["users"], responses=UNAUTHORIZED)
+def me(who: Viewer) -> dict:
+    """Who the token belongs to and its role (the dashboard shows write controls by it)."""
+    return {"name": who.name, "role": who.role}
+
+
+@router.post(
+    "/tokens", response_model=schemas.TokenOut, status_code=201, tags=["users"], responses=AUTH
+)
+def create_token(body: schemas.TokenIn, s: DB, who: Admin) -> dict:
+    """A new token (shown once) for a user, created with the role if new; audited."""
+    token, user = commands.issue_token(s, who, body.role, body.name)
+    return {"token": token, "name": user.name, "role": user.role}
+
+
+@router.get("/tokens", response_model=list[schemas.TokenInfo], tags=["users"], responses=AUTH)
+def list_tokens(s: DB, _: Admin) -> list:
+    """Every token (its prefix only), its user, role and whether it is revoked."""
+    rows = s.execute(select(ApiToken, User).join(User).order_by(ApiToken.id)).all()
+    return [
+        {
+            "id": t.id,
+            "user": u.name,
+            "role": u.role,
+            "prefix": t.prefix,
+            "created_at": t.created_at,
+            "revoked_at": t.revoked_at,
+        }
+        for t, u in rows
+    ]
+
+
+@router.delete(
+    "/tokens/{token_id}",
+    response_model=schemas.TokenInfo,
+    tags=["users"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def revoke_token(token_id: Annotated[int, Path(ge=1, le=INT32_MAX)], s: DB, who: Admin):
+    """Revoke a token: it no longer authenticates; audited."""
+    t = commands.revoke_token(s, who, token_id)
+    user = s.get(User, t.user_id)
+    return {
+        "id": t.id,
+        "user": user.name,
+        "role": user.role,
+        "prefix": t.prefix,
+        "created_at": t.created_at,
+        "revoked_at": t.revoked_at,
+    }

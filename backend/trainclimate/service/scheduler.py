@@ -1,0 +1,266 @@
+"""The scheduler: one tick per coach per sampling period, each issued exactly once.
+
+A fleet's clock drives its ticks: the demo fleet's simulated clock (advanced by
+:class:`~trainclimate.service.adapters.demo.DemoFleet`, which calls :meth:`Scheduler.tick_fleet`
+after each period it simulates), and for live coaches the newest telemetry time their gateways
+reported — real time in service (:meth:`Scheduler.run_live`).
+
+A tick for coach c at time t is *claimed* in the database: the coach's row is locked
+(``SELECT … FOR UPDATE SKIP LOCKED`` on PostgreSQL, so replicas sharing the database take
+different coaches) where its ``last_tick`` is before t, and the setpoint is inserted under the
+unique constraint (coach, tick) in the same transaction that advances ``last_tick``. So a tick is
+issued at most once, whatever crashes or replicas do; and since the lead-in comes from stored
+telemetry, a restarted loop carries on where it stopped.
+
+Per tick and coach the decision is the policy's (:func:`trainclimate.service.policy.decide`:
+override, stale, inactive, not in regular mode, no model, else the DDPC step); the scheduler
+supplies its inputs — the samples from the stored telemetry, the override in force, the coach's
+controller, kept here between ticks — and stores what it decides. One coach's failure never stops
+the others: its decision becomes a fallback.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+from datetime import datetime, timedelta
+
+import pandas as pd
+from sqlalchemy import func, or_, select
+from sqlalchemy.exc import IntegrityError, OperationalError
+from sqlalchemy.orm import Session
+
+from trainclimate.control import DDPCController, OCPSettings
+from trainclimate.control.coach_model import CoachModel
+from trainclimate.predict.artifact import load_predictor_bytes
+from trainclimate.predict.setting import RHO
+from trainclimate.service import policy
+from trainclimate.service.policy import Decision
+from trainclimate.service.settings import Settings
+from trainclimate.service.store.db import Database
+from trainclimate.service.store.models import (
+    Coach,
+    FleetClock,
+    Override,
+    PredictorModel,
+    Setpoint,
+    Telemetry,
+)
+from trainclimate.service.store.telemetry import Samples, controller_samples, load_rows
+
+log = logging.getLogger(__name__)
+
+
+def floor_tick(time: datetime, period: timedelta) -> datetime:
+    """The last tick at or before ``time`` (ticks at multiples of the period since the epoch)."""
+    ts = pd.Timestamp(time)
+    return ts.floor(period).to_pydatetime()
+
+
+class Scheduler:
+    """Issues the ticks of every fleet (see the module docstring)."""
+
+    def __init__(self, db: Database, settings: Settings):
+        self.db = db
+        self.settings = settings
+        self.period = timedelta(minutes=settings.sampling_min)
+        self.period_s = self.period.total_seconds()
+        #: how long (of the live clock) after a tick the live fleet waits for each coach's row at
+        #: the tick: a minute less than the period (4 min), so it is issued before the next tick
+        self.live_grace = max(self.period - timedelta(minutes=1), timedelta(0))
+        self.coach_model = CoachModel(dt_s=self.period_s)
+        self.ocp = OCPSettings()
+        self._controllers: dict[str, DDPCController] = {}
+        self._predictor = None
+        self._model_id: int | None = None
+        self._lock = threading.Lock()
+
+    # --- the model -------------------------------------------------------------------------
+    def refresh_model(self, session: Session) -> None:
+        """Use the active predictor model (rebuilding the controllers when it changed)."""
+        model = session.scalar(select(PredictorModel).where(PredictorModel.active.is_(True)))
+        model_id = model.id if model is not None else None
+        if model_id == self._model_id:
+            return
+        with self._lock:
+            self._predictor = load_predictor_bytes(model.artifact) if model is not None else None
+            self._model_id = model_id
+            self._controllers.clear()
+        log.info("controller model: %s", f"version {model.version}" if model else "none")
+
+    def controller(self, coach_id: str) -> DDPCController:
+        """The coach's controller, built on first use for the active model (kept between ticks:
+        it holds the coach's state estimate and the solver's warm start)."""
+        with self._lock:
+            ctl = self._controllers.get(coach_id)
+            if ctl is None:
+                ctl = DDPCController(
+                    self._predictor,
+                    self.ocp,
+                    sampling_min=self.settings.sampling_min,
+                    model=self.coach_model,
+                    stale_periods=self.settings.stale_periods,
+                )
+                self._controllers[coach_id] = ctl
+            return ctl
+
+    def forget(self, coach_id: str) -> None:
+        """Drop a coach's controller state (after its layer was switched off and on)."""
+        with self._lock:
+            self._controllers.pop(coach_id, None)
+
+    # --- one tick ----------------------------------------------------------------------------
+    def decide(
+        self, coach: Coach, samples: Samples, override: Override | None, tick: datetime
+    ) -> Decision:
+        """The setpoint for one coach at one tick: :func:`.policy.decide` with this scheduler's
+        settings and the coach's controller (none before a model is active)."""
+        controller = None
+        if self._predictor is not None:
+            controller = functools.partial(self.controller, coach.id)
+        return policy.decide(coach, samples, override, tick, self.settings, controller)
+
+    def tick_fleet(
+        self, fleet: str, tick: datetime, batch: int = 250, *, reported_only: bool = False
+    ) -> int:
+        """Issue tick ``tick`` to every coach of ``fleet`` that has not had it — with
+        ``reported_only``, only to those whose telemetry has reached the tick; returns how many
+        were issued here (0 if another replica or an earlier run did them)."""
+        issued, left = 0, None
+        while True:
+            try:
+                n = self._tick_batch(fleet, tick, batch, reported_only)
+            except IntegrityError:
+                # another scheduler issued some of these ticks first: on SQLite, which has no
+                # SKIP LOCKED, both may claim a coach and the unique (coach, tick) lets one
+                # win; this batch was rolled back, and the coaches still without the tick are
+                # taken again — unless nobody made progress since the last conflict: then it
+                # is no race, and it is raised
+                before, left = left, self._pending(fleet, tick, reported_only)
+                if before is not None and left >= before:
+                    raise
+                log.info("tick %s: another scheduler issued part of it first", tick)
+                continue
+            if n == 0:
+                return issued
+            issued += n
+
+    @staticmethod
+    def _due(fleet: str, tick: datetime, reported_only: bool) -> list:
+        """The conditions of a coach of ``fleet`` still due ``tick``."""
+        due = [Coach.fleet == fleet, or_(Coach.last_tick.is_(None), Coach.last_tick < tick)]
+        if reported_only:
+            reported = select(Telemetry.id).where(
+                Telemetry.coach_id == Coach.id, Telemetry.time >= tick
+            )
+            due.append(reported.exists())
+        return due
+
+    def _pending(self, fleet: str, tick: datetime, reported_only: bool) -> int:
+        """How many coaches of ``fleet`` are still due ``tick``."""
+        with self.db.transaction() as session:
+            due = self._due(fleet, tick, reported_only)
+            return session.scalar(select(func.count()).select_from(Coach).where(*due))
+
+    def _tick_batch(self, fleet: str, tick: datetime, batch: int, reported_only: bool) -> int:
+        """Claim and issue ``tick`` for up to ``batch`` coaches in one transaction; returns how
+        many (0: none left)."""
+        window = (self._rho() + 2) * self.period + timedelta(minutes=1)
+        with self.db.transaction() as session:
+            self.refresh_model(session)
+            coaches = session.scalars(
+                select(Coach)
+                .where(*self._due(fleet, tick, reported_only))
+                .order_by(Coach.id)
+                .limit(batch)
+                .with_for_update(skip_locked=True)
+            ).all()
+            if not coaches:
+                return 0
+            ids = [c.id for c in coaches]
+            telemetry = load_rows(session, ids, tick - window, tick)
+            overrides = active_overrides(session, ids, tick)
+            rows = []
+            for coach in coaches:
+                try:
+                    samples = controller_samples(
+                        telemetry[coach.id], tick.timestamp(), self.period_s
+                    )
+                    decision = self.decide(coach, samples, overrides.get(coach.id), tick)
+                except Exception as exc:  # one coach's failure never stops the others
+                    log.exception("tick %s for coach %s failed", tick, coach.id)
+                    decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
+                rows.append(_row(coach.id, tick, decision, self._model_id))
+                coach.last_tick = tick
+            session.execute(Setpoint.__table__.insert(), rows)
+        return len(rows)
+
+    def _rho(self) -> int:
+        """ρ of the active model (the default ρ without one): a tick reads ρ + 2 periods."""
+        return self._predictor.rho if self._predictor is not None else RHO
+
+    # --- the live fleet ----------------------------------------------------------------------
+    def live_clock(self, session: Session) -> datetime | None:
+        """The live fleet's clock (its newest telemetry time), None before any telemetry."""
+        clock = session.get(FleetClock, "live")
+        return clock.time if clock is not None else None
+
+    def run_live_once(self) -> int:
+        """Issue the current tick of the live fleet (its clock is the newest telemetry of any
+        coach). Gateways report at slightly different moments, so for the first
+        ``live_grace`` after a tick only the coaches whose row at the tick has arrived get
+        it; after that every coach still due does (one without that row then decides on what it
+        has: stale, warm-up, …). Ticks older than the current one can no longer be applied and
+        are not issued late."""
+        with self.db.transaction() as session:
+            now = self.live_clock(session)
+        if now is None:
+            return 0
+        tick = floor_tick(now, self.period)
+        return self.tick_fleet("live", tick, reported_only=now < tick + self.live_grace)
+
+    def run_live(self, stop: threading.Event) -> None:
+        """The live fleet's loop, until ``stop``; a database that is briefly unavailable leaves
+        the last setpoints standing (the gateways keep them) and is retried."""
+        while not stop.is_set():
+            try:
+                self.run_live_once()
+            except OperationalError as exc:
+                log.warning("database unavailable, retrying: %s", str(exc).splitlines()[0])
+            except Exception:
+                log.exception("live loop iteration failed; retrying")
+            stop.wait(self.settings.scheduler_interval_s)
+
+
+def active_overrides(session: Session, coach_ids: list[str], at: datetime) -> dict[str, Override]:
+    """The override in force at ``at`` for each coach (the newest if several)."""
+    rows = session.scalars(
+        select(Override)
+        .where(
+            Override.coach_id.in_(coach_ids),
+            Override.starts_at <= at,
+            Override.ends_at > at,
+            Override.cancelled_at.is_(None),
+        )
+        .order_by(Override.created_at)
+    ).all()
+    return {o.coach_id: o for o in rows}
+
+
+def _row(coach_id: str, tick: datetime, d: Decision, model_id: int | None) -> dict:
+    """The setpoint row of decision ``d`` (the model only for a DDPC setpoint)."""
+    return {
+        "coach_id": coach_id,
+        "tick": tick,
+        "t_rule_c": d.t_rule_c,
+        "t_ref_c": d.t_ref_c,
+        "source": d.source,
+        "reason": d.reason,
+        "detail": d.detail,
+        "solve_time_ms": d.solve_time_ms,
+        "step_time_ms": d.step_time_ms,
+        "predicted": d.predicted,
+        "model_id": model_id if d.source == "ddpc" else None,
+        "created_at": pd.Timestamp.now(tz="UTC").to_pydatetime(),
+    }

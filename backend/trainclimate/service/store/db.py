@@ -1,0 +1,104 @@
+"""Database engines and sessions (SQLAlchemy 2.0), and the schema through Alembic.
+
+SQLite (the embedded default) and PostgreSQL (psycopg 3) take the same code. The schema is only
+ever created by the Alembic migrations in ``migrations/``, applied at start (:func:`migrate`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from sqlalchemy import Engine, create_engine, event
+from sqlalchemy.orm import Session, sessionmaker
+
+from trainclimate.paths import sqlite_file, writable_dir
+
+MIGRATIONS = Path(__file__).resolve().parents[4] / "migrations"
+
+
+def normalise_url(url: str) -> str:
+    """``postgresql://`` and ``postgres://`` mean psycopg 3 here."""
+    for prefix in ("postgresql://", "postgres://"):
+        if url.startswith(prefix):
+            return "postgresql+psycopg://" + url[len(prefix) :]
+    return url
+
+
+def make_engine(url: str) -> Engine:
+    """An engine for ``url``; SQLite gets foreign keys, WAL and a busy timeout, so the
+    scheduler thread and the API share one file safely."""
+    url = normalise_url(url)
+    if url.startswith("sqlite"):
+        sqlite_directory(url)
+        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+
+        @event.listens_for(engine, "connect")
+        def _pragmas(dbapi_connection, _record):  # pragma: no cover - driver callback
+            cursor = dbapi_connection.cursor()
+            cursor.execute("PRAGMA foreign_keys=ON")
+            cursor.execute("PRAGMA journal_mode=WAL")
+            cursor.execute("PRAGMA synchronous=NORMAL")
+            cursor.close()
+
+        return engine
+    return create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=10)
+
+
+def sqlite_directory(url: str) -> None:
+    """Create the directory of a SQLite database file with its parents (a one-line
+    :class:`~trainclimate.paths.StorageError` when it cannot be)."""
+    path = sqlite_file(url)
+    if path is not None:
+        writable_dir(path.parent, "the SQLite database's directory")
+
+
+def alembic_config(url: str):
+    """The Alembic configuration of ``migrations/`` for the database at ``url``."""
+    from alembic.config import Config
+
+    sqlite_directory(url)
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(MIGRATIONS))
+    cfg.set_main_option("sqlalchemy.url", normalise_url(url).replace("%", "%%"))
+    return cfg
+
+
+def migrate(url: str, revision: str = "head") -> None:
+    """Bring the database at ``url`` to ``revision`` (default: the newest)."""
+    from alembic import command
+
+    command.upgrade(alembic_config(url), revision)
+
+
+def downgrade(url: str, revision: str = "base") -> None:
+    """Take the database at ``url`` back to ``revision`` (default: empty)."""
+    from alembic import command
+
+    command.downgrade(alembic_config(url), revision)
+
+
+class Database:
+    """An engine and its session factory."""
+
+    def __init__(self, url: str):
+        self.url = normalise_url(url)
+        self.engine = make_engine(self.url)
+        self.sessions = sessionmaker(self.engine, expire_on_commit=False)
+
+    @property
+    def dialect(self) -> str:
+        """The database's kind: ``sqlite`` or ``postgresql``."""
+        return self.engine.dialect.name
+
+    @contextmanager
+    def transaction(self) -> Iterator[Session]:
+        """A session whose work is committed together at the end, or not at all."""
+        with self.sessions() as session, session.begin():
+            yield session
+
+    def dispose(self) -> None:
+        """Close the engine's pooled connections."""
+        self.engine.dispose()

@@ -1,0 +1,230 @@
+"""What the service stores (SQLAlchemy 2.0 models; the schema itself comes from ``migrations/``).
+
+- trains and coaches (the pairing: coaches of one train; which has the layer activated), with each
+  coach's fleet (``demo`` or ``live``) and the last tick issued to it (the scheduler's claim);
+- fleet clocks (the demo fleet's simulated time and the simulator's state, saved with its data);
+- telemetry: per coach and time, the deck temperatures, the applied T_ref, T_rule, weather,
+  occupancy, speed, HVAC power, mode and whether the link was up;
+- setpoints: per coach and tick (unique), T_rule, T_ref, source and reason, solve time and the
+  predicted trajectory;
+- overrides with their expiry; predictor models (versions, parameters, validation, which is
+  active); users, their hashed tokens and roles; the audit log of every write.
+
+Every timestamp is stored in UTC and read back timezone-aware (:class:`UTCDateTime`).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+    TypeDecorator,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+ROLES = ("viewer", "operator", "admin")
+SOURCES = ("ddpc", "rule", "override", "fallback")
+MODES = ("regular", "slumber", "off")
+#: An autoincrementing 64-bit key (SQLite only autoincrements INTEGER PRIMARY KEY).
+BigKey = BigInteger().with_variant(Integer, "sqlite")
+
+
+def utcnow() -> datetime:
+    """The current time, timezone-aware in UTC."""
+    return datetime.now(UTC)
+
+
+class UTCDateTime(TypeDecorator):
+    """A timestamp stored in UTC and returned timezone-aware, on SQLite as on PostgreSQL."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value, dialect):
+        """To the database: in UTC (naive on SQLite); a naive timestamp is refused."""
+        if value is None:
+            return None
+        if value.tzinfo is None:
+            raise ValueError("timestamps must be timezone-aware")
+        value = value.astimezone(UTC)
+        return value.replace(tzinfo=None) if dialect.name == "sqlite" else value
+
+    def process_result_value(self, value, dialect):
+        """From the database: timezone-aware in UTC."""
+        if value is None:
+            return None
+        return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+class Base(DeclarativeBase):
+    """The models' declarative base (its metadata is what the migrations are compared with)."""
+
+
+class Train(Base):
+    """A train: the coaches that run together (its comparison pairs an activated coach with a
+    deactivated one)."""
+
+    __tablename__ = "trains"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    name: Mapped[str] = mapped_column(String(100), default="")
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    coaches: Mapped[list[Coach]] = relationship(back_populates="train", order_by="Coach.id")
+
+
+class Coach(Base):
+    """A coach: its train, fleet (``demo`` or ``live``), whether the DDPC layer is on for it,
+    and the last tick issued to it (the scheduler's claim)."""
+
+    __tablename__ = "coaches"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    train_id: Mapped[str] = mapped_column(ForeignKey("trains.id"), index=True)
+    fleet: Mapped[str] = mapped_column(String(16), default="live")
+    ddpc_active: Mapped[bool] = mapped_column(Boolean, default=False)
+    last_tick: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    train: Mapped[Train] = relationship(back_populates="coaches")
+
+
+class FleetClock(Base):
+    """A fleet's clock: the demo fleet's simulated time with the simulator's state, or the
+    live fleet's newest telemetry time."""
+
+    __tablename__ = "fleet_clocks"
+    name: Mapped[str] = mapped_column(String(16), primary_key=True)
+    time: Mapped[datetime] = mapped_column(UTCDateTime)
+    state: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, onupdate=utcnow)
+
+
+class Telemetry(Base):
+    """One coach's 1-minute row stamped ``time`` (the minute up to it): deck temperatures,
+    applied T_ref and T_rule (°C), ambient temperature (°C), irradiance (W/m²), occupancy (%),
+    speed (km/h), HVAC power (kW), mode and whether the link was up; unique (coach, time)."""
+
+    __tablename__ = "telemetry"
+    __table_args__ = (UniqueConstraint("coach_id", "time", name="uq_telemetry_coach_time"),)
+    id: Mapped[int] = mapped_column(BigKey, primary_key=True, autoincrement=True)
+    coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"))
+    time: Mapped[datetime] = mapped_column(UTCDateTime)
+    t_room_up_c: Mapped[float | None] = mapped_column(Float)
+    t_room_mid_c: Mapped[float | None] = mapped_column(Float)
+    t_room_low_c: Mapped[float | None] = mapped_column(Float)
+    t_ref_c: Mapped[float | None] = mapped_column(Float)
+    t_rule_c: Mapped[float | None] = mapped_column(Float)
+    t_amb_c: Mapped[float | None] = mapped_column(Float)
+    ghi_w_m2: Mapped[float | None] = mapped_column(Float)
+    q_gt_w_m2: Mapped[float | None] = mapped_column(Float)
+    q_gs_w_m2: Mapped[float | None] = mapped_column(Float)
+    occupancy_pct: Mapped[float | None] = mapped_column(Float)
+    speed_kmh: Mapped[float | None] = mapped_column(Float)
+    power_kw: Mapped[float | None] = mapped_column(Float)
+    mode: Mapped[str] = mapped_column(String(16), default="regular")
+    connected: Mapped[bool] = mapped_column(Boolean, default=True)
+
+
+class Setpoint(Base):
+    """The setpoint issued to one coach at one tick (unique): T_rule, T_ref (°C), source,
+    reason, solve and step time (ms), the predicted trajectory and the model it came from."""
+
+    __tablename__ = "setpoints"
+    __table_args__ = (UniqueConstraint("coach_id", "tick", name="uq_setpoint_coach_tick"),)
+    id: Mapped[int] = mapped_column(BigKey, primary_key=True, autoincrement=True)
+    coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"))
+    tick: Mapped[datetime] = mapped_column(UTCDateTime)
+    t_rule_c: Mapped[float | None] = mapped_column(Float)
+    t_ref_c: Mapped[float | None] = mapped_column(Float)
+    source: Mapped[str] = mapped_column(String(16))
+    reason: Mapped[str] = mapped_column(String(32))
+    detail: Mapped[str] = mapped_column(Text, default="")
+    solve_time_ms: Mapped[float | None] = mapped_column(Float)
+    step_time_ms: Mapped[float | None] = mapped_column(Float)
+    predicted: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    model_id: Mapped[int | None] = mapped_column(ForeignKey("predictor_models.id"), nullable=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Override(Base):
+    """An operator's T_ref (°C) for a coach from ``starts_at`` until ``ends_at`` (or until
+    cancelled), with who set it and why."""
+
+    __tablename__ = "overrides"
+    __table_args__ = (Index("ix_overrides_coach_ends", "coach_id", "ends_at"),)
+    id: Mapped[int] = mapped_column(BigKey, primary_key=True, autoincrement=True)
+    coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"))
+    t_ref_c: Mapped[float] = mapped_column(Float)
+    starts_at: Mapped[datetime] = mapped_column(UTCDateTime)
+    ends_at: Mapped[datetime] = mapped_column(UTCDateTime)
+    reason: Mapped[str] = mapped_column(Text)
+    created_by: Mapped[str] = mapped_column(String(100))
+    cancelled_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    cancelled_by: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class PredictorModel(Base):
+    """A predictor model version: its method, ρ, horizon, sampling period (min), the model
+    file's bytes, training and validation info, and whether it is the active one."""
+
+    __tablename__ = "predictor_models"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    version: Mapped[int] = mapped_column(Integer, unique=True)
+    method: Mapped[str] = mapped_column(String(32))
+    rho: Mapped[int] = mapped_column(Integer)
+    horizon: Mapped[int] = mapped_column(Integer)
+    sampling_min: Mapped[float | None] = mapped_column(Float)
+    artifact: Mapped[bytes] = mapped_column(LargeBinary)
+    info: Mapped[dict] = mapped_column(JSON, default=dict)
+    active: Mapped[bool] = mapped_column(Boolean, default=False)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class User(Base):
+    """A user of the API with a role (viewer, operator or admin)."""
+
+    __tablename__ = "users"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    name: Mapped[str] = mapped_column(String(100), unique=True)
+    role: Mapped[str] = mapped_column(String(16))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    tokens: Mapped[list[ApiToken]] = relationship(back_populates="user")
+
+
+class ApiToken(Base):
+    """A user's bearer token: its SHA-256 and first characters (never the token itself), and
+    when it was revoked."""
+
+    __tablename__ = "api_tokens"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id"), index=True)
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    prefix: Mapped[str] = mapped_column(String(12))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    user: Mapped[User] = relationship(back_populates="tokens")
+
+
+class AuditLog(Base):
+    """One audited write: who (name and role), when, the action, its target, why and details."""
+
+    __tablename__ = "audit_log"
+    __table_args__ = (Index("ix_audit_time", "time"),)
+    id: Mapped[int] = mapped_column(BigKey, primary_key=True, autoincrement=True)
+    time: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    user_name: Mapped[str] = mapped_column(String(100))
+    role: Mapped[str] = mapped_column(String(16))
+    action: Mapped[str] = mapped_column(String(64))
+    target: Mapped[str] = mapped_column(String(64), default="")
+    reason: Mapped[str] = mapped_column(Text, default="")
+    detail: Mapped[dict] = mapped_column(JSON, default=dict)

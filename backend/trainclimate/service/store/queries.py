@@ -1,0 +1,320 @@
+"""What the API reads: coaches with their status, time series, setpoints and pair comparisons.
+
+The comparison is :func:`trainclimate.analysis.savings.compare` on the stored 1-minute telemetry —
+the same function the experiment reports use.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pandas as pd
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from trainclimate.analysis.savings import CoachSeries, compare
+from trainclimate.control.ocp import OCPSettings
+from trainclimate.service.store.models import (
+    Coach,
+    FleetClock,
+    Override,
+    Setpoint,
+    Telemetry,
+    Train,
+)
+from trainclimate.service.store.telemetry import load_frame
+from trainclimate.sim.setpoint import U_BAND_K
+
+#: The comfort bound the controller holds the decks to around T_rule (T_max of its problem). [K]
+COMFORT_BAND_K = OCPSettings().t_max
+
+STATUS = {
+    "ok": "ok",
+    "warmup": "warm-up",
+    "stale": "stale",
+    "override": "override",
+    "inactive": "inactive",
+    "not_regular": "not-regular",
+    "no_model": "preparing",
+}
+
+
+#: The time ranges the API reads (far outside, dates overflow in the arithmetic behind a read).
+EARLIEST = datetime(1970, 1, 1, tzinfo=UTC)
+LATEST = datetime(2200, 1, 1, tzinfo=UTC)
+
+
+class NotFoundError(LookupError):
+    """A coach, train or record that does not exist (→ 404)."""
+
+
+class RequestError(ValueError):
+    """A request the API cannot carry out as asked: a bad range, a value outside its band (→ 422).
+    Only this is mapped to 422: any other ValueError is a bug and answers 500."""
+
+
+def coach_or_404(session: Session, coach_id: str) -> Coach:
+    """The coach ``coach_id``; :class:`NotFoundError` if there is none."""
+    coach = session.get(Coach, coach_id)
+    if coach is None:
+        raise NotFoundError(f"no coach {coach_id!r}")
+    return coach
+
+
+def train_or_404(session: Session, train_id: str) -> Train:
+    """The train ``train_id``; :class:`NotFoundError` if there is none."""
+    train = session.get(Train, train_id)
+    if train is None:
+        raise NotFoundError(f"no train {train_id!r}")
+    return train
+
+
+def fleet_clock(session: Session, coach: Coach) -> datetime | None:
+    """The coach's fleet clock: the demo's simulated time, or the live fleet's newest telemetry."""
+    clock = session.get(FleetClock, coach.fleet)
+    if clock is not None:
+        return clock.time
+    return session.scalar(select(func.max(Telemetry.time)).where(Telemetry.coach_id == coach.id))
+
+
+def newest_setpoint(session: Session, coach: Coach) -> Setpoint | None:
+    """The coach's setpoint of its latest tick, or None before its first."""
+    return session.scalar(
+        select(Setpoint)
+        .where(Setpoint.coach_id == coach.id)
+        .order_by(Setpoint.tick.desc())
+        .limit(1)
+    )
+
+
+def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
+    """A coach with its newest setpoint, telemetry and override, and its status."""
+    setpoint = newest_setpoint(session, coach)
+    row = session.scalar(
+        select(Telemetry)
+        .where(Telemetry.coach_id == coach.id)
+        .order_by(Telemetry.time.desc())
+        .limit(1)
+    )
+    clock = fleet_clock(session, coach)
+    override = None
+    if clock is not None:
+        override = session.scalar(
+            select(Override)
+            .where(Override.coach_id == coach.id, Override.cancelled_at.is_(None))
+            .where(Override.starts_at <= clock, Override.ends_at > clock)
+            .order_by(Override.created_at.desc())
+            .limit(1)
+        )
+    if setpoint is None and row is None:
+        status = "no-data"
+    elif row is None or (clock is not None and row.time < clock - stale_periods * period):
+        status = "stale"
+    elif override is not None:
+        status = "override"
+    elif setpoint is None:
+        status = "warm-up"
+    else:
+        status = STATUS.get(setpoint.reason, "fallback")
+    return {
+        "id": coach.id,
+        "train_id": coach.train_id,
+        "fleet": coach.fleet,
+        "ddpc_active": coach.ddpc_active,
+        "mode": row.mode if row else None,
+        "status": status,
+        "reason": setpoint.reason if setpoint else None,
+        "t_rule_c": setpoint.t_rule_c if setpoint else (row.t_rule_c if row else None),
+        "t_ref_c": setpoint.t_ref_c if setpoint else None,
+        "comfort_band_k": COMFORT_BAND_K,
+        "setpoint_band_k": U_BAND_K,
+        "t_room_c": [row.t_room_up_c, row.t_room_mid_c, row.t_room_low_c] if row else None,
+        "last_tick": setpoint.tick if setpoint else None,
+        "last_solve_ms": setpoint.solve_time_ms if setpoint else None,
+        "override_until": override.ends_at if override else None,
+        "clock": clock,
+    }
+
+
+def time_range(
+    session: Session, coach: Coach, start: datetime | None, end: datetime | None
+) -> tuple[datetime, datetime]:
+    """[start, end], by default the last 24 h of the coach's clock."""
+    clock = fleet_clock(session, coach) or pd.Timestamp.now(tz="UTC").to_pydatetime()
+    try:
+        end = (end or clock).astimezone(UTC)
+        start = (start or end - timedelta(hours=24)).astimezone(UTC)
+    except OverflowError:
+        raise RequestError(f"start and end must lie in {EARLIEST:%Y} … {LATEST:%Y}") from None
+    if start < EARLIEST or end > LATEST:
+        raise RequestError(f"start and end must lie in {EARLIEST:%Y} … {LATEST:%Y}")
+    if start >= end:
+        raise RequestError("start must be before end")
+    if end - start > timedelta(days=31):
+        raise RequestError("at most 31 days at a time")
+    return start, end
+
+
+def _none(values) -> list:
+    return [
+        None if v is None or (isinstance(v, float) and not np.isfinite(v)) else v for v in values
+    ]
+
+
+def timeseries(session: Session, coach: Coach, start: datetime, end: datetime) -> dict:
+    """The coach's telemetry in (start, end] with the source of the setpoint in force."""
+    frame = load_frame(session, coach.id, start, end)
+    ticks = session.execute(
+        select(Setpoint.tick, Setpoint.source)
+        .where(Setpoint.coach_id == coach.id, Setpoint.tick <= end)
+        .where(Setpoint.tick > start - timedelta(hours=1))
+        .order_by(Setpoint.tick)
+    ).all()
+    if len(frame) and ticks:
+        sp = pd.DataFrame(ticks, columns=["tick", "source"])
+        sp["tick"] = pd.to_datetime(sp["tick"], utc=True)
+        # a row stamped t covers the minute (t − 1 min, t]: the setpoint issued at tick t acts
+        # from t on, so the row at t still ran under the one before
+        joined = pd.merge_asof(
+            frame.reset_index()[["time"]],
+            sp,
+            left_on="time",
+            right_on="tick",
+            direction="backward",
+            allow_exact_matches=False,
+        )
+        source = [None if pd.isna(s) else s for s in joined["source"]]
+    else:
+        source = [None] * len(frame)
+    return {
+        "time": [t.to_pydatetime() for t in frame.index],
+        "t_room_c": [
+            _none(r)
+            for r in frame[["t_room_up_c", "t_room_mid_c", "t_room_low_c"]].itertuples(index=False)
+        ],
+        "t_ref_c": _none(frame["t_ref_c"]),
+        "t_rule_c": _none(frame["t_rule_c"]),
+        "t_amb_c": _none(frame["t_amb_c"]),
+        "ghi_w_m2": _none(frame["ghi_w_m2"]),
+        "power_kw": _none(frame["power_kw"]),
+        "occupancy_pct": _none(frame["occupancy_pct"]),
+        "speed_kmh": _none(frame["speed_kmh"]),
+        "mode": list(frame["mode"]),
+        "connected": [bool(c) for c in frame["connected"]],
+        "source": source,
+    }
+
+
+def setpoint_history(session: Session, coach: Coach, start: datetime, end: datetime) -> dict:
+    """The coach's setpoints with ticks in (start, end], oldest first, one list per field."""
+    rows = session.scalars(
+        select(Setpoint)
+        .where(Setpoint.coach_id == coach.id, Setpoint.tick > start, Setpoint.tick <= end)
+        .order_by(Setpoint.tick)
+    ).all()
+    return {
+        "tick": [r.tick for r in rows],
+        "t_ref_c": [r.t_ref_c for r in rows],
+        "t_rule_c": [r.t_rule_c for r in rows],
+        "source": [r.source for r in rows],
+        "reason": [r.reason for r in rows],
+        "solve_time_ms": [r.solve_time_ms for r in rows],
+        "predicted": [r.predicted for r in rows],
+    }
+
+
+def current_setpoint(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
+    """The newest setpoint, valid until ``stale_periods`` periods after its tick."""
+    sp = newest_setpoint(session, coach)
+    if sp is None:
+        empty = ("tick", "t_ref_c", "t_rule_c", "source", "reason", "valid_until")
+        return {"coach_id": coach.id, **dict.fromkeys(empty)}
+    return {
+        "coach_id": coach.id,
+        "tick": sp.tick,
+        "t_ref_c": sp.t_ref_c,
+        "t_rule_c": sp.t_rule_c,
+        "source": sp.source,
+        "reason": sp.reason,
+        "valid_until": sp.tick + stale_periods * period,
+    }
+
+
+def pair_of(train: Train) -> tuple[Coach, Coach]:
+    """The train's activated and deactivated coach (the first of each)."""
+    on = [c for c in train.coaches if c.ddpc_active]
+    off = [c for c in train.coaches if not c.ddpc_active]
+    if not on or not off:
+        raise RequestError(f"train {train.id} has no pair of an activated and a deactivated coach")
+    return on[0], off[0]
+
+
+def _series(session: Session, coach: Coach, grid: pd.DatetimeIndex, start, end) -> CoachSeries:
+    frame = load_frame(session, coach.id, start, end).reindex(grid)
+    overridden = np.zeros(len(grid), bool)
+    for o in session.scalars(
+        select(Override).where(
+            Override.coach_id == coach.id, Override.starts_at < end, Override.ends_at > start
+        )
+    ):
+        stop = o.cancelled_at or o.ends_at
+        overridden |= (grid > o.starts_at) & (grid <= stop)
+    connected = frame["connected"].astype("boolean").fillna(False).to_numpy(bool)
+    # a row stamped t covers the minute (t − 1 min, t]: the analysis takes each sample's start
+    return CoachSeries(
+        time=grid - pd.Timedelta(minutes=1),
+        power_kw=frame["power_kw"].to_numpy(float),
+        t_room_c=frame[["t_room_up_c", "t_room_mid_c", "t_room_low_c"]].to_numpy(float),
+        t_rule_c=frame["t_rule_c"].to_numpy(float),
+        affected=~connected | overridden,
+        in_band=(frame["mode"] == "regular").to_numpy(bool),
+    )
+
+
+def comparison(
+    session: Session, train: Train, start: datetime, end: datetime, window_min: float = 30.0
+) -> dict:
+    """30-minute savings and the summary of the train's pair over (start, end]."""
+    act, deact = pair_of(train)
+    window = pd.Timedelta(minutes=window_min)
+    # each coach's first row on its own: one index probe each (a min over both coaches at once
+    # reads every index entry of both)
+    firsts = [
+        session.scalar(select(func.min(Telemetry.time)).where(Telemetry.coach_id == c.id))
+        for c in (act, deact)
+    ]
+    earliest = min((t for t in firsts if t is not None), default=None)
+    if earliest is not None and earliest - timedelta(minutes=1) > start:
+        start = earliest - timedelta(minutes=1)  # nothing to compare before the pair's data
+    first = pd.Timestamp(start).ceil(window)
+    grid = pd.date_range(first + pd.Timedelta(minutes=1), pd.Timestamp(end), freq="1min")
+    if len(grid) < 2:
+        raise RequestError("the range is shorter than two minutes")
+    a = _series(session, act, grid, start, end)
+    b = _series(session, deact, grid, start, end)
+    c = compare(a, b, start=first, window_min=window_min)
+    return {
+        "train_id": train.id,
+        "activated": act.id,
+        "deactivated": deact.id,
+        "start": first.to_pydatetime(),
+        "end": pd.Timestamp(end).to_pydatetime(),
+        "window_min": window_min,
+        "windows": [
+            {
+                "start": w.to_pydatetime(),
+                "energy_activated_kwh": float(c.energy_activated_kwh[i]),
+                "energy_deactivated_kwh": float(c.energy_deactivated_kwh[i]),
+                "savings_pct": c.savings_30min_pct[i],
+                "excluded": bool(c.excluded[i]),
+            }
+            for i, w in enumerate(c.window_start)
+        ],
+        "savings_pct": c.savings_pct,
+        "energy_activated_kwh": c.energy_activated_total_kwh,
+        "energy_deactivated_kwh": c.energy_deactivated_total_kwh,
+        "avg_hourly_violation_k": c.avg_hourly_violation_k,
+        "baseline_violation_k": c.baseline_violation_k,
+        "excluded_minutes": c.excluded_minutes,
+    }

@@ -1,0 +1,253 @@
+"""Telemetry: storing what coaches report, and turning it into the controller's samples.
+
+A telemetry row stamped t summarises the minute (t − 1 min, t] — the mean deck temperatures, the
+T_ref applied, T_rule, the weather, occupancy, speed and HVAC power over it, the mode, and whether
+the link was up — as an onboard logger's 1-minute averages do. So at a tick t everything the
+controller needs has arrived, and the samples follow the training data's convention
+(:mod:`trainclimate.data.trajectory`): y(t) is the row at t; u(t_k) and d(t_k), acting over
+[t_k, t_k + Δ), are the means of the rows in (t_k, t_k + Δ].
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from datetime import datetime
+
+import numpy as np
+import pandas as pd
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from trainclimate.service.store.models import Telemetry
+
+Y_COLS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
+D_COLS = ("t_amb_c", "q_gt_w_m2", "q_gs_w_m2", "occupancy_pct", "speed_kmh")
+VALUE_COLS = (*Y_COLS, "t_ref_c", "t_rule_c", *D_COLS, "ghi_w_m2", "power_kw")
+
+
+def insert_rows(session: Session, coach_id: str, rows: list[dict]) -> int:
+    """Insert telemetry rows of one coach, skipping times already stored (a gateway that resends
+    a batch after a lost connection changes nothing). Returns how many were new."""
+    if not rows:
+        return 0
+    times = [r["time"] for r in rows]
+    existing = set(
+        session.scalars(
+            select(Telemetry.time).where(
+                Telemetry.coach_id == coach_id,
+                Telemetry.time >= min(times),
+                Telemetry.time <= max(times),
+            )
+        )
+    )
+    fresh, seen = [], set()
+    for r in rows:
+        if r["time"] in existing or r["time"] in seen:
+            continue
+        seen.add(r["time"])
+        fresh.append({**r, "coach_id": coach_id})
+    if fresh:
+        session.execute(Telemetry.__table__.insert(), fresh)
+    return len(fresh)
+
+
+FRAME_COLS = ("time", *VALUE_COLS, "mode", "connected")
+
+
+def _select(session: Session, coach_ids: list[str], start: datetime, end: datetime) -> list:
+    """The rows (coach_id, *FRAME_COLS) of ``coach_ids`` with start < time ≤ end, by coach and
+    time."""
+    cols = [Telemetry.coach_id, *(getattr(Telemetry, c) for c in FRAME_COLS)]
+    return session.execute(
+        select(*cols)
+        .where(Telemetry.coach_id.in_(coach_ids), Telemetry.time > start, Telemetry.time <= end)
+        .order_by(Telemetry.coach_id, Telemetry.time)
+    ).all()
+
+
+def load_frame(session: Session, coach_id: str, start: datetime, end: datetime) -> pd.DataFrame:
+    """The coach's rows with start < time ≤ end as a DataFrame indexed by UTC time."""
+    frame = pd.DataFrame(
+        [r[1:] for r in _select(session, [coach_id], start, end)], columns=list(FRAME_COLS)
+    )
+    frame["time"] = pd.to_datetime(frame["time"], utc=True)
+    return frame.set_index("time")
+
+
+@dataclass
+class CoachRows:
+    """One coach's telemetry rows, oldest first, as arrays: ``time_s`` (n,) Unix time of each
+    row's end, s; ``values`` (n, len(VALUE_COLS)) in :data:`VALUE_COLS` order (NaN where
+    missing); ``regular`` (n,) whether the row's minute was entirely in regular mode."""
+
+    time_s: np.ndarray
+    values: np.ndarray
+    regular: np.ndarray
+
+    def column(self, name: str) -> np.ndarray:
+        """The values (n,) of column ``name`` of :data:`VALUE_COLS`."""
+        return self.values[:, VALUE_COLS.index(name)]
+
+
+def load_rows(
+    session: Session, coach_ids: list[str], start: datetime, end: datetime
+) -> dict[str, CoachRows]:
+    """Every coach's rows with start < time ≤ end (empty arrays for a coach without any), from
+    one query, without a DataFrame per coach (the tick reads 1 000 coaches at a time)."""
+    rows = _select(session, coach_ids, start, end)
+    n = len(rows)
+    time_s = np.fromiter((r[1].timestamp() for r in rows), float, n)
+    values = np.array(
+        [[np.nan if v is None else v for v in r[2 : 2 + len(VALUE_COLS)]] for r in rows], float
+    ).reshape(n, len(VALUE_COLS))
+    regular = np.fromiter((r[-2] == "regular" for r in rows), bool, n)
+    spans, first = {}, 0  # each coach's rows are contiguous (whatever the collation's order)
+    for cid, group in itertools.groupby(r[0] for r in rows):
+        spans[cid] = (first, first + sum(1 for _ in group))
+        first = spans[cid][1]
+    out = {}
+    for cid in coach_ids:
+        a, b = spans.get(cid, (0, 0))
+        out[cid] = CoachRows(time_s[a:b], values[a:b], regular[a:b])
+    return out
+
+
+@dataclass
+class Samples:
+    """The controller's samples at the ticks up to t (oldest first): ``times_s`` (m,), ``y``
+    (m, 3), ``u`` (m − 1,) and ``d_past`` (m − 1, 5) over the intervals between them; ``d_now``
+    the newest interval's d (the persistence forecast's base); ``u_prev`` the T_ref applied last;
+    ``t_rule_now`` the coach's T_rule at t; ``regular`` whether the coach is in regular mode;
+    ``last_time_s`` the newest row's time (None without any)."""
+
+    times_s: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    d_past: np.ndarray
+    d_now: np.ndarray | None
+    u_prev: float
+    t_rule_now: float
+    regular: bool
+    last_time_s: float | None = None
+
+
+_Y = [VALUE_COLS.index(c) for c in Y_COLS]
+_U = VALUE_COLS.index("t_ref_c")
+_D = [VALUE_COLS.index(c) for c in D_COLS]
+
+
+def controller_samples(rows: CoachRows, tick_s: float, period_s: float) -> Samples:
+    """Samples at the ticks t, t − Δ, … (t = ``tick_s``, Δ = ``period_s``, s) covered by
+    ``rows``, walking back until the first tick without a complete reading (no row in its last
+    minute, or a NaN deck temperature) or the first interval with missing rows, a NaN input or
+    disturbance, or a minute not in regular mode (the controller's model only knows regular
+    mode; its lead-in starts again after anything else)."""
+    minutes = round(period_s / 60.0)
+    time_s, v = rows.time_s, rows.values
+    if len(time_s):
+        last = v[-1]
+        u_prev, t_rule_now = float(last[_U]), float(last[VALUE_COLS.index("t_rule_c")])
+        regular_now, last_time_s = bool(rows.regular[-1]), float(time_s[-1])
+    else:
+        u_prev = t_rule_now = float("nan")
+        regular_now, last_time_s = False, None
+    times, ys, us, ds = [], [], [], []
+    if last_time_s is not None and last_time_s >= tick_s - 60.0:
+        y_ok = ~np.isnan(v[:, _Y]).any(axis=1)
+        block_ok = rows.regular & ~np.isnan(v[:, [_U, *_D]]).any(axis=1)
+        t = tick_s
+        while True:
+            # the reading at t: the rows of its last minute (t − 1 min, t]
+            hi = np.searchsorted(time_s, t, side="right")
+            lo = np.searchsorted(time_s, t - 60.0, side="right")
+            if hi == lo or not y_ok[lo:hi].all():
+                break
+            times.append(t)
+            ys.append(v[lo:hi, _Y].mean(axis=0))
+            # the interval (t − Δ, t] before it: complete, regular, and with every input
+            lo = np.searchsorted(time_s, t - period_s, side="right")
+            if hi - lo < minutes or not block_ok[lo:hi].all():
+                break
+            us.append(float(v[lo:hi, _U].mean()))
+            ds.append(v[lo:hi, _D].mean(axis=0))
+            t -= period_s
+    # oldest first; the samples are the ticks, u and d the intervals between consecutive ones
+    n = len(times)
+    us, ds = us[: n - 1][::-1], ds[: n - 1][::-1]
+    return Samples(
+        times_s=np.array(times[::-1], float),
+        y=np.array(ys[::-1], float).reshape(-1, 3),
+        u=np.array(us, float),
+        d_past=np.array(ds, float).reshape(-1, 5),
+        d_now=ds[-1] if ds else None,
+        u_prev=u_prev,
+        t_rule_now=t_rule_now,
+        regular=regular_now,
+        last_time_s=last_time_s,
+    )
+
+
+#: The fields of a ``POST /api/v1/telemetry`` row besides ``time`` and ``t_room_c``.
+WIRE_FIELDS = (
+    "t_ref_c",
+    "t_rule_c",
+    "t_amb_c",
+    "ghi_w_m2",
+    "q_gt_w_m2",
+    "q_gs_w_m2",
+    "occupancy_pct",
+    "speed_kmh",
+    "power_kw",
+    "mode",
+    "connected",
+)
+
+
+def to_wire(row: dict) -> dict:
+    """A stored row (one value per column) as a row of ``POST /api/v1/telemetry``: the time in
+    ISO 8601 with its offset and the decks as ``t_room_c`` [up, mid, low]."""
+    return {
+        "time": pd.Timestamp(row["time"]).isoformat(),
+        "t_room_c": [row["t_room_up_c"], row["t_room_mid_c"], row["t_room_low_c"]],
+        **{k: row[k] for k in WIRE_FIELDS},
+    }
+
+
+def rows_from_simulation(sim, k0: int, k1: int, coach_ids: list[str]) -> dict[str, list[dict]]:
+    """Telemetry rows of a :class:`~trainclimate.sim.simulator.FleetSimulator`'s steps [k0, k1),
+    one per coach and minute (the minute up to the row's time), as a logger would report them:
+    the sensors' mean, the applied T_ref and T_rule, the weather, occupancy, speed and power."""
+    from trainclimate.sim.rule import MODE_NAMES, MODE_REGULAR
+
+    r, env = sim.result(), sim.env
+    per_min = round(60.0 / sim.dt_s)
+    out: dict[str, list[dict]] = {cid: [] for cid in coach_ids}
+    for a in range(k0, k1, per_min):
+        b = min(a + per_min, k1)
+        stamp = (env.time[a] + pd.Timedelta(seconds=(b - a) * sim.dt_s)).to_pydatetime()
+        sl = slice(a, b)
+        y = r.t_room_meas_c[sl].mean(axis=0)
+        for c, cid in enumerate(coach_ids):
+            modes = env.mode[sl, c]
+            mode = "regular" if np.all(modes == MODE_REGULAR) else MODE_NAMES[int(modes[-1])]
+            out[cid].append(
+                {
+                    "time": stamp,
+                    "t_room_up_c": float(y[c, 0]),
+                    "t_room_mid_c": float(y[c, 1]),
+                    "t_room_low_c": float(y[c, 2]),
+                    "t_ref_c": float(r.t_ref_c[sl, c].mean()),
+                    "t_rule_c": float(r.t_rule_c[sl, c].mean()),
+                    "t_amb_c": float(env.t_amb_c[sl, c].mean()),
+                    "ghi_w_m2": float(env.ghi_w_m2[sl, c].mean()),
+                    "q_gt_w_m2": float(env.q_roof_w_m2[sl, c].mean()),
+                    "q_gs_w_m2": float(env.q_side_w_m2[sl, c].mean()),
+                    "occupancy_pct": float(env.occupancy_pct[sl, c].mean()),
+                    "speed_kmh": float(env.speed_kmh[sl, c].mean()),
+                    "power_kw": float(r.total_power_w[sl, c].mean() / 1e3),
+                    "mode": mode,
+                    "connected": True,
+                }
+            )
+    return out

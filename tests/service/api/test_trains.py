@@ -1,0 +1,171 @@
+"""The trains' pair comparison through the HTTP API, on SQLite and on PostgreSQL: the analysis
+module's numbers on hand-made telemetry (excluded windows for a lost link and an override, other
+window lengths, a range of excluded windows only), and the refusals (no pair, unknown train, bad
+parameters)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from service_support import (
+    API,
+    T0,
+    at,
+    flat_row,
+    flat_rows,
+    post_rows,
+    register,
+    shared_coach_model,  # noqa: F401  (autouse)
+)
+from trainclimate.analysis import savings
+from trainclimate.service.store import queries
+
+
+def when(value: str) -> datetime:
+    return datetime.fromisoformat(value)
+
+
+#: Two hours of a pair, minute by minute (rows stamped T0 + 1 … 120 min): the activated coach A
+#: draws 8 kW, the deactivated B 10 kW, except in the two middle half-hours where A draws 10 kW
+#: too — where B's link is down for a minute (T0 + 44) and an override on A is in force
+#: (T0 + 60 … 90); A's decks are 1.5 K above T_rule for ten minutes (a comfort violation).
+def _power_a(minute: int) -> float:
+    return 10.0 if 31 <= minute <= 90 else 8.0
+
+
+def _pair_rows(first: int, last: int) -> tuple[list[dict], list[dict]]:
+    a, b = [], []
+    for m in range(first, last + 1):
+        hot = 23.5 if 11 <= m <= 20 else 21.5
+        a.append(
+            flat_row(
+                at(m), power_kw=_power_a(m), t_room_up_c=hot, t_room_mid_c=hot, t_room_low_c=hot
+            )
+        )
+        b.append(flat_row(at(m), power_kw=10.0, connected=m != 45))
+    return a, b
+
+
+def test_pair_comparison(client, tokens, monkeypatch):
+    op, viewer = tokens["operator"], tokens["viewer"]
+    register(client, op, "P-A", "P", active=True)
+    register(client, op, "P-B", "P", active=False)
+    a, b = _pair_rows(1, 60)
+    post_rows(client, op, "P-A", a)
+    post_rows(client, op, "P-B", b)
+    body = {"t_ref_c": 22.5, "duration_min": 30, "reason": "test the exclusion"}
+    assert client.post(f"{API}/coaches/P-A/override", json=body, headers=op).status_code == 201
+    a, b = _pair_rows(61, 120)
+    post_rows(client, op, "P-A", a)
+    post_rows(client, op, "P-B", b)
+
+    calls = []
+    compare = queries.compare
+
+    def spy(*args, **kwargs):
+        calls.append((args, kwargs))
+        return compare(*args, **kwargs)
+
+    monkeypatch.setattr(queries, "compare", spy)
+    reply = client.get(f"{API}/trains/P/comparison", headers=viewer)
+    assert reply.status_code == 200
+    c = reply.json()
+    assert (c["activated"], c["deactivated"], c["window_min"]) == ("P-A", "P-B", 30.0)
+    assert (when(c["start"]), when(c["end"])) == (T0, at(120))
+    windows = c["windows"]
+    assert [when(w["start"]) for w in windows] == [at(0), at(30), at(60), at(90)]
+    assert [w["excluded"] for w in windows] == [False, True, True, False]
+    assert [w["savings_pct"] for w in windows] == [
+        pytest.approx(20.0),
+        None,
+        None,
+        pytest.approx(20.0),
+    ]
+    assert [w["energy_activated_kwh"] for w in windows] == pytest.approx([4.0, 5.0, 5.0, 4.0])
+    assert [w["energy_deactivated_kwh"] for w in windows] == pytest.approx([5.0] * 4)
+    assert c["savings_pct"] == pytest.approx(20.0)  # 10 % if the excluded windows counted
+    assert (c["energy_activated_kwh"], c["energy_deactivated_kwh"]) == pytest.approx((8.0, 10.0))
+    assert c["excluded_minutes"] == 60.0
+    assert c["avg_hourly_violation_k"] > 0 and c["baseline_violation_k"] == 0.0
+
+    # the analysis module's function did the maths: called once, on these series ...
+    assert len(calls) == 1
+    (act, deact), kwargs = calls[0]
+    assert kwargs == {"start": pd.Timestamp(T0), "window_min": 30.0}
+    assert isinstance(act, savings.CoachSeries) and isinstance(deact, savings.CoachSeries)
+    assert act.power_kw.tolist() == [_power_a(m) for m in range(1, 121)]
+    # ... and gives what it gives called by hand on the same series
+    time = pd.date_range(T0, periods=120, freq="1min")
+    room_a = np.array([[r["t_room_up_c"]] * 3 for r in _pair_rows(1, 120)[0]])
+    overridden = (time >= at(60)) & (time < at(90))
+    mine = savings.compare(
+        savings.CoachSeries(
+            time=time,
+            power_kw=[_power_a(m) for m in range(1, 121)],
+            t_room_c=room_a,
+            t_rule_c=np.full(120, 22.0),
+            affected=overridden,
+        ),
+        savings.CoachSeries(
+            time=time,
+            power_kw=np.full(120, 10.0),
+            t_room_c=np.full((120, 3), 21.5),
+            t_rule_c=np.full(120, 22.0),
+            affected=time == at(44),
+        ),
+        start=T0,
+        window_min=30.0,
+    )
+    assert [w["savings_pct"] for w in windows] == mine.savings_30min_pct
+    assert [w["excluded"] for w in windows] == mine.excluded.tolist()
+    assert [w["energy_activated_kwh"] for w in windows] == mine.energy_activated_kwh.tolist()
+    assert [w["energy_deactivated_kwh"] for w in windows] == mine.energy_deactivated_kwh.tolist()
+    assert c["savings_pct"] == mine.savings_pct
+    assert c["avg_hourly_violation_k"] == mine.avg_hourly_violation_k
+    assert c["baseline_violation_k"] == mine.baseline_violation_k
+    assert c["excluded_minutes"] == mine.excluded_minutes
+    monkeypatch.setattr(queries, "compare", compare)
+
+    # 15-min windows: the half-hour at T0 + 45 … 60 has no saving but counts
+    c15 = client.get(f"{API}/trains/P/comparison", params={"window_min": 15}, headers=viewer).json()
+    assert [w["savings_pct"] for w in c15["windows"]] == [
+        pytest.approx(20.0),
+        pytest.approx(20.0),
+        None,
+        pytest.approx(0.0),
+        None,
+        None,
+        pytest.approx(20.0),
+        pytest.approx(20.0),
+    ]
+    assert c15["savings_pct"] == pytest.approx(16.0) and c15["excluded_minutes"] == 45.0
+    # a range with only excluded windows: no savings to report
+    part = client.get(
+        f"{API}/trains/P/comparison",
+        params={"start": at(30).isoformat(), "end": at(90).isoformat()},
+        headers=viewer,
+    ).json()
+    assert [w["excluded"] for w in part["windows"]] == [True, True]
+    assert part["savings_pct"] is None and part["excluded_minutes"] == 60.0
+
+
+def test_comparison_needs_a_pair(client, tokens):
+    op, viewer = tokens["operator"], tokens["viewer"]
+    register(client, op, "Q-A", "Q", active=True)
+    post_rows(client, op, "Q-A", flat_rows(1, 40))
+    reply = client.get(f"{API}/trains/Q/comparison", headers=viewer)
+    assert reply.status_code == 422
+    assert reply.json() == {"detail": "train Q has no pair of an activated and a deactivated coach"}
+    register(client, op, "Q-B", "Q", active=False)
+    assert client.get(f"{API}/trains/Q/comparison", headers=viewer).status_code == 200
+    reply = client.get(f"{API}/trains/R/comparison", headers=viewer)
+    assert reply.status_code == 404 and reply.json() == {"detail": "no train 'R'"}
+    for params in ({"window_min": 0}, {"window_min": 2000}, {"start": "soon"}):
+        assert (
+            client.get(f"{API}/trains/Q/comparison", params=params, headers=viewer).status_code
+            == 422
+        )

@@ -1,0 +1,78 @@
+"""The controller's samples from stored 1-minute telemetry (``telemetry.controller_samples``):
+the ticks, the intervals between them, and where the lead-in is cut."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trainclimate.service.store.telemetry import VALUE_COLS, CoachRows, controller_samples
+
+PERIOD_S = 300.0
+T0 = 1_732_766_400.0  # 2024-11-28T04:00Z, a multiple of 5 min
+
+
+def rows(minutes: int, *, missing=(), nan_at=(), not_regular=()) -> CoachRows:
+    """Rows ending at T0 + 1 … T0 + ``minutes`` min; each value is a known function of the minute
+    m (deck temperatures 20 + m/100 and ±0.5, T_ref 21 + m/1000, disturbances 100·j + m), with
+    minutes ``missing`` left out, a NaN deck temperature at ``nan_at`` and mode slumber at
+    ``not_regular``."""
+    m = np.array([k for k in range(1, minutes + 1) if k not in missing], float)
+    v = np.empty((len(m), len(VALUE_COLS)))
+    col = {c: i for i, c in enumerate(VALUE_COLS)}
+    v[:, col["t_room_up_c"]] = 20.5 + m / 100
+    v[:, col["t_room_mid_c"]] = 20.0 + m / 100
+    v[:, col["t_room_low_c"]] = 19.5 + m / 100
+    v[:, col["t_ref_c"]] = 21.0 + m / 1000
+    v[:, col["t_rule_c"]] = 22.0
+    for j, c in enumerate(("t_amb_c", "q_gt_w_m2", "q_gs_w_m2", "occupancy_pct", "speed_kmh")):
+        v[:, col[c]] = 100.0 * j + m
+    v[:, col["ghi_w_m2"]] = 0.0
+    v[:, col["power_kw"]] = 5.0
+    v[np.isin(m, nan_at), col["t_room_mid_c"]] = np.nan
+    return CoachRows(T0 + 60.0 * m, v, ~np.isin(m, not_regular))
+
+
+def test_samples_at_every_tick_with_the_interval_means_between_them():
+    s = controller_samples(rows(30), T0 + 30 * 60, PERIOD_S)
+    # ticks at 5, 10, …, 30 min: the reading at a tick is the row ending there
+    assert s.times_s.tolist() == [T0 + 60.0 * k for k in (5, 10, 15, 20, 25, 30)]
+    np.testing.assert_allclose(s.y[:, 1], [20.0 + k / 100 for k in (5, 10, 15, 20, 25, 30)])
+    np.testing.assert_allclose(s.y[0], [20.55, 20.05, 19.55])
+    # u and d over the five intervals between them: the means of the rows in (t_k, t_k + Δ]
+    np.testing.assert_allclose(s.u, [21.0 + (k + 3) / 1000 for k in (5, 10, 15, 20, 25)])
+    np.testing.assert_allclose(s.d_past[:, 0], [k + 3.0 for k in (5, 10, 15, 20, 25)])
+    np.testing.assert_allclose(s.d_past[-1], [28.0, 128.0, 228.0, 328.0, 428.0])
+    np.testing.assert_allclose(s.d_now, s.d_past[-1])
+    assert s.u_prev == pytest.approx(21.030) and s.t_rule_now == 22.0
+    assert s.regular and s.last_time_s == T0 + 1800.0
+
+
+def test_the_lead_in_is_cut_at_a_gap_a_nan_or_a_minute_out_of_regular_mode():
+    tick = T0 + 30 * 60
+    # a missing minute in (15, 20] min: the interval ending at 20 is incomplete, so the samples
+    # start at the tick of 20 min
+    s = controller_samples(rows(30, missing=(17,)), tick, PERIOD_S)
+    assert s.times_s.tolist() == [T0 + 60.0 * k for k in (20, 25, 30)]
+    assert len(s.u) == 2 and len(s.d_past) == 2
+    # a NaN deck temperature at the tick of 15 min: no reading there, the samples start at 20
+    s = controller_samples(rows(30, nan_at=(15,)), tick, PERIOD_S)
+    assert s.times_s.tolist() == [T0 + 60.0 * k for k in (20, 25, 30)]
+    # … but a NaN deck temperature between ticks does not cut: only the readings at ticks count
+    s = controller_samples(rows(30, nan_at=(12,)), tick, PERIOD_S)
+    assert len(s.times_s) == 6
+    # slumber in (25, 30]: the newest interval is not regular, only the tick itself is left
+    s = controller_samples(rows(30, not_regular=(27,)), tick, PERIOD_S)
+    assert s.times_s.tolist() == [tick] and len(s.u) == 0 and s.d_now is None
+    assert s.regular  # the newest minute is regular again
+
+
+def test_stale_or_no_telemetry_gives_no_samples():
+    # the newest row is more than a minute before the tick
+    s = controller_samples(rows(28), T0 + 30 * 60, PERIOD_S)
+    assert len(s.times_s) == 0 and s.y.shape == (0, 3) and s.d_past.shape == (0, 5)
+    assert s.last_time_s == T0 + 28 * 60 and s.u_prev == pytest.approx(21.028)
+    empty = CoachRows(np.empty(0), np.empty((0, len(VALUE_COLS))), np.empty(0, bool))
+    s = controller_samples(empty, T0, PERIOD_S)
+    assert s.last_time_s is None and np.isnan(s.u_prev) and np.isnan(s.t_rule_now)
+    assert not s.regular and len(s.times_s) == 0
