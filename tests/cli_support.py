@@ -4,6 +4,17 @@ import json
 
 from trainclimate.cli import main
 
+#: The keys ``simulate --json`` documents.
+SIMULATE_KEYS = (
+    "energy_kwh",
+    "avg_hourly_violation_k",
+    "discomfort_kh",
+    "mean_power_kw",
+    "hours",
+    "controller",
+    "scenario",
+)
+
 
 def call(capsys, *argv):
     code = main(list(argv))

@@ -72,24 +72,8 @@ def writable_dir(path: str | Path, what: str, hint: str = HOME_HINT) -> Path:
 def writable_file(path: str | Path, what: str, hint: str = HOME_HINT) -> Path:
     """Make sure file ``path`` can be written: its directory is created with its parents.
 
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        The file.
-    what : str
-        What it holds, for the message (``"the HTML report"``).
-    hint : str
-        What the user can do about it, for the message.
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
-
-    Raises
-    ------
-    StorageError
-        A directory is in the way of the file, or its directory cannot be made or written.
+    The arguments and the result are those of :func:`writable_dir`, for a file; raises
+    :class:`StorageError` also when a directory stands where the file should be.
     """
     path = Path(path).expanduser()
     if path.is_dir():

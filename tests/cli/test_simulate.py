@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cli_support import call, call_json
+from cli_support import SIMULATE_KEYS, call, call_json
 from trainclimate.sim.params import CoachParams
 
 
@@ -23,15 +23,7 @@ def test_scenarios_lists_the_contract_names(capsys):
 
 def test_simulate_prints_the_contract_keys(capsys):
     data = call_json(capsys, "simulate", "--scenario", "parked-heating-nov", "--hours", "1")
-    for key in (
-        "energy_kwh",
-        "avg_hourly_violation_k",
-        "discomfort_kh",
-        "mean_power_kw",
-        "hours",
-        "controller",
-        "scenario",
-    ):
+    for key in SIMULATE_KEYS:
         assert key in data
     assert data["hours"] == pytest.approx(1.0)
     assert data["controller"] == "rule" and data["scenario"] == "parked-heating-nov"
@@ -78,16 +70,8 @@ def test_coach_params_round_trip(capsys, tmp_path):
     data["window_g"] = 0.2
     path = tmp_path / "p.json"
     path.write_text(json.dumps(data))
-    run = call_json(
-        capsys,
-        "simulate",
-        "--scenario",
-        "parked-cooling-oct",
-        "--hours",
-        "0.5",
-        "--coach-params",
-        str(path),
-    )
+    argv = ["simulate", "--scenario", "parked-cooling-oct", "--hours", "0.5"]
+    run = call_json(capsys, *argv, "--coach-params", str(path))
     assert run["energy_kwh"] > 0
 
 

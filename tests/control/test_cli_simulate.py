@@ -7,17 +7,8 @@ import json
 
 import pytest
 
+from cli_support import SIMULATE_KEYS
 from trainclimate.cli import main
-
-DOCUMENTED_KEYS = (
-    "energy_kwh",
-    "avg_hourly_violation_k",
-    "discomfort_kh",
-    "mean_power_kw",
-    "hours",
-    "controller",
-    "scenario",
-)
 
 
 def call(capsys, *argv):
@@ -36,7 +27,7 @@ def test_ddpc_with_a_model_file(capsys, predictor_file):
     data = simulate(
         capsys, "--hours", "2", "--controller", "ddpc", "--predictor", str(predictor_file)
     )
-    for key in DOCUMENTED_KEYS:
+    for key in SIMULATE_KEYS:
         assert key in data
     assert data["controller"] == "ddpc" and data["scenario"] == "parked-heating-nov"
     assert data["hours"] == pytest.approx(2.0)

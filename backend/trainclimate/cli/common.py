@@ -38,6 +38,17 @@ def add_group(sub, name: str, help_: str):
     return group.add_subparsers(dest=f"{name}_command", required=True, parser_class=Parser)
 
 
+def add_model_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """``--predictor FILE`` and ``--forecast`` for commands that run the DDPC layer."""
+    p.add_argument("--predictor", default=None, help=f"{prefix}model file (default: cached model)")
+    p.add_argument(
+        "--forecast",
+        choices=("perfect", "persistence", "noisy"),
+        default="perfect",
+        help=f"{prefix}disturbance forecast (default perfect)",
+    )
+
+
 def add_command(sub, name: str, func, help_: str) -> argparse.ArgumentParser:
     """A subcommand ``name`` of ``sub`` running ``func``, with the ``--json`` every command has."""
     p = sub.add_parser(name, help=help_, description=help_)

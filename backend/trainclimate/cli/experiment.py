@@ -10,6 +10,7 @@ from trainclimate.cli.common import (
     UsageError,
     add_command,
     add_group,
+    add_model_options,
     emit,
     out_dir,
     out_file,
@@ -90,13 +91,7 @@ def register(sub) -> None:
         ("summary", cmd_experiment_summary, "run every paired experiment and write the table"),
     ):
         p = add_command(esub, name, func, help_)
-        p.add_argument("--predictor", default=None, help="model file (default: cached model)")
-        p.add_argument(
-            "--forecast",
-            choices=("perfect", "persistence", "noisy"),
-            default="perfect",
-            help="disturbance forecast (default perfect)",
-        )
+        add_model_options(p)
         if name == "run":
             p.add_argument("--scenario", required=True, help="scenario name (see `scenarios`)")
             p.add_argument("--html", default=None, help="write the report (HTML, Plotly)")

@@ -10,6 +10,7 @@ import pandas as pd
 from trainclimate.cli.common import (
     UsageError,
     add_command,
+    add_model_options,
     emit,
     out_dir,
     out_file,
@@ -141,13 +142,7 @@ def register(sub) -> None:
     p.add_argument("--weather-csv", default=None, help="measured weather (time,t_amb_c,ghi_w_m2)")
     p.add_argument("--coach-params", default=None, help="coach parameter JSON file")
     p.add_argument("--out", default=None, help="write the full time series (Parquet)")
-    p.add_argument("--predictor", default=None, help="ddpc: model file (default: cached model)")
-    p.add_argument(
-        "--forecast",
-        choices=("perfect", "persistence", "noisy"),
-        default="perfect",
-        help="ddpc: disturbance forecast (default perfect)",
-    )
+    add_model_options(p, "ddpc: ")
 
     p = add_command(
         sub, "coach-params", cmd_coach_params, "print coach parameters (the file format)"

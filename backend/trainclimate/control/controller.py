@@ -39,7 +39,7 @@ REASONS = {
     "ok": "DDPC optimum applied",
     "inactive": "the layer is switched off for this coach (T_ref = T_rule)",
     "warmup": "fewer than ρ valid samples (lead-in)",
-    "stale": "no new sample for two sampling periods",
+    "stale": "no new sample within the stale limit (2 sampling periods by default)",
     "missing_samples": "a gap in the last ρ samples",
     "invalid_data": "NaN or out-of-range measurement or forecast",
     "invalid_rule": "T_rule missing or not finite",

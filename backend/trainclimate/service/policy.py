@@ -80,7 +80,7 @@ def decide(
         return Decision(value, t_rule, "override", "override", f"override #{override.id}")
     if t_rule is None or not fresh:
         last = _finite(samples.u_prev)
-        detail = "no telemetry for two sampling periods"
+        detail = f"no telemetry for {settings.stale_periods} sampling periods"
         t_ref = t_rule if t_rule is not None else last
         return Decision(t_ref, t_rule, "fallback", "stale", detail)
     if not coach.ddpc_active:
