@@ -6,6 +6,7 @@ run's length changed), end to end over HTTP."""
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -119,7 +120,7 @@ def test_every_compose_command_is_one_the_cli_takes():
     backend = parser.parse_args(SERVICES["backend"]["command"][1:])
     assert backend.command == "serve" and backend.host == "0.0.0.0"
     token = parser.parse_args(SERVICES["gateway-token"]["command"][1:])
-    assert token.role == "operator" and token.out
+    assert token.role == "gateway" and token.out
     coaches = set()
     for name in GATEWAYS:
         command = SERVICES[name]["command"]
@@ -133,6 +134,7 @@ def test_every_compose_command_is_one_the_cli_takes():
         )
         coaches |= set(args.coaches.split(","))
     assert len(coaches) == 6  # three trains, two coaches each, none shared
+    assert set(token.coaches.split(",")) == coaches  # the gateways' token: for those, no other
 
 
 def image_home(tmp_path: Path, model_file: Path) -> Path:
@@ -195,8 +197,19 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
         for name, proc in zip(GATEWAYS, gateways, strict=True):
             assert proc.wait(timeout=240) == 0, (tmp_path / f"{name}.log").read_text()
 
-        headers = {"Authorization": f"Bearer {token_file.read_text().strip()}"}
         api = f"{server.url}/api/v1"
+        gateway = {"Authorization": f"Bearer {token_file.read_text().strip()}"}
+        # the gateways' token reads nothing: the checks below use a viewer's
+        assert httpx.get(f"{api}/coaches", headers=gateway).status_code == 403
+        viewer = subprocess.run(
+            [*CLI, "token", "create", "--role", "viewer", "--json"],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert viewer.returncode == 0, viewer.stderr
+        headers = {"Authorization": f"Bearer {json.loads(viewer.stdout)['token']}"}
         [model] = httpx.get(f"{api}/models", headers=headers).json()
         assert model["info"]["source"] == "default model, prepared at start"
         coaches = httpx.get(f"{api}/coaches", headers=headers).json()

@@ -181,9 +181,7 @@ def test_stale_after_stale_periods_without_telemetry():
     none: T_rule if known, else the T_ref applied last, else nothing to set."""
     assert run(age_min=9.0, active=False).reason == "inactive"
     stale = run(age_min=10.0, active=False)
-    assert stale == Decision(
-        22.0, 22.0, "fallback", "stale", "no telemetry for 2 sampling periods"
-    )
+    assert stale == Decision(22.0, 22.0, "fallback", "stale", "no telemetry for 2 sampling periods")
     three = Settings(database_url="sqlite://", sampling_min=5.0, stale_periods=3)
     assert run(age_min=10.0, active=False, settings=three).reason == "inactive"
     assert run(age_min=15.0, active=False, settings=three).reason == "stale"

@@ -23,8 +23,8 @@ from service_support import (
     wait_for,
     wait_for_tick,
 )
-from support import small_predictor
 from trainclimate.predict import default as models
+from trainclimate.predict.artifact import load_predictor
 from trainclimate.service.app import create_app
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.db import Database, migrate
@@ -32,9 +32,10 @@ from trainclimate.service.store.tokens import create_token
 
 
 @pytest.fixture
-def gate(monkeypatch):
+def gate(monkeypatch, model_file):
     """``go``: let the preparation finish; ``fail``: make it raise instead."""
     go, state = threading.Event(), {"fail": False}
+    predictor = load_predictor(model_file)
 
     def startup_predictor(progress=None):
         progress("generate", 12, 48)
@@ -42,7 +43,7 @@ def gate(monkeypatch):
         if state["fail"]:
             raise RuntimeError("no space left on device")
         progress("pipeline", 48, 48)
-        return small_predictor(), "quick"
+        return predictor, "quick"
 
     monkeypatch.setattr(models, "startup_predictor", startup_predictor)
     return go, state
@@ -85,7 +86,7 @@ def test_coaches_run_under_t_rule_until_the_model_is_ready_then_the_layer_takes_
     assert (coach["status"], coach["reason"]) == ("preparing", "no_model")
 
     go.set()
-    wait_for(lambda: preparing(client) == [], what="the model to be ready")
+    wait_for(lambda: preparing(client) == [], 60, "the model to be ready")
     [model] = client.get(f"{API}/models", headers=headers).json()
     assert (model["version"], model["active"]) == (1, True)
     assert post_rows(client, headers, "A", sim_rows(0, 61, 65)).status_code == 200
@@ -99,7 +100,7 @@ def test_a_failed_preparation_leaves_t_rule_and_says_why(app_without_model, gate
     state["fail"] = True
     go.set()
     [status] = wait_for(
-        lambda: [p for p in preparing(client) if p["state"] == "failed"], what="the failure"
+        lambda: [p for p in preparing(client) if p["state"] == "failed"], 60, "the failure"
     )
     assert status["detail"] == "no space left on device"
     assert client.get(f"{API}/models", headers=headers).json() == []

@@ -71,27 +71,41 @@ def _announce(server, stderr_lines: list[str], stdout_lines: list[str]) -> None:
         print("\n".join(stdout_lines), flush=True)
 
 
-def _create_token(url: str, role: str, name: str | None) -> dict:
-    """A new token in the migrated database ``url``: {token, name, role}."""
+def _create_token(url: str, role: str, name: str | None, coaches: list[str] | None = None) -> dict:
+    """A new token in the migrated database ``url`` (a gateway's scoped to ``coaches``):
+    {token, name, role, coaches}."""
     from trainclimate.service.store.db import Database
     from trainclimate.service.store.tokens import create_token
 
     db = Database(url)
     try:
         with db.transaction() as session:
-            token, user = create_token(session, role, name)
-            return {"token": token, "name": user.name, "role": user.role}
+            token, user = create_token(session, role, name, coaches)
+            return {"token": token, "name": user.name, "role": user.role, "coaches": coaches}
     finally:
         db.dispose()
 
 
 def cmd_token_create(args: argparse.Namespace) -> None:
-    """``token create``: a new token for a new user, shown once (or written to ``--out``)."""
+    """``token create``: a new token for a new user, shown once (or written to ``--out``); a
+    gateway's is scoped to ``--coaches``."""
     from trainclimate.service.store.db import migrate
+    from trainclimate.service.store.tokens import check_scope
 
+    coaches = None
+    if args.coaches is not None:
+        coaches = [c.strip() for c in args.coaches.split(",") if c.strip()]
+    if args.role == "gateway" and args.coaches is None:
+        raise UsageError("--role gateway needs --coaches: the coach ids it is for, comma-separated")
+    if args.role != "gateway" and args.coaches is not None:
+        raise UsageError(f"--coaches is for --role gateway only, not {args.role}")
+    try:
+        check_scope(args.role, coaches)
+    except ValueError as exc:
+        raise UsageError(f"--coaches: {exc}") from None
     url = db_url(args)
     migrate(url)
-    data = _create_token(url, args.role, args.name)
+    data = _create_token(url, args.role, args.name, coaches)
     out = out_file(args.out, "the token file")
     if out is not None:  # for another process to read (the compose demo's gateways): owner-only
         out.touch(mode=0o600)
@@ -124,7 +138,8 @@ def cmd_gateway(args: argparse.Namespace) -> None:
             raise UsageError(f"--token-file: {exc.strerror}: {args.token_file}") from None
     if not token:
         raise UsageError(
-            "--token, --token-file or TRAINCLIMATE_TOKEN is required: an operator token"
+            "--token, --token-file or TRAINCLIMATE_TOKEN is required: a gateway token for the"
+            " coaches (or an operator token)"
         )
     gateway = Gateway(
         args.server,
@@ -171,7 +186,12 @@ def register(sub) -> None:
 
     tsub = add_group(sub, "token", "API tokens")
     p = add_command(tsub, "create", cmd_token_create, "create a token (shown once)")
-    p.add_argument("--role", required=True, choices=("viewer", "operator", "admin"))
+    p.add_argument("--role", required=True, choices=("gateway", "viewer", "operator", "admin"))
+    p.add_argument(
+        "--coaches",
+        default=None,
+        help="with --role gateway (required): the coach ids it is for, comma-separated",
+    )
     p.add_argument("--name", default=None, help="user name (default: generated)")
     p.add_argument("--db", default=None, help="database URL")
     p.add_argument("--out", default=None, help="write the token to this file (mode 600)")
@@ -183,8 +203,12 @@ def register(sub) -> None:
     p.add_argument("--coaches", required=True, help="coach ids, comma-separated (one train)")
     p.add_argument("--active", default=None, help="coaches with the layer on (default: the first)")
     p.add_argument("--train", default=None, help="train id (default: the first coach's prefix)")
-    p.add_argument("--token", default=None, help="an operator token (or $TRAINCLIMATE_TOKEN)")
-    p.add_argument("--token-file", default=None, help="a file holding the operator token")
+    p.add_argument(
+        "--token",
+        default=None,
+        help="a gateway token for the coaches, or an operator token (or $TRAINCLIMATE_TOKEN)",
+    )
+    p.add_argument("--token-file", default=None, help="a file holding the token")
     p.add_argument("--scenario", default="parked-heating-nov", help="weather and operation")
     p.add_argument("--speedup", type=float, default=60.0, help="clock × real time")
     p.add_argument("--hours", type=float, default=None, help="how long (default: the scenario's)")

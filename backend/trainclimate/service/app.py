@@ -27,6 +27,12 @@ from sqlalchemy.exc import OperationalError
 from trainclimate import __version__
 from trainclimate.service import api
 from trainclimate.service.adapters import demo
+from trainclimate.service.api.hardening import (
+    AuthFailureThrottle,
+    BodySizeLimit,
+    FailureCounter,
+    SecurityHeaders,
+)
 from trainclimate.service.preparation import ModelPreparation, has_model, register_predictor
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
@@ -128,6 +134,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_methods=["GET", "POST", "PUT", "DELETE"],
             allow_headers=["Authorization", "Content-Type"],
         )
+    # outermost last: the headers on every answer (429 and 413 included), then the throttle
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.state.auth_failures = FailureCounter(
+        settings.auth_failures_burst, settings.auth_failures_window_s
+    )
+    app.add_middleware(AuthFailureThrottle, counter=app.state.auth_failures)
+    app.add_middleware(SecurityHeaders)
     if (settings.frontend_dir / "index.html").exists():
         # Plotly.js from the installed plotly package: the dashboard needs no CDN and no build
         app.add_api_route(

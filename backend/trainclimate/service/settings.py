@@ -23,7 +23,11 @@ class Settings(BaseSettings):
     real time the demo fleet's clock runs; ``sampling_min`` the controller's period;
     ``stale_periods`` after how many periods without telemetry a coach is stale;
     ``cors_origins`` other origins allowed to call the API (default none: the dashboard is served
-    by the same origin); ``predictor_path`` a model file (default: the cached default model)."""
+    by the same origin); ``predictor_path`` a model file (default: the cached default model);
+    ``max_body_bytes`` the largest request body accepted (larger: 413); after
+    ``auth_failures_burst`` failed authentications within ``auth_failures_window_s`` seconds,
+    a client address's requests with a token answer 429 (see
+    :mod:`trainclimate.service.api.hardening`)."""
 
     model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
 
@@ -38,6 +42,9 @@ class Settings(BaseSettings):
     frontend_dir: Path = Field(
         default_factory=lambda: Path(__file__).resolve().parents[3] / "frontend"
     )
+    max_body_bytes: int = Field(default=2 * 1024 * 1024, gt=0)
+    auth_failures_burst: int = Field(default=20, gt=0)
+    auth_failures_window_s: float = Field(default=60.0, gt=0)
 
     @field_validator("fleet")
     @classmethod

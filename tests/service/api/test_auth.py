@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 
+import pytest
 from fastapi.routing import APIRoute, iter_route_contexts
 from sqlalchemy import inspect, select, text
 
@@ -48,6 +49,13 @@ ROUTES = [
 ]
 OPEN = [("GET", "/health"), ("GET", "/ready")]
 ROLES = ("viewer", "operator", "admin")
+
+
+@pytest.fixture
+def settings(settings):
+    """This module sends many wrong tokens on purpose: the failure throttle is set out of reach
+    (it has its own tests in test_hardening.py)."""
+    return settings.model_copy(update={"auth_failures_burst": 1_000_000})
 
 
 def _url(path: str) -> str:
@@ -107,7 +115,7 @@ def test_health_and_readiness_need_no_token(client):
     assert health.json()["status"] == "ok" and health.json()["database"] in ("sqlite", "postgresql")
     ready = client.get(f"{API}/ready")
     assert ready.status_code == 200
-    assert ready.json() == {"status": "ready", "migrations": "0001", "model_version": 1}
+    assert ready.json() == {"status": "ready", "migrations": "0002", "model_version": 1}
 
 
 def _all_stored_text(settings) -> str:
@@ -199,8 +207,8 @@ def test_tokens_through_the_api(client, tokens, settings):
     reply = client.post(f"{API}/tokens", json={"role": "viewer", "name": "alice"}, headers=admin)
     assert reply.status_code == 201
     created = reply.json()
-    assert set(created) == {"token", "name", "role"}
-    assert (created["name"], created["role"]) == ("alice", "viewer")
+    assert set(created) == {"token", "name", "role", "coaches"}
+    assert (created["name"], created["role"], created["coaches"]) == ("alice", "viewer", None)
     alice = {"Authorization": f"Bearer {created['token']}"}
     assert client.get(f"{API}/coaches", headers=alice).status_code == 200
     assert (
@@ -216,8 +224,11 @@ def test_tokens_through_the_api(client, tokens, settings):
         ("alice", "viewer"),
     ]
     assert all(
-        set(t) == {"id", "user", "role", "prefix", "created_at", "revoked_at"} for t in listed
+        set(t)
+        == {"id", "user", "role", "prefix", "coaches", "created_at", "expires_at", "revoked_at"}
+        for t in listed
     )
+    assert all(t["coaches"] is None and t["expires_at"] is None for t in listed)
     assert created["token"][10:] not in json.dumps(listed)
     mine = listed[-1]
     assert mine["prefix"] == created["token"][:10] and mine["revoked_at"] is None

@@ -15,7 +15,9 @@ of that clock it
 At start it registers its coaches (``POST /api/v1/coaches``; an existing coach is left as it is);
 while the server cannot be reached it runs on, keeps its telemetry and tries again every minute;
 at the end it keeps trying for a minute more to send what is left. A refusal (a bad token, a
-coach of another train) stops it with the server's answer.
+coach of another train, a coach its gateway token is not scoped to) stops it with the server's
+answer. Those three calls are all it makes: a ``gateway`` token scoped to its coaches
+(``trainclimate token create --role gateway --coaches …``) is all it needs.
 """
 
 from __future__ import annotations

@@ -19,12 +19,15 @@ a running server serves the same schema at `/openapi.json` and an interactive pa
 
 Every path starts with `/api/v1`. Authenticate with `Authorization: Bearer <token>` (tokens from
 `trainclimate token create --role viewer|operator|admin` or `POST /api/v1/tokens`); reads need
-viewer, writes operator, users and models admin. Times are ISO 8601 with an offset (UTC in
-answers); temperatures °C, power kW, energy kWh, irradiance W/m². Errors are JSON
-`{"detail": …}`: 401 no valid token, 403 too low a role, 404 no such coach, train or record, 409
-a conflict with the stored state, 422 a malformed request or a value out of range (with the
-reason), 503 the database does not answer. Every write is one transaction: a request that fails
-changes nothing.
+viewer, writes operator, users and models admin. A gateway token (`trainclimate token create --role
+gateway --coaches 124-A,124-B`) is scoped to its coaches: it may register them, push their telemetry
+and pull their setpoints, nothing else. Times are ISO 8601 with an offset (UTC in answers);
+temperatures °C, power kW, energy kWh, irradiance W/m². Errors are JSON `{"detail": …}`: 401 no
+valid token, 403 too low a role (or a coach outside a gateway token's scope), 404 no such coach,
+train or record, 409 a conflict with the stored state, 413 a request body over the limit (2 MiB by
+default), 422 a malformed request or a value out of range (with the reason), 429 too many failed
+authentications from the client address (with `Retry-After`), 503 the database does not answer.
+Every write is one transaction: a request that fails changes nothing.
 
 ```sh
 TOKEN=$(.venv/bin/trainclimate token create --role operator)
@@ -37,8 +40,9 @@ curl -s -X POST -H "Authorization: Bearer $TOKEN" -H "Content-Type: application/
 
 
 def route_roles(router: APIRouter) -> dict[tuple[str, str], str]:
-    """(method, path) → the role a route's token dependency asks for (absent: no token); the
-    routes of the routers ``router`` includes with their full paths."""
+    """(method, path) → the role a route's token dependency asks for (absent: no token; the
+    live feed's routes name the gateway token too); the routes of the routers ``router`` includes
+    with their full paths."""
     out = {}
     for route in iter_route_contexts(router.routes):
         if not isinstance(route.original_route, APIRoute):
@@ -47,6 +51,8 @@ def route_roles(router: APIRouter) -> dict[tuple[str, str], str]:
         while stack:
             dep = stack.pop()
             role = getattr(dep.call, "role", None)
+            if role is not None and getattr(dep.call, "gateway", False):
+                role += ", or a gateway token scoped to the coach"
             if role is not None:
                 for method in route.methods:
                     out[(method, route.path)] = role

@@ -10,7 +10,17 @@ from pydantic import AwareDatetime
 from sqlalchemy import select
 
 from trainclimate.service.api import schemas
-from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, Operator, Viewer, period, settings
+from trainclimate.service.api.deps import (
+    AUTH,
+    DB,
+    NOT_FOUND,
+    GatewayOrOperatorCoach,
+    GatewayOrViewer,
+    Operator,
+    Viewer,
+    period,
+    settings,
+)
 from trainclimate.service.store import commands, queries
 from trainclimate.service.store.models import Coach
 
@@ -38,9 +48,10 @@ def register_coach(
     request: Request,
     response: Response,
     s: DB,
-    who: Operator,
+    who: GatewayOrOperatorCoach,
 ) -> dict:
-    """Register a live coach (and its train); an existing coach is returned as it is (200)."""
+    """Register a live coach (and its train); an existing coach is returned as it is (200). A
+    gateway token may register the coaches of its scope."""
     coach, created = commands.register_coach(s, who, body.id, body.train_id, body.ddpc_active)
     if not created:
         response.status_code = 200
@@ -85,8 +96,9 @@ def coach_timeseries(
     tags=["live feed"],
     responses={**AUTH, **NOT_FOUND},
 )
-def coach_setpoint(coach_id: str, request: Request, s: DB, _: Viewer) -> dict:
-    """The setpoint the coach's gateway should apply now (the live feed's pull)."""
+def coach_setpoint(coach_id: str, request: Request, s: DB, _: GatewayOrViewer) -> dict:
+    """The setpoint the coach's gateway should apply now (the live feed's pull); a gateway token
+    may pull it for the coaches of its scope."""
     coach = queries.coach_or_404(s, coach_id)
     return queries.current_setpoint(s, coach, period(request), settings(request).stale_periods)
 

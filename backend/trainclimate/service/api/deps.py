@@ -1,5 +1,5 @@
-"""What the routes share: the request's transaction, the caller's role, the settings, and the
-error answers they document."""
+"""What the routes share: the request's transaction, the caller's role (or a gateway token's coach
+scope), the settings, and the error answers they document."""
 
 from __future__ import annotations
 
@@ -11,12 +11,17 @@ from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
 from trainclimate.service.api import schemas
-from trainclimate.service.api.security import require
+from trainclimate.service.api.security import require, require_coach
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.tokens import Principal
 
 UNAUTHORIZED = {401: {"model": schemas.Message, "description": "no valid token"}}
-FORBIDDEN = {403: {"model": schemas.Message, "description": "the token's role is too low"}}
+FORBIDDEN = {
+    403: {
+        "model": schemas.Message,
+        "description": "the token's role is too low, or a gateway token is not for the coach",
+    }
+}
 NOT_FOUND = {404: {"model": schemas.Message, "description": "no such coach or train"}}
 AUTH = {**UNAUTHORIZED, **FORBIDDEN}
 #: The largest id, version or offset taken: the columns are 32-bit integers (a larger value
@@ -36,6 +41,16 @@ DB = Annotated[Session, Depends(session, scope="function")]
 Viewer = Annotated[Principal, Depends(require("viewer"))]
 Operator = Annotated[Principal, Depends(require("operator"))]
 Admin = Annotated[Principal, Depends(require("admin"))]
+#: The live feed's routes, which a gateway token scoped to the coach may call too (and only these):
+#: registering a coach (the body's ``id``), pushing its telemetry (the body's ``coach_id``) and
+#: pulling its setpoint (the path's ``coach_id``).
+GatewayOrOperatorCoach = Annotated[
+    Principal, Depends(require_coach("operator", schemas.CoachCreate, "id"))
+]
+GatewayOrOperatorTelemetry = Annotated[
+    Principal, Depends(require_coach("operator", schemas.TelemetryBatch, "coach_id"))
+]
+GatewayOrViewer = Annotated[Principal, Depends(require_coach("viewer"))]
 
 
 def settings(request: Request) -> Settings:

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import math
 from datetime import UTC, datetime, timedelta
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
-Role = Literal["viewer", "operator", "admin"]
+Role = Literal["gateway", "viewer", "operator", "admin"]
 Source = Literal["ddpc", "rule", "override", "fallback"]
 Mode = Literal["regular", "slumber", "off"]
 
@@ -52,7 +52,7 @@ class Health(BaseModel):
 
 class Ready(BaseModel):
     status: str = Field(examples=["ready"])
-    migrations: str = Field(examples=["0001"])
+    migrations: str = Field(examples=["0002"])
     model_version: int | None = Field(examples=[1])
 
 
@@ -277,15 +277,34 @@ class AuditOut(BaseModel):
     detail: dict
 
 
+CoachIds = list[Annotated[str, Field(min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.-]+$")]]
+
+
 class TokenIn(Strict):
     role: Role
     name: str | None = Field(default=None, min_length=1, max_length=100, examples=["alice"])
+    coaches: CoachIds | None = Field(
+        default=None,
+        min_length=1,
+        max_length=1000,
+        description="the coaches a gateway token is for: required with gateway, else refused",
+        examples=[["124-A", "124-B"]],
+    )
+
+    @model_validator(mode="after")
+    def _scope(self) -> TokenIn:
+        if self.role == "gateway" and not self.coaches:
+            raise ValueError("a gateway token needs coaches: the coach ids it is for")
+        if self.role != "gateway" and self.coaches is not None:
+            raise ValueError("coaches are for gateway tokens only")
+        return self
 
 
 class TokenOut(BaseModel):
     token: str = Field(description="shown once; only its hash is stored")
     name: str
     role: Role
+    coaches: list[str] | None = Field(description="a gateway token's coaches; else null")
 
 
 class Me(BaseModel):
@@ -298,7 +317,9 @@ class TokenInfo(BaseModel):
     user: str
     role: Role
     prefix: str
+    coaches: list[str] | None = Field(description="a gateway token's coaches; else null")
     created_at: datetime
+    expires_at: datetime | None = Field(description="null: it does not expire")
     revoked_at: datetime | None
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from trainclimate.service.api import schemas
-from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, Operator
+from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, GatewayOrOperatorTelemetry
 from trainclimate.service.store import commands
 
 router = APIRouter()
@@ -18,8 +18,9 @@ router = APIRouter()
     tags=["live feed"],
     responses={**AUTH, **NOT_FOUND},
 )
-def post_telemetry(batch: schemas.TelemetryBatch, s: DB, _: Operator) -> dict:
-    """A gateway's batch of 1-minute rows for one coach; rows already stored are skipped."""
+def post_telemetry(batch: schemas.TelemetryBatch, s: DB, _: GatewayOrOperatorTelemetry) -> dict:
+    """A gateway's batch of 1-minute rows for one coach; rows already stored are skipped. A
+    gateway token may send it for the coaches of its scope."""
     rows = [_telemetry_row(r) for r in batch.rows]
     stored, dup = commands.ingest(s, batch.coach_id, rows)
     return {"received": len(rows), "stored": stored, "duplicates": dup}

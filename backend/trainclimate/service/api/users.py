@@ -33,26 +33,19 @@ def me(who: Viewer) -> dict:
     "/tokens", response_model=schemas.TokenOut, status_code=201, tags=["users"], responses=AUTH
 )
 def create_token(body: schemas.TokenIn, s: DB, who: Admin) -> dict:
-    """A new token (shown once) for a user, created with the role if new; audited."""
-    token, user = commands.issue_token(s, who, body.role, body.name)
-    return {"token": token, "name": user.name, "role": user.role}
+    """A new token (shown once) for a user, created with the role if new; a gateway token is
+    scoped to ``coaches`` (it may register them, push their telemetry and pull their setpoints,
+    nothing else); audited with the scope."""
+    token, user = commands.issue_token(s, who, body.role, body.name, body.coaches)
+    return {"token": token, "name": user.name, "role": user.role, "coaches": body.coaches}
 
 
 @router.get("/tokens", response_model=list[schemas.TokenInfo], tags=["users"], responses=AUTH)
 def list_tokens(s: DB, _: Admin) -> list:
-    """Every token (its prefix only), its user, role and whether it is revoked."""
+    """Every token (its prefix only), its user, role, a gateway token's coaches, and whether it
+    is revoked."""
     rows = s.execute(select(ApiToken, User).join(User).order_by(ApiToken.id)).all()
-    return [
-        {
-            "id": t.id,
-            "user": u.name,
-            "role": u.role,
-            "prefix": t.prefix,
-            "created_at": t.created_at,
-            "revoked_at": t.revoked_at,
-        }
-        for t, u in rows
-    ]
+    return [_info(t, u) for t, u in rows]
 
 
 @router.delete(
@@ -64,12 +57,18 @@ def list_tokens(s: DB, _: Admin) -> list:
 def revoke_token(token_id: Annotated[int, Path(ge=1, le=INT32_MAX)], s: DB, who: Admin):
     """Revoke a token: it no longer authenticates; audited."""
     t = commands.revoke_token(s, who, token_id)
-    user = s.get(User, t.user_id)
+    return _info(t, s.get(User, t.user_id))
+
+
+def _info(t: ApiToken, u: User) -> dict:
+    """A token as listed: a token with a coach scope is a gateway's whatever its user's role."""
     return {
         "id": t.id,
-        "user": user.name,
-        "role": user.role,
+        "user": u.name,
+        "role": "gateway" if t.coaches is not None else u.role,
         "prefix": t.prefix,
+        "coaches": t.coaches,
         "created_at": t.created_at,
+        "expires_at": t.expires_at,
         "revoked_at": t.revoked_at,
     }

@@ -28,7 +28,7 @@ from trainclimate.service.store.queries import (
     fleet_clock,
 )
 from trainclimate.service.store.telemetry import insert_rows
-from trainclimate.service.store.tokens import Principal, create_token
+from trainclimate.service.store.tokens import Principal, check_scope, create_token
 from trainclimate.sim.setpoint import U_BAND_K
 
 
@@ -193,10 +193,18 @@ def activate_model(session: Session, who: Principal, version: int, reason: str) 
     return model
 
 
-def issue_token(session: Session, who: Principal, role: str, name: str | None) -> tuple[str, User]:
-    """A new token for user ``name`` with ``role`` (:func:`.tokens.create_token`), audited."""
-    token, user = create_token(session, role, name)
-    audit(session, who, "token.create", f"user:{user.name}", "", role=role)
+def issue_token(
+    session: Session,
+    who: Principal,
+    role: str,
+    name: str | None,
+    coaches: list[str] | None = None,
+) -> tuple[str, User]:
+    """A new token for user ``name`` with ``role`` (a gateway's scoped to ``coaches``,
+    :func:`.tokens.create_token`), audited with its scope."""
+    token, user = create_token(session, role, name, coaches)
+    scope = {} if coaches is None else {"coaches": check_scope(role, coaches)}
+    audit(session, who, "token.create", f"user:{user.name}", "", role=role, **scope)
     return token, user
 
 

@@ -8,7 +8,8 @@
 - setpoints: per coach and tick (unique), T_rule, T_ref, source and reason, solve time and the
   predicted trajectory;
 - overrides with their expiry; predictor models (versions, parameters, validation, which is
-  active); users, their hashed tokens and roles; the audit log of every write.
+  active); users, their hashed tokens (a gateway's scoped to its coaches) and roles; the audit
+  log of every write.
 
 Every timestamp is stored in UTC and read back timezone-aware (:class:`UTCDateTime`).
 """
@@ -34,7 +35,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
-ROLES = ("viewer", "operator", "admin")
+#: The roles, lowest first: a gateway (its token scoped to coaches) ranks below a viewer.
+ROLES = ("gateway", "viewer", "operator", "admin")
 SOURCES = ("ddpc", "rule", "override", "fallback")
 MODES = ("regular", "slumber", "off")
 #: An autoincrementing 64-bit key (SQLite only autoincrements INTEGER PRIMARY KEY).
@@ -191,7 +193,7 @@ class PredictorModel(Base):
 
 
 class User(Base):
-    """A user of the API with a role (viewer, operator or admin)."""
+    """A user of the API with a role (gateway, viewer, operator or admin)."""
 
     __tablename__ = "users"
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
@@ -202,8 +204,9 @@ class User(Base):
 
 
 class ApiToken(Base):
-    """A user's bearer token: its SHA-256 and first characters (never the token itself), and
-    when it was revoked."""
+    """A user's bearer token: its SHA-256 and first characters (never the token itself), the
+    coaches it is scoped to (a gateway token's; None for the other roles), when it expires (None:
+    never) and when it was revoked."""
 
     __tablename__ = "api_tokens"
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
@@ -212,6 +215,8 @@ class ApiToken(Base):
     prefix: Mapped[str] = mapped_column(String(12))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    coaches: Mapped[list[str] | None] = mapped_column(JSON(none_as_null=True), nullable=True)
+    expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     user: Mapped[User] = relationship(back_populates="tokens")
 
 

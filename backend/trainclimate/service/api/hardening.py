@@ -1,0 +1,219 @@
+"""Hardening of every HTTP exchange, as pure ASGI middleware installed by
+:func:`trainclimate.service.app.create_app` (outermost first):
+
+- :class:`SecurityHeaders` — the Content Security Policy and the other security headers on every
+  response, the API's and the dashboard's (a 500 included);
+- :class:`AuthFailureThrottle` — after ``auth_failures_burst`` failed authentications (401 to a
+  request that carried an ``Authorization`` header) within ``auth_failures_window_s`` from one
+  client address, that address's requests with a token answer 429 (``Retry-After``) until the
+  window frees; requests without a token (the dashboard's files) are still served;
+- :class:`BodySizeLimit` — a request body over ``max_body_bytes`` answers 413, read off
+  ``Content-Length`` when given, else counted while it streams in (chunked), never read whole
+  first.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+from starlette.datastructures import Headers, MutableHeaders
+from starlette.exceptions import HTTPException
+from starlette.responses import JSONResponse
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+log = logging.getLogger(__name__)
+
+#: The dashboard loads its script, style and Plotly.js from the same origin and uses no inline
+#: script or event handler; inline styles are allowed because Plotly.js sets style attributes
+#: (a stricter ``style-src 'self'`` blocks them in the browser).
+CONTENT_SECURITY_POLICY = (
+    "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+    "img-src 'self' data:; "
+    "connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'self'"
+)
+SECURITY_HEADERS = {
+    "Content-Security-Policy": CONTENT_SECURITY_POLICY,
+    "X-Content-Type-Options": "nosniff",
+    "X-Frame-Options": "DENY",
+    "Referrer-Policy": "no-referrer",
+}
+
+
+class SecurityHeaders:
+    """Adds :data:`SECURITY_HEADERS` to every HTTP response. An exception escaping the app
+    before it answered is answered here (500, with the headers) and raised again, so that the
+    server still logs it."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def send_with_headers(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+                headers = MutableHeaders(scope=message)
+                for name, value in SECURITY_HEADERS.items():
+                    headers[name] = value
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_with_headers)
+        except Exception:
+            if not started:
+                response = JSONResponse({"detail": "Internal Server Error"}, status_code=500)
+                await response(scope, receive, send_with_headers)
+            raise
+
+
+class BodyTooLarge(HTTPException):
+    """A request body over the limit (413); raised by the counting ``receive``, answered by the
+    app's exception handling or else by :class:`BodySizeLimit`."""
+
+    def __init__(self, limit: int) -> None:
+        super().__init__(413, f"request body larger than {limit} bytes")
+
+
+class BodySizeLimit:
+    """413 for a request body over ``max_bytes``: at once if ``Content-Length`` says so (the app
+    is not called), else as soon as the chunks received add up to more."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def _refuse(self, scope: Scope, receive: Receive, send: Send) -> None:
+        error = BodyTooLarge(self.max_bytes)
+        response = JSONResponse({"detail": error.detail}, status_code=413)
+        await response(scope, receive, send)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        length = Headers(scope=scope).get("content-length")
+        if length is not None:
+            try:
+                too_large = int(length) > self.max_bytes
+            except ValueError:
+                too_large = False  # the server refuses a malformed Content-Length itself
+            if too_large:
+                await self._refuse(scope, receive, send)
+                return
+        received = 0
+        started = False
+
+        async def counting_receive() -> Message:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.max_bytes:
+                    raise BodyTooLarge(self.max_bytes)
+            return message
+
+        async def watching_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, counting_receive, watching_send)
+        except BodyTooLarge:
+            if started:
+                raise
+            await self._refuse(scope, receive, send)
+
+
+class FailureCounter:
+    """Failed authentications per client address: the times (monotonic) of each address's last
+    ``burst`` failures, kept under a lock (the server's threads share one). An address is
+    blocked while its last ``burst`` failures all fall within ``window_s``; another address's
+    success or failure leaves its count alone."""
+
+    def __init__(
+        self, burst: int, window_s: float, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.burst = burst
+        self.window_s = window_s
+        self.clock = clock
+        self._failures: dict[str, deque[float]] = {}
+        self._lock = threading.Lock()
+
+    def _sweep(self, now: float) -> None:
+        """Forget the addresses whose last failure is out of the window (the caller locks)."""
+        for address in [a for a, d in self._failures.items() if d[-1] <= now - self.window_s]:
+            del self._failures[address]
+
+    def retry_after(self, address: str) -> int | None:
+        """Seconds until ``address`` may try again (at least 1), or ``None`` if not blocked."""
+        with self._lock:
+            times = self._failures.get(address)
+            now = self.clock()
+            if times is None or not self._blocked(times, now):
+                return None
+            return max(1, math.ceil(times[0] + self.window_s - now))
+
+    def record_failure(self, address: str) -> bool:
+        """Count a failure of ``address``; ``True`` if that one starts a block."""
+        with self._lock:
+            now = self.clock()
+            if len(self._failures) > 1024:
+                self._sweep(now)
+            times = self._failures.setdefault(address, deque(maxlen=self.burst))
+            was_blocked = self._blocked(times, now)
+            times.append(now)
+            return not was_blocked and self._blocked(times, now)
+
+    def _blocked(self, times: deque[float], now: float) -> bool:
+        return len(times) >= self.burst and times[0] > now - self.window_s
+
+
+class AuthFailureThrottle:
+    """429 with ``Retry-After`` to requests carrying an ``Authorization`` header from an address
+    :class:`FailureCounter` blocks (the app is not called); a 401 to a request with that header
+    counts as a failure of its address. Each block is logged once, with the address."""
+
+    def __init__(self, app: ASGIApp, counter: FailureCounter) -> None:
+        self.app = app
+        self.counter = counter
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or b"authorization" not in dict(scope["headers"]):
+            await self.app(scope, receive, send)
+            return
+        address = scope["client"][0] if scope.get("client") else "unknown"
+        wait = self.counter.retry_after(address)
+        if wait is not None:
+            response = JSONResponse(
+                {"detail": f"too many failed authentications; try again in {wait} s"},
+                status_code=429,
+                headers={"Retry-After": str(wait)},
+            )
+            await response(scope, receive, send)
+            return
+
+        async def watching_send(message: Message) -> None:
+            failed = message["type"] == "http.response.start" and message["status"] == 401
+            if failed and self.counter.record_failure(address):
+                log.warning(
+                    "%s: %d failed authentications within %g s; its requests with a token "
+                    "answer 429 until the window frees",
+                    address,
+                    self.counter.burst,
+                    self.counter.window_s,
+                )
+            await send(message)
+
+        await self.app(scope, receive, watching_send)
