@@ -9,6 +9,7 @@ import os
 import sys
 import threading
 import time
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -71,17 +72,30 @@ def _announce(server, stderr_lines: list[str], stdout_lines: list[str]) -> None:
         print("\n".join(stdout_lines), flush=True)
 
 
-def _create_token(url: str, role: str, name: str | None, coaches: list[str] | None = None) -> dict:
-    """A new token in the migrated database ``url`` (a gateway's scoped to ``coaches``):
-    {token, name, role, coaches}."""
+def _create_token(
+    url: str,
+    role: str,
+    name: str | None,
+    coaches: list[str] | None = None,
+    expires_at: datetime | None = None,
+) -> dict:
+    """A new token in the migrated database ``url`` (a gateway's scoped to ``coaches``, valid
+    until ``expires_at``): {token, name, role, coaches, expires_at}."""
     from trainclimate.service.store.db import Database
     from trainclimate.service.store.tokens import create_token
 
     db = Database(url)
     try:
         with db.transaction() as session:
-            token, user = create_token(session, role, name, coaches)
-            return {"token": token, "name": user.name, "role": user.role, "coaches": coaches}
+            token, user = create_token(session, role, name, coaches, expires_at)
+            expiry = expires_at.isoformat() if expires_at else None
+            return {
+                "token": token,
+                "name": user.name,
+                "role": user.role,
+                "coaches": coaches,
+                "expires_at": expiry,
+            }
     finally:
         db.dispose()
 
@@ -103,9 +117,14 @@ def cmd_token_create(args: argparse.Namespace) -> None:
         check_scope(args.role, coaches)
     except ValueError as exc:
         raise UsageError(f"--coaches: {exc}") from None
+    expires_at = None
+    if args.expires is not None:
+        if not (np.isfinite(args.expires) and 0 < args.expires <= 3650):
+            raise UsageError("--expires takes a number of days in (0, 3650]")
+        expires_at = datetime.now(UTC) + timedelta(days=args.expires)
     url = db_url(args)
     migrate(url)
-    data = _create_token(url, args.role, args.name, coaches)
+    data = _create_token(url, args.role, args.name, coaches, expires_at)
     out = out_file(args.out, "the token file")
     if out is not None:  # for another process to read (the compose demo's gateways): owner-only
         out.touch(mode=0o600)
@@ -195,6 +214,9 @@ def register(sub) -> None:
     p.add_argument("--name", default=None, help="user name (default: generated)")
     p.add_argument("--db", default=None, help="database URL")
     p.add_argument("--out", default=None, help="write the token to this file (mode 600)")
+    p.add_argument(
+        "--expires", type=float, default=None, help="days until it stops working (default never)"
+    )
 
     p = add_command(
         sub, "gateway", cmd_gateway, "an onboard gateway emulator speaking the HTTP live feed"

@@ -299,12 +299,22 @@ class TokenIn(Strict):
             raise ValueError("coaches are for gateway tokens only")
         return self
 
+    expires_in_days: float | None = Field(
+        default=None,
+        gt=0,
+        le=3650,
+        description="the token stops authenticating this many days after its creation "
+        "(default: valid until revoked)",
+        examples=[90],
+    )
+
 
 class TokenOut(BaseModel):
     token: str = Field(description="shown once; only its hash is stored")
     name: str
     role: Role
     coaches: list[str] | None = Field(description="a gateway token's coaches; else null")
+    expires_at: datetime | None = Field(description="null: it does not expire")
 
 
 class Me(BaseModel):

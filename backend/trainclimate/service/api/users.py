@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
 from fastapi import APIRouter, Path
@@ -36,8 +37,17 @@ def create_token(body: schemas.TokenIn, s: DB, who: Admin) -> dict:
     """A new token (shown once) for a user, created with the role if new; a gateway token is
     scoped to ``coaches`` (it may register them, push their telemetry and pull their setpoints,
     nothing else); audited with the scope."""
-    token, user = commands.issue_token(s, who, body.role, body.name, body.coaches)
-    return {"token": token, "name": user.name, "role": user.role, "coaches": body.coaches}
+    expires_at = None
+    if body.expires_in_days is not None:
+        expires_at = datetime.now(UTC) + timedelta(days=body.expires_in_days)
+    token, user = commands.issue_token(s, who, body.role, body.name, body.coaches, expires_at)
+    return {
+        "token": token,
+        "name": user.name,
+        "role": user.role,
+        "coaches": body.coaches,
+        "expires_at": expires_at,
+    }
 
 
 @router.get("/tokens", response_model=list[schemas.TokenInfo], tags=["users"], responses=AUTH)

@@ -199,11 +199,17 @@ def issue_token(
     role: str,
     name: str | None,
     coaches: list[str] | None = None,
+    expires_at: datetime | None = None,
 ) -> tuple[str, User]:
-    """A new token for user ``name`` with ``role`` (a gateway's scoped to ``coaches``,
-    :func:`.tokens.create_token`), audited with its scope."""
-    token, user = create_token(session, role, name, coaches)
+    """A new token for user ``name`` with ``role`` (a gateway's scoped to ``coaches``, valid
+    until ``expires_at``, :func:`.tokens.create_token`), audited with its scope and expiry."""
+    try:
+        token, user = create_token(session, role, name, coaches, expires_at)
+    except ValueError as exc:
+        raise RequestError(str(exc)) from None
     scope = {} if coaches is None else {"coaches": check_scope(role, coaches)}
+    if expires_at is not None:
+        scope["expires_at"] = expires_at.isoformat()
     audit(session, who, "token.create", f"user:{user.name}", "", role=role, **scope)
     return token, user
 

@@ -20,6 +20,7 @@ import hmac
 import re
 import secrets
 from dataclasses import dataclass
+from datetime import datetime
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -72,12 +73,19 @@ def check_scope(role: str, coaches: list[str] | None) -> list[str] | None:
 
 
 def create_token(
-    session: Session, role: str, name: str | None = None, coaches: list[str] | None = None
+    session: Session,
+    role: str,
+    name: str | None = None,
+    coaches: list[str] | None = None,
+    expires_at: datetime | None = None,
 ) -> tuple[str, User]:
     """A new token for user ``name`` (created with ``role`` if new; an existing user keeps its
-    name and gets the role asked for), scoped to ``coaches`` for a gateway (:func:`check_scope`).
+    name and gets the role asked for), scoped to ``coaches`` for a gateway (:func:`check_scope`),
+    valid until ``expires_at`` (UTC; None: until revoked; ValueError if not in the future).
     Returns the token — the only time it is seen — and the user.
     """
+    if expires_at is not None and expires_at <= utcnow():
+        raise ValueError("the expiry must lie in the future")
     if role not in ROLES:
         raise ValueError(f"unknown role {role!r} (gateway, viewer, operator, admin)")
     coaches = check_scope(role, coaches)
@@ -91,7 +99,13 @@ def create_token(
         user.role = role
     token = PREFIX + secrets.token_urlsafe(32)
     session.add(
-        ApiToken(user_id=user.id, token_hash=hash_token(token), prefix=token[:10], coaches=coaches)
+        ApiToken(
+            user_id=user.id,
+            token_hash=hash_token(token),
+            prefix=token[:10],
+            coaches=coaches,
+            expires_at=expires_at,
+        )
     )
     return token, user
 
