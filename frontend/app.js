@@ -1,4 +1,5 @@
-// trainclimate operator dashboard: fleet overview, pair comparison, coach detail, audit log.
+// trainclimate operator dashboard: fleet overview, pair comparison, coach detail, audit log,
+// API tokens (admins only).
 // Plain JavaScript, no build step; Plotly.js is served by the backend (no CDN).
 "use strict";
 
@@ -66,6 +67,7 @@ async function signIn(token) {
   state.me = me;
   sessionStorage.setItem("tc_token", token);
   document.body.classList.toggle("viewer", me.role === "viewer");
+  document.body.classList.toggle("admin", me.role === "admin");
   document.getElementById("who").textContent = `${me.name} (${me.role})`;
   document.getElementById("signout").hidden = false;
 }
@@ -74,6 +76,7 @@ function signOut() {
   sessionStorage.removeItem("tc_token");
   state.token = null;
   state.me = null;
+  document.body.classList.remove("admin");
   document.getElementById("who").textContent = "";
   document.getElementById("signout").hidden = true;
   showSignIn();
@@ -130,6 +133,7 @@ async function route() {
   if (page === "train" && id) return showTrain(decodeURIComponent(id));
   if (page === "coach" && id) return showCoach(decodeURIComponent(id));
   if (page === "audit") return showAudit();
+  if (page === "tokens" && state.me.role === "admin") return showTokens(); // others never ask /tokens
   return showFleet();
 }
 
@@ -412,6 +416,95 @@ async function showAudit() {
       el("td", { text: local(a.time) }), el("td", { text: a.user }), el("td", { text: a.role }), el("td", { text: a.action }),
       el("td", { text: a.target }), el("td", { text: a.reason }), el("td", { text: JSON.stringify(a.detail) }))));
   });
+}
+
+// --- API tokens (admins only) ---------------------------------------------------------------
+/** Who revoked a token, by token id, from the audit log (`token.revoke`, target `token:ID`);
+ *  looked up once per revoked token (a revocation is final); null if the log has no entry. */
+const revokers = new Map();
+
+async function showTokens() {
+  const view = mount("tpl-tokens");
+  const error = view.querySelector("#tokens-error");
+
+  async function load() {
+    try {
+      const tokens = await api("/tokens");
+      await findRevokers(tokens);
+      drawTokens(view, tokens, revoke);
+    } catch (err) {
+      error.textContent = `Loading the tokens failed: ${err.message}`;
+    }
+  }
+
+  async function revoke(token) {
+    const question = `Revoke the ${token.role} token ${token.prefix}… of ${token.user}? ` +
+      "It stops working at once (every request with it gets 401); this cannot be undone.";
+    if (!window.confirm(question)) return;
+    error.textContent = "";
+    try {
+      await api(`/tokens/${token.id}`, { method: "DELETE" });
+    } catch (err) {
+      error.textContent = `Revoking ${token.prefix}… of ${token.user} failed: ${err.message}`;
+      return;
+    }
+    await load();
+  }
+
+  view.querySelector("#tokens-refresh").addEventListener("click", () => {
+    error.textContent = "";
+    load();
+  });
+  await load();
+}
+
+async function findRevokers(tokens) {
+  const unknown = tokens.filter((t) => t.revoked_at && !revokers.has(t.id));
+  await Promise.all(unknown.map(async (t) => {
+    const [entry] = await api(`/audit?target=${encodeURIComponent(`token:${t.id}`)}&limit=1`);
+    revokers.set(t.id, entry && entry.action === "token.revoke" ? entry.user : null);
+  }));
+}
+
+function tokenStatus(token, now) {
+  if (token.revoked_at) return "revoked";
+  if (token.expires_at && new Date(token.expires_at).getTime() <= now) return "expired";
+  return "active";
+}
+
+/** Whether this is the token the dashboard is signed in with (its user and prefix match). */
+function isCurrentToken(token) {
+  return token.user === state.me.name && state.token.startsWith(token.prefix);
+}
+
+function drawTokens(view, tokens, revoke) {
+  const now = Date.now();
+  const minute = (iso) => local(iso).slice(0, 16);
+  view.querySelector("#tokens tbody").replaceChildren(...(tokens.length ? tokens.map((t) => {
+    const status = tokenStatus(t, now);
+    const expired = t.expires_at && new Date(t.expires_at).getTime() <= now;
+    const by = revokers.get(t.id);
+    return el("tr", { "data-token": t.id, "data-status": status },
+      el("td", { text: t.user }),
+      el("td", { class: "mono", text: `${t.prefix}…` }),
+      el("td", { text: t.role }),
+      el("td", { text: t.coaches ? t.coaches.join(", ") : "–" }),
+      el("td", { class: "when", text: minute(t.created_at) }),
+      el("td", { class: expired ? "when expired" : "when", text: t.expires_at ? `${minute(t.expires_at)}${expired ? " (expired)" : ""}` : "never" }),
+      el("td", { text: t.revoked_at ? `${minute(t.revoked_at)}${by ? ` by ${by}` : ""}` : "–" }),
+      el("td", {}, el("span", { class: `badge ${status}`, text: status })),
+      el("td", {}, tokenAction(t, status, revoke)));
+  }) : [el("tr", {}, el("td", { text: "no tokens" }))]));
+}
+
+function tokenAction(token, status, revoke) {
+  if (status !== "active") return "";
+  if (isCurrentToken(token)) {
+    return el("span", { class: "hint", text: "your session", title: "the token you are signed in with: revoke it from another admin session" });
+  }
+  const button = el("button", { class: "secondary", text: "Revoke" });
+  button.addEventListener("click", () => revoke(token));
+  return button;
 }
 
 // --- start ---------------------------------------------------------------------------------

@@ -1,10 +1,13 @@
 """The service as real child processes: ``trainclimate serve`` on a port, started and stopped,
-killed and restarted; tokens through the console script. Shared by the process tests, the
-browser tests and the compose mirror."""
+killed and restarted; tokens through the console script; a private Mosquitto broker. Shared by
+the process tests, the browser tests and the compose mirror."""
 
 from __future__ import annotations
 
+import getpass
 import json
+import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -55,6 +58,13 @@ class Server:
     def output(self) -> str:
         return self.log.read_text(errors="replace")[-4000:]
 
+    def printed(self, pattern: str, timeout: float = 15.0) -> re.Match:
+        """The first match of ``pattern`` in the server's output, once it is printed (the URL
+        and token lines follow the first answer by a moment)."""
+        return wait_for(
+            lambda: re.search(pattern, self.output()), timeout, f"{pattern!r} in the output"
+        )
+
     def stop(self) -> None:
         if self.proc is None or self.proc.poll() is not None:
             return
@@ -85,3 +95,60 @@ def token_cli(db_url: str, role: str, env: dict[str, str]) -> str:
     reply = json.loads(done.stdout)
     assert reply["role"] == role and reply["token"].startswith("tc_")
     return reply["token"]
+
+
+#: The compose demo's broker configuration (Mosquitto's config and ACL).
+MOSQUITTO_DEPLOY = Path(__file__).resolve().parents[1] / "deploy" / "mosquitto"
+
+
+class Mosquitto:
+    """A private Mosquitto broker (the machine's ``mosquitto``) on a free port, configured as the
+    compose demo's (``deploy/mosquitto``: no anonymous users, its ACL) with ``users`` {name:
+    password} in a password file that ``mosquitto_passwd`` writes; its paths under ``tmp``."""
+
+    def __init__(self, tmp: Path, users: dict[str, str]):
+        if not (shutil.which("mosquitto") or Path("/usr/sbin/mosquitto").exists()):
+            pytest.skip("no mosquitto binary on this machine (apt-get install mosquitto)")
+        self.port = free_port()
+        self.url = f"mqtt://127.0.0.1:{self.port}"
+        tmp.mkdir(parents=True, exist_ok=True)
+        passwd = tmp / "passwd"
+        for i, (name, password) in enumerate(users.items()):
+            create = ["-c"] if i == 0 else []
+            subprocess.run(
+                ["mosquitto_passwd", *create, "-b", str(passwd), name, password], check=True
+            )
+        (tmp / "data").mkdir(exist_ok=True)
+        shutil.copy(MOSQUITTO_DEPLOY / "acl", tmp / "acl")
+        where = {
+            "listener": f"{self.port} 127.0.0.1",
+            "password_file": str(passwd),
+            "acl_file": str(tmp / "acl"),
+            "persistence_location": f"{tmp / 'data'}/",
+        }
+        lines = []
+        for line in (MOSQUITTO_DEPLOY / "mosquitto.conf").read_text().splitlines():
+            key = line.split(" ", 1)[0]
+            lines.append(f"{key} {where[key]}" if key in where else line)
+        lines.append(f"user {getpass.getuser()}")  # as root it would switch to "mosquitto"
+        (tmp / "mosquitto.conf").write_text("\n".join(lines) + "\n")
+        binary = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+        self.log = tmp / "mosquitto.log"
+        with self.log.open("wb") as out:
+            self.proc = subprocess.Popen(
+                [binary, "-c", str(tmp / "mosquitto.conf")], stdout=out, stderr=subprocess.STDOUT
+            )
+        wait_for(self._listening, 10, f"mosquitto on port {self.port}")
+
+    def _listening(self) -> bool:
+        if self.proc.poll() is not None:
+            pytest.fail(f"mosquitto exited: {self.log.read_text(errors='replace')}")
+        try:
+            socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
+            return True
+        except OSError:
+            return False
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        self.proc.wait(timeout=10)

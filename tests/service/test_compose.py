@@ -2,7 +2,8 @@
 name files that exist and commands the CLI takes; and the same set-up — PostgreSQL, the backend
 with its migrations at start, the token step and the three gateway emulators — runs here as
 separate processes with the compose file's own commands (only host names, ports, paths and the
-run's length changed), end to end over HTTP."""
+run's length changed), end to end over HTTP and, for train 126, over MQTT through a Mosquitto
+configured as the compose broker (its ACL, its users)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import httpx
 import pytest
 import yaml
 
-from service_processes import CLI, Server, free_port
+from service_processes import CLI, Mosquitto, Server, free_port
 from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database, wait_for
 from trainclimate.cli import build_parser
 from trainclimate.predict import default as models
@@ -56,8 +57,33 @@ def replaced(command: list[str], name: str, value: str) -> list[str]:
     return out
 
 
+def mqtt_users() -> dict[str, str]:
+    """The broker's users and passwords, as the ``mqtt-users`` step writes them."""
+    step = SERVICES["mqtt-users"]
+    found = re.findall(r'mosquitto_passwd (?:-c )?-b \S+ (\S+) "\$\$(\w+)"', step["command"][-1])
+    return {user: step["environment"][var] for user, var in found}
+
+
+def acl_users() -> dict[str, list[str]]:
+    """The ACL's users and their topic lines."""
+    users: dict[str, list[str]] = {}
+    for line in (ROOT / "deploy" / "mosquitto" / "acl").read_text().splitlines():
+        if line.startswith("user "):
+            current = users.setdefault(line.split()[1], [])
+        elif line.startswith("topic "):
+            current.append(line)
+    return users
+
+
 def test_the_compose_file_names_what_exists():
-    assert set(SERVICES) == {"postgres", "backend", "gateway-token", *GATEWAYS}
+    assert set(SERVICES) == {
+        "postgres",
+        "mqtt-users",
+        "mosquitto",
+        "backend",
+        "gateway-token",
+        *GATEWAYS,
+    }
     assert len(GATEWAYS) == 3
     for name, service in SERVICES.items():
         if "build" in service:
@@ -71,7 +97,11 @@ def test_the_compose_file_names_what_exists():
             if rule["condition"] == "service_healthy":
                 assert "healthcheck" in SERVICES[dependency], dependency
         for volume in service.get("volumes", []):
-            assert volume.split(":")[0] in COMPOSE["volumes"], (name, volume)
+            source = volume.split(":")[0]
+            if source.startswith("./"):  # a file of the repository
+                assert (ROOT / source).is_file(), (name, volume)
+            else:
+                assert source in COMPOSE["volumes"], (name, volume)
     assert SERVICES["postgres"]["healthcheck"]["test"][:2] == ["CMD", "pg_isready"]
     # the backend's health check asks a route the app serves without a token
     probe = " ".join(SERVICES["backend"]["healthcheck"]["test"])
@@ -103,7 +133,8 @@ def test_the_dockerfile_copies_what_exists_and_runs_a_valid_command():
     [args] = dockerfile_exec("CMD")
     assert args[0] == "trainclimate"
     assert build_parser().parse_args(args[1:]).command == "serve"
-    assert args == SERVICES["backend"]["command"], "the compose backend runs the image's command"
+    backend = SERVICES["backend"]["command"]
+    assert backend[: len(args)] == args, "the compose backend runs the image's command"
     # the image builds its default model at build time, into its home
     [build] = [a for a in dockerfile_exec("RUN") if a[0] == "trainclimate"]
     parsed = build_parser().parse_args(build[1:])
@@ -137,6 +168,41 @@ def test_every_compose_command_is_one_the_cli_takes():
     assert set(token.coaches.split(",")) == coaches  # the gateways' token: for those, no other
 
 
+def test_the_broker_users_are_the_acl_users_and_each_gateway_has_its_coaches_only():
+    parser = build_parser()
+    backend = parser.parse_args(SERVICES["backend"]["command"][1:])
+    assert urlparse(backend.mqtt).hostname == "mosquitto"
+    users, acl = mqtt_users(), acl_users()
+    assert set(users) == set(acl) == {backend.mqtt_username, "gateway-126"}
+    env = SERVICES["backend"]["environment"]
+    assert env["TRAINCLIMATE_MQTT_PASSWORD"] == users[backend.mqtt_username]
+    prefix = backend.mqtt_prefix
+    assert acl[backend.mqtt_username] == [
+        f"topic read {prefix}/coaches/+/telemetry",
+        f"topic write {prefix}/coaches/+/setpoint",
+    ]
+    mqtt_gateways = 0
+    for name in GATEWAYS:
+        args = parser.parse_args(SERVICES[name]["command"][1:])
+        if args.mqtt is None:
+            continue
+        mqtt_gateways += 1
+        assert args.mqtt == backend.mqtt and args.mqtt_prefix == prefix
+        password = SERVICES[name]["environment"]["TRAINCLIMATE_MQTT_PASSWORD"]
+        assert password == users[args.mqtt_username]
+        assert sorted(acl[args.mqtt_username]) == sorted(
+            f"topic {access} {prefix}/coaches/{coach}/{kind}"
+            for coach in args.coaches.split(",")
+            for access, kind in (("write", "telemetry"), ("read", "setpoint"))
+        )
+    assert mqtt_gateways == 1
+
+
+def compose_env(service: str) -> dict[str, str]:
+    """The service's ``environment`` in the compose file (the shared anchor's or its own)."""
+    return {k: str(v) for k, v in SERVICES[service].get("environment", {}).items()}
+
+
 def image_home(tmp_path: Path, model_file: Path) -> Path:
     """The image's ``TRAINCLIMATE_HOME`` re-rooted under ``tmp_path``, as its build leaves it:
     nothing but the default model that ``trainclimate predictor default`` writes (the test's
@@ -163,10 +229,13 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
     image_env = {**dockerfile_env(), "TRAINCLIMATE_HOME": str(home)}
     env = {**proc_env, **image_env, "TRAINCLIMATE_DATABASE_URL": db_url}
     port = free_port()
-    [backend] = dockerfile_exec("CMD")
+    broker = Mosquitto(tmp_path / "mosquitto", mqtt_users())  # the compose broker's config
+    backend = SERVICES["backend"]["command"]
     backend = replaced(backend, "--host", "127.0.0.1")
     backend = replaced(backend, "--port", str(port))
-    server = Server([*CLI, *backend[1:]], env, port, tmp_path / "backend.log")
+    backend = replaced(backend, "--mqtt", broker.url)
+    backend_env = {**env, **compose_env("backend"), "TRAINCLIMATE_DATABASE_URL": db_url}
+    server = Server([*CLI, *backend[1:]], backend_env, port, tmp_path / "backend.log")
     gateways: list[subprocess.Popen] = []
     try:
         server.start()  # the compose health check: /ready answers once migrated
@@ -188,10 +257,16 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
             # of it for a late coach's row at a tick: emulators that start a second or two
             # apart must stay closer than that, so 90× (1.5–3 simulated minutes), not faster
             command = replaced(command, "--speedup", "90")
+            gateway_env = {**env, **compose_env(name), "TRAINCLIMATE_DATABASE_URL": db_url}
+            if "--mqtt" in command:
+                command = replaced(command, "--mqtt", broker.url)
             log = (tmp_path / f"{name}.log").open("wb")
             gateways.append(
                 subprocess.Popen(
-                    [*CLI, *command[1:], "--hours", str(hours)], env=env, stdout=log, stderr=log
+                    [*CLI, *command[1:], "--hours", str(hours)],
+                    env=gateway_env,
+                    stdout=log,
+                    stderr=log,
                 )
             )
         for name, proc in zip(GATEWAYS, gateways, strict=True):
@@ -212,7 +287,9 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
         headers = {"Authorization": f"Bearer {json.loads(viewer.stdout)['token']}"}
         [model] = httpx.get(f"{api}/models", headers=headers).json()
         assert model["info"]["source"] == "default model, prepared at start"
-        coaches = httpx.get(f"{api}/coaches", headers=headers).json()
+        reply = httpx.get(f"{api}/coaches", headers=headers)
+        assert reply.status_code == 200, reply.text
+        coaches = reply.json()
         assert sorted(c["id"] for c in coaches) == [
             f"{t}-{s}" for t in (124, 125, 126) for s in "AB"
         ]
@@ -228,6 +305,10 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
             else:
                 assert not c["ddpc_active"] and "inactive" in reasons, (c["id"], reasons)
                 assert reasons <= {"inactive", "stale"}, (c["id"], reasons)
+        # train 126's rows came through the broker, each once, nothing dropped
+        feed = httpx.get(health).json()["mqtt"]
+        assert (feed["rows_stored"], feed["duplicates"], feed["dropped"]) == (2 * minutes, 0, {})
+        assert feed["connected"] and feed["setpoints_published"] > 0
         for train in ("124", "125", "126"):
             reply = httpx.get(f"{api}/trains/{train}/comparison", headers=headers)
             assert reply.status_code == 200, reply.text
@@ -239,4 +320,5 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
             if proc.poll() is None:
                 proc.kill()
         server.stop()
+        broker.stop()
         drop_pg_database(db_name)

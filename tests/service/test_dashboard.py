@@ -47,8 +47,8 @@ def server(tmp_path_factory, model_file):
     demo = ["--fleet", "demo", "--speedup", "600", "--new-token", "operator"]
     srv = Server([*args, *demo], env, port, home / "server.log")
     srv.start()
-    printed = re.search(r"dashboard: (\S+)\noperator token: (tc_\S+)", srv.output())
-    assert printed and printed.group(1) == f"{srv.url}/", srv.output()
+    printed = srv.printed(r"dashboard: (\S+)\noperator token: (tc_\S+)")
+    assert printed.group(1) == f"{srv.url}/", srv.output()
     migrate(db_url)
     db = Database(db_url)
     with db.transaction() as s:
@@ -241,8 +241,7 @@ def test_a_service_preparing_its_model_says_so_and_runs_the_coaches_under_t_rule
     srv = Server([*args, "--new-token", "operator"], env, port, tmp_path / "server.log")
     try:
         srv.start()
-        printed = re.search(r"operator token: (tc_\S+)", srv.output())
-        assert printed, srv.output()
+        printed = srv.printed(r"operator token: (tc_\S+)")
         srv.tokens = {"operator": printed.group(1)}
         w = Watched(browser, srv, "operator")
         notice = w.page.locator("#preparing")

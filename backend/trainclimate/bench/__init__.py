@@ -13,4 +13,6 @@ Every benchmark module has ``run(...) -> dict`` (the figures, the JSON of ``benc
 - :mod:`.controller` — the OCP solve three ways, the controller step, a fleet tick (ms, s)
 - :mod:`.service` — the service on PostgreSQL: ingest (rows/s), the pair comparison's latency
   (ms), the live fleet's tick (s)
+- :mod:`.load` — ``serve --fleet demo`` as its own process under many concurrent clients
+  (statuses, latency in ms, requests/s, the loop's ticks) against one client in sequence
 """

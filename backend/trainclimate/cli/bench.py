@@ -14,7 +14,7 @@ from trainclimate.cli.common import (
 
 def cmd_bench(args: argparse.Namespace) -> None:
     """``bench TARGET``: run one benchmark and print its figures (``--json``: its dict)."""
-    from trainclimate.bench import controller, pipeline, predictor, service, simulator
+    from trainclimate.bench import controller, load, pipeline, predictor, service, simulator
 
     if args.target == "simulator":
         if args.coaches < 1 or args.days <= 0:
@@ -37,6 +37,22 @@ def cmd_bench(args: argparse.Namespace) -> None:
             except service.ServiceBenchError as exc:
                 raise UsageError(str(exc)) from None
         emit(args, data, service.text)
+    elif args.target == "load":
+        with progress_bar(3, "load benchmark", "stage") as bar:
+            try:
+                data = load.run(
+                    args.clients,
+                    args.requests,
+                    args.db,
+                    mqtt=args.mqtt or load.MQTT_URL,
+                    mqtt_coaches=load.MQTT_COACHES
+                    if args.mqtt_coaches is None
+                    else args.mqtt_coaches,
+                    progress=bar.update,
+                )
+            except load.LoadBenchError as exc:
+                raise UsageError(str(exc)) from None
+        emit(args, data, load.text)
     else:
         emit(args, controller.run(), controller.text)
 
@@ -45,7 +61,8 @@ def register(sub) -> None:
     """Add ``bench`` to ``sub``."""
     p = add_command(sub, "bench", cmd_bench, "run a benchmark")
     p.add_argument(
-        "target", choices=("simulator", "pipeline", "predictor", "controller", "service")
+        "target",
+        choices=("simulator", "pipeline", "predictor", "controller", "service", "load"),
     )
     p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
     p.add_argument("--data", default=None, help="predictor: dataset directory")
@@ -53,7 +70,23 @@ def register(sub) -> None:
         "--db",
         default=None,
         help="service: an empty PostgreSQL database (default: a new one on the server "
-        "$TRAINCLIMATE_TEST_PG_URL names, else 127.0.0.1:5432, dropped at the end)",
+        "$TRAINCLIMATE_TEST_PG_URL names, else 127.0.0.1:5432, dropped at the end); load: a "
+        "PostgreSQL server to make a throw-away database on (default: SQLite)",
+    )
+    p.add_argument("--clients", type=int, default=50, help="load: concurrent clients")
+    p.add_argument("--requests", type=int, default=2000, help="load: requests in all")
+    p.add_argument(
+        "--mqtt",
+        default=None,
+        metavar="URL",
+        help="load: the broker MQTT gateways publish through during the load (default "
+        "mqtt://127.0.0.1:1883; skipped if none answers there)",
+    )
+    p.add_argument(
+        "--mqtt-coaches",
+        type=int,
+        default=None,
+        help="load: live coaches fed over MQTT (pairs; default 10; 0: none)",
     )
     p.add_argument("--coaches", type=int, default=100)
     p.add_argument("--days", type=float, default=1.0)

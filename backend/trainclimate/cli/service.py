@@ -35,11 +35,24 @@ def cmd_serve(args: argparse.Namespace) -> None:
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
         raise UsageError("--speedup must be positive")
+    broker = mqtt_broker(args)
     settings = Settings(
         database_url=db_url(args),
         fleet=args.fleet,
         speedup=args.speedup,
         predictor_path=args.predictor,
+        **(
+            {
+                "mqtt_url": args.mqtt,
+                "mqtt_username": broker.username,
+                "mqtt_password": broker.password,
+                "mqtt_ca_file": broker.ca_file,
+                "mqtt_prefix": broker.prefix,
+                "mqtt_client_id": args.mqtt_client_id,
+            }
+            if broker is not None
+            else {}
+        ),
     )
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
     try:  # a database that cannot be reached is a one-line error, not a traceback
@@ -48,6 +61,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
         first = str(exc.orig).strip().splitlines()[0] if exc.orig else type(exc).__name__
         raise UsageError(f"cannot use the database: {first}") from None
     lines = [f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})"]
+    if broker is not None:
+        lines.append(f"trainclimate: MQTT feed on {broker.address}, topics {broker.prefix}/…")
     out = []
     if args.new_token:
         token = _create_token(settings.database_url, args.new_token, f"demo-{args.new_token}")
@@ -135,8 +150,49 @@ def cmd_token_create(args: argparse.Namespace) -> None:
     emit(args, data, lambda d: d["token"])
 
 
+def mqtt_broker(args: argparse.Namespace):
+    """The broker of ``--mqtt`` and its options (None without ``--mqtt``); the password from
+    ``--mqtt-password-file``, else ``$TRAINCLIMATE_MQTT_PASSWORD``, else the URL."""
+    from trainclimate.service.adapters.mqtt import Broker, BrokerError
+
+    if args.mqtt is None:
+        return None
+    password = os.environ.get("TRAINCLIMATE_MQTT_PASSWORD")
+    if args.mqtt_password_file:
+        try:
+            password = Path(args.mqtt_password_file).read_text().strip()
+        except OSError as exc:
+            file = args.mqtt_password_file
+            raise UsageError(f"--mqtt-password-file: {exc.strerror}: {file}") from None
+    try:
+        return Broker.from_url(
+            args.mqtt,
+            username=args.mqtt_username,
+            password=password,
+            ca_file=args.mqtt_ca,
+            prefix=args.mqtt_prefix,
+        )
+    except BrokerError as exc:
+        raise UsageError(f"--mqtt: {exc}") from None
+
+
+def add_mqtt_options(p: argparse.ArgumentParser, what: str) -> None:
+    """``--mqtt URL`` and the broker's options."""
+    from trainclimate.service.settings import MQTT_PREFIX
+
+    p.add_argument("--mqtt", default=None, metavar="URL", help=what)
+    p.add_argument("--mqtt-username", default=None, help="the broker's user name")
+    p.add_argument(
+        "--mqtt-password-file",
+        default=None,
+        help="a file holding the broker password (or $TRAINCLIMATE_MQTT_PASSWORD)",
+    )
+    p.add_argument("--mqtt-ca", default=None, help="CA bundle for a TLS broker (implies TLS)")
+    p.add_argument("--mqtt-prefix", default=MQTT_PREFIX, help="the topics' prefix")
+
+
 def cmd_gateway(args: argparse.Namespace) -> None:
-    """``gateway``: an onboard gateway emulator feeding the service over HTTP."""
+    """``gateway``: an onboard gateway emulator feeding the service over HTTP or MQTT."""
     import httpx
 
     from trainclimate.service.adapters.gateway import Gateway
@@ -169,6 +225,7 @@ def cmd_gateway(args: argparse.Namespace) -> None:
         scenario=args.scenario,
         speedup=args.speedup,
         hours=args.hours,
+        mqtt=mqtt_broker(args),
     )
     try:
         stats = gateway.run()
@@ -202,6 +259,14 @@ def register(sub) -> None:
         default=None,
         help="create a token with this role at start and print it with the dashboard's URL",
     )
+    add_mqtt_options(
+        p, "take telemetry from and publish setpoints to this broker, mqtt[s]://HOST[:PORT]"
+    )
+    p.add_argument(
+        "--mqtt-client-id",
+        default="trainclimate-service",
+        help="the service's client id: its persistent session on the broker",
+    )
 
     tsub = add_group(sub, "token", "API tokens")
     p = add_command(tsub, "create", cmd_token_create, "create a token (shown once)")
@@ -219,7 +284,10 @@ def register(sub) -> None:
     )
 
     p = add_command(
-        sub, "gateway", cmd_gateway, "an onboard gateway emulator speaking the HTTP live feed"
+        sub,
+        "gateway",
+        cmd_gateway,
+        "an onboard gateway emulator (HTTP or MQTT live feed)",
     )
     p.add_argument("--server", required=True, help="the service's URL, e.g. http://127.0.0.1:8000")
     p.add_argument("--coaches", required=True, help="coach ids, comma-separated (one train)")
@@ -234,3 +302,6 @@ def register(sub) -> None:
     p.add_argument("--scenario", default="parked-heating-nov", help="weather and operation")
     p.add_argument("--speedup", type=float, default=60.0, help="clock × real time")
     p.add_argument("--hours", type=float, default=None, help="how long (default: the scenario's)")
+    add_mqtt_options(
+        p, "send telemetry and take setpoints over this broker instead of HTTP, mqtt[s]://…"
+    )

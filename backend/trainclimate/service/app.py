@@ -2,9 +2,10 @@
 
 At start (the lifespan): the Alembic migrations are applied, the ``--predictor FILE`` model is
 registered if the database has none, the demo fleet is registered if asked for, and threads
-start: the live fleet's loop, with ``--fleet demo`` the demo fleet, and, if the database still has
-no model, its preparation in the background (:mod:`trainclimate.service.preparation`; the coaches
-run under T_rule until it is ready). They stop with the server.
+start: the live fleet's loop, with ``--fleet demo`` the demo fleet, with ``--mqtt URL`` the MQTT
+feed (:mod:`trainclimate.service.adapters.mqtt`), and, if the database still has no model, its
+preparation in the background (:mod:`trainclimate.service.preparation`; the coaches run under
+T_rule until it is ready). They stop with the server.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import json
 import logging
 import threading
 from contextlib import asynccontextmanager
+from datetime import timedelta
 from pathlib import Path
 
 import plotly
@@ -23,19 +25,28 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 
 from trainclimate import __version__
 from trainclimate.service import api
 from trainclimate.service.adapters import demo
+from trainclimate.service.adapters.mqtt import Broker, MqttBridge
 from trainclimate.service.api.hardening import (
+    DATABASE_RETRY_AFTER_S,
+    OVERLOAD_RETRY_AFTER_S,
+    Admission,
     AuthFailureThrottle,
     BodySizeLimit,
     FailureCounter,
     SecurityHeaders,
+    Slots,
+    database_unavailable,
+    pace_threads,
 )
 from trainclimate.service.preparation import ModelPreparation, has_model, register_predictor
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
+from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.db import Database, migrate
 
 log = logging.getLogger(__name__)
@@ -59,7 +70,9 @@ async def lifespan(app: FastAPI):
     docstring); stop them and close the database when the server stops."""
     settings: Settings = app.state.settings
     migrate(settings.database_url)
-    db = Database(settings.database_url)
+    # the threads running the sync routes, and a pooled connection for each (store/db.py)
+    pace_threads(settings.worker_threads)
+    db = Database(settings.database_url, settings.worker_threads)
     with db.transaction() as session:
         register_model_file(session, settings)
         if settings.fleet == "demo":
@@ -68,6 +81,10 @@ async def lifespan(app: FastAPI):
     preparation.start()
     scheduler = Scheduler(db, settings)
     app.state.db, app.state.scheduler, app.state.preparation = db, scheduler, preparation
+    app.state.mqtt = mqtt_bridge(db, settings)
+    if app.state.mqtt is not None:
+        scheduler.listeners.append(app.state.mqtt.publish_setpoints)
+        app.state.mqtt.start()
     stop = threading.Event()
     threads = [threading.Thread(target=scheduler.run_live, args=(stop,), name="live-loop")]
     if settings.fleet == "demo":
@@ -81,7 +98,25 @@ async def lifespan(app: FastAPI):
         stop.set()
         for t in threads:
             t.join(timeout=10)
+        if app.state.mqtt is not None:
+            app.state.mqtt.stop()
         db.dispose()
+
+
+def mqtt_bridge(db: Database, settings: Settings) -> MqttBridge | None:
+    """With ``--mqtt URL``: the MQTT feed's bridge (not yet started); its setpoints are valid for
+    as long as the HTTP pull's."""
+    if settings.mqtt_url is None:
+        return None
+    broker = Broker.from_url(
+        settings.mqtt_url,
+        username=settings.mqtt_username,
+        password=settings.mqtt_password,
+        ca_file=settings.mqtt_ca_file,
+        prefix=settings.mqtt_prefix,
+    )
+    valid_for = settings.stale_periods * timedelta(minutes=settings.sampling_min)
+    return MqttBridge(db, broker, client_id=settings.mqtt_client_id, valid_for=valid_for)
 
 
 def _error(status: int):
@@ -125,7 +160,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(api.router)
     for exc, status in api.ERROR_STATUS.items():
         app.add_exception_handler(exc, _error(status))
-    app.add_exception_handler(OperationalError, _error(503))
+    app.add_exception_handler(OperationalError, database_unavailable(DATABASE_RETRY_AFTER_S))
+    app.add_exception_handler(PoolTimeoutError, database_unavailable(OVERLOAD_RETRY_AFTER_S))
     app.add_exception_handler(RequestValidationError, _validation_error)
     if settings.cors_origins:
         app.add_middleware(
@@ -134,7 +170,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_methods=["GET", "POST", "PUT", "DELETE"],
             allow_headers=["Authorization", "Content-Type"],
         )
-    # outermost last: the headers on every answer (429 and 413 included), then the throttle
+    # outermost last: the headers on every answer (429, 413 and 503 included), then the
+    # throttle, the body limit and the admission
+    app.state.read_cache = ReadCache(settings.read_cache_size)
+    app.state.admission = Slots(settings.worker_threads, settings.overload_wait_s)
+    app.add_middleware(Admission, slots=app.state.admission)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.state.auth_failures = FailureCounter(
         settings.auth_failures_burst, settings.auth_failures_window_s

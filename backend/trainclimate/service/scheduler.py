@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import logging
 import threading
+from collections.abc import Callable
 from datetime import datetime, timedelta
 
 import pandas as pd
@@ -75,6 +76,9 @@ class Scheduler:
         self._predictor = None
         self._model_id: int | None = None
         self._lock = threading.Lock()
+        #: called as ``listener(fleet, rows)`` with the setpoint rows of each batch of ticks once
+        #: they are committed (the MQTT feed publishes them); a listener's failure is logged
+        self.listeners: list[Callable[[str, list[dict]], None]] = []
 
     # --- the model -------------------------------------------------------------------------
     def refresh_model(self, session: Session) -> None:
@@ -194,6 +198,11 @@ class Scheduler:
                 rows.append(_row(coach.id, tick, decision, self._model_id))
                 coach.last_tick = tick
             session.execute(Setpoint.__table__.insert(), rows)
+        for listener in self.listeners:
+            try:
+                listener(fleet, rows)
+            except Exception:
+                log.exception("a setpoint listener failed (the setpoints are stored)")
         return len(rows)
 
     def _rho(self) -> int:

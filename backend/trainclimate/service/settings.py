@@ -10,6 +10,10 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
+from trainclimate.service.store.db import WORKER_THREADS
+
+#: The MQTT topics' prefix (see :mod:`trainclimate.service.adapters.mqtt`).
+MQTT_PREFIX = "trainclimate/v1"
 
 
 def default_database_url() -> str:
@@ -27,7 +31,17 @@ class Settings(BaseSettings):
     ``max_body_bytes`` the largest request body accepted (larger: 413); after
     ``auth_failures_burst`` failed authentications within ``auth_failures_window_s`` seconds,
     a client address's requests with a token answer 429 (see
-    :mod:`trainclimate.service.api.hardening`)."""
+    :mod:`trainclimate.service.api.hardening`); ``worker_threads`` the threads running the
+    API's requests (anyio's limit), as many requests admitted at once, and the database pool
+    sized to them (:mod:`trainclimate.service.store.db`); a request beyond them waits up to
+    ``overload_wait_s`` seconds for its turn, else answers 503; ``read_cache_size`` the answers
+    kept, a view per coach and a comparison per train and range (least recently used go first;
+    :mod:`trainclimate.service.store.cache`; at least the fleet's coaches; 0: none);
+    ``mqtt_url`` (``--mqtt``) a broker to take
+    telemetry from and publish setpoints to, with its ``mqtt_username``, ``mqtt_password``
+    (env ``TRAINCLIMATE_MQTT_PASSWORD``), ``mqtt_ca_file``, topic ``mqtt_prefix`` and the
+    service's ``mqtt_client_id`` (its persistent session: see
+    :mod:`trainclimate.service.adapters.mqtt`)."""
 
     model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
 
@@ -45,6 +59,15 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(default=2 * 1024 * 1024, gt=0)
     auth_failures_burst: int = Field(default=20, gt=0)
     auth_failures_window_s: float = Field(default=60.0, gt=0)
+    worker_threads: int = Field(default=WORKER_THREADS, gt=0)
+    overload_wait_s: float = Field(default=1.0, ge=0)
+    read_cache_size: int = Field(default=2048, ge=0)
+    mqtt_url: str | None = None
+    mqtt_username: str | None = None
+    mqtt_password: str | None = None
+    mqtt_ca_file: Path | None = None
+    mqtt_prefix: str = MQTT_PREFIX
+    mqtt_client_id: str = "trainclimate-service"
 
     @field_validator("fleet")
     @classmethod

@@ -115,7 +115,7 @@ def test_health_and_readiness_need_no_token(client):
     assert health.json()["status"] == "ok" and health.json()["database"] in ("sqlite", "postgresql")
     ready = client.get(f"{API}/ready")
     assert ready.status_code == 200
-    assert ready.json() == {"status": "ready", "migrations": "0002", "model_version": 1}
+    assert ready.json() == {"status": "ready", "migrations": "0003", "model_version": 1}
 
 
 def _all_stored_text(settings) -> str:

@@ -1,28 +1,32 @@
 """An onboard gateway emulator (``trainclimate gateway``): a separate process that speaks only the
-live feed's HTTP protocol.
+live feed's protocols, HTTP or MQTT.
 
 It simulates its coaches (one train: the coaches share place, weather and operation, like a pair)
 with the thermal simulator, on a clock ``speedup`` times faster than real time, and every minute
 of that clock it
 
-- POSTs the minute's telemetry of each coach to ``/api/v1/telemetry`` — rows that could not be
-  sent stay in a buffer and go with the next batch (the server skips rows it already has), so a
-  lost connection loses no data;
-- GETs each coach's setpoint from ``/api/v1/coaches/{id}/setpoint`` (a pull) and applies it while
-  it is valid; without one — none issued, expired, or the server unreachable — the HVAC falls back
+- sends the minute's telemetry of each coach — over HTTP a POST to ``/api/v1/telemetry``, over
+  MQTT (``--mqtt URL``) a QoS 1 message on the coach's telemetry topic, acknowledged by the
+  broker; rows that could not be sent stay in a buffer and go with the next batch (the server
+  skips rows it already has), so a lost connection loses no data;
+- takes each coach's setpoint — over HTTP a GET of ``/api/v1/coaches/{id}/setpoint`` (a pull),
+  over MQTT the newest message on the coach's retained setpoint topic — and applies it while it
+  is valid; without one — none issued, expired, or the server unreachable — the HVAC falls back
   to its own T_rule, as a real coach does.
 
-At start it registers its coaches (``POST /api/v1/coaches``; an existing coach is left as it is);
-while the server cannot be reached it runs on, keeps its telemetry and tries again every minute;
-at the end it keeps trying for a minute more to send what is left. A refusal (a bad token, a
-coach of another train, a coach its gateway token is not scoped to) stops it with the server's
-answer. Those three calls are all it makes: a ``gateway`` token scoped to its coaches
+At start it registers its coaches over HTTP (``POST /api/v1/coaches``; an existing coach is left
+as it is); while the server cannot be reached it runs on, keeps its telemetry and tries again every
+minute; at the end it keeps trying for a minute more to send what is left. A refusal (a bad token,
+a coach of another train, a coach its gateway token is not scoped to) stops it with the server's
+answer. Those are all the calls it makes: a ``gateway`` token scoped to its coaches
 (``trainclimate token create --role gateway --coaches …``) is all it needs.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -30,6 +34,7 @@ import httpx
 import numpy as np
 import pandas as pd
 
+from trainclimate.service.adapters.mqtt import Broker
 from trainclimate.service.store.telemetry import rows_from_simulation, to_wire
 from trainclimate.sim import scenarios
 from trainclimate.sim.rule import MODE_REGULAR
@@ -52,8 +57,100 @@ class GatewayStats:
     sources: dict[str, int] = field(default_factory=dict)
 
 
+#: What a setpoint message must hold for the gateway to apply it.
+SETPOINT_KEYS = {"t_ref_c", "valid_until", "source"}
+
+
+class LinkError(RuntimeError):
+    """Telemetry that could not be sent (kept for the next batch)."""
+
+
+class HttpLink:
+    """Telemetry and setpoints over the HTTP API (``client``: authenticated, at ``/api/v1``)."""
+
+    def __init__(self, client: httpx.Client):
+        self.client = client
+
+    def send(self, coach_id: str, rows: list[dict]) -> None:
+        """POST the rows; :class:`LinkError` if they were not stored."""
+        body = {"coach_id": coach_id, "rows": [to_wire(r) for r in rows]}
+        try:
+            self.client.post("/telemetry", json=body).raise_for_status()
+        except httpx.HTTPError as exc:
+            raise LinkError(str(exc)) from None
+
+    def setpoint(self, coach_id: str) -> dict | None:
+        """The coach's setpoint now (None if it cannot be had)."""
+        try:
+            reply = self.client.get(f"/coaches/{coach_id}/setpoint")
+            reply.raise_for_status()
+            return reply.json()
+        except httpx.HTTPError as exc:
+            log.warning("no setpoint for %s (keeping the last while valid): %s", coach_id, exc)
+            return None
+
+    def close(self) -> None:
+        """Nothing to close (the HTTP client is the gateway's)."""
+
+
+class MqttLink:
+    """Telemetry and setpoints over an MQTT broker (:class:`~.mqtt.Broker`): publishes QoS 1 on
+    the coaches' telemetry topics, keeps the newest message of their retained setpoint topics."""
+
+    def __init__(self, broker: Broker, coach_ids: list[str], client_id: str, timeout_s: float):
+        self.broker = broker
+        self.ids = list(coach_ids)
+        self.timeout_s = timeout_s
+        self.setpoints: dict[str, dict] = {}
+        self.client = broker.client(client_id)
+        self.client.on_connect = self._on_connect
+        self.client.on_message = self._on_message
+        self.client.connect_async(broker.host, broker.port, keepalive=30)
+        self.client.loop_start()
+
+    def _on_connect(self, client, _userdata, _flags, reason, _properties) -> None:
+        if reason.is_failure:
+            log.error("MQTT broker %s refused the gateway: %s", self.broker.address, reason)
+            return
+        client.subscribe([(self.broker.topic(cid, "setpoint"), 1) for cid in self.ids])
+
+    def _on_message(self, _client, _userdata, msg) -> None:
+        coach_id = self.broker.coach_of(msg.topic, "setpoint")
+        try:
+            setpoint = json.loads(msg.payload)
+            if not isinstance(setpoint, dict) or not setpoint.keys() >= SETPOINT_KEYS:
+                raise ValueError(f"expected an object with {sorted(SETPOINT_KEYS)}")
+        except ValueError as exc:
+            log.warning("unreadable setpoint on %s, ignored: %s", msg.topic, exc)
+            return
+        if coach_id in self.ids:
+            self.setpoints[coach_id] = setpoint
+
+    def send(self, coach_id: str, rows: list[dict]) -> None:
+        """Publish the rows and wait for the broker's acknowledgement; :class:`LinkError` if
+        there was none (not connected, or no answer within the time-out)."""
+        payload = json.dumps([to_wire(r) for r in rows])
+        info = self.client.publish(self.broker.topic(coach_id, "telemetry"), payload, qos=1)
+        try:
+            info.wait_for_publish(self.timeout_s)
+        except (RuntimeError, ValueError) as exc:  # not queued: not connected, queue full
+            raise LinkError(f"not published: {exc}") from None
+        if not info.is_published():
+            raise LinkError(f"no acknowledgement from {self.broker.address}")
+
+    def setpoint(self, coach_id: str) -> dict | None:
+        """The newest setpoint received for the coach (None before any)."""
+        return self.setpoints.get(coach_id)
+
+    def close(self) -> None:
+        """Disconnect from the broker."""
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
 class Gateway:
-    """The emulator for ``coach_ids`` of train ``train_id`` (see the module docstring)."""
+    """The emulator for ``coach_ids`` of train ``train_id`` (see the module docstring); telemetry
+    and setpoints over HTTP, or over MQTT with ``mqtt`` (the broker)."""
 
     def __init__(
         self,
@@ -67,6 +164,7 @@ class Gateway:
         speedup: float = 60.0,
         hours: float | None = None,
         timeout_s: float = 2.0,
+        mqtt: Broker | None = None,
     ):
         self.client = httpx.Client(
             base_url=server.rstrip("/") + "/api/v1",
@@ -74,6 +172,11 @@ class Gateway:
             timeout=timeout_s,
         )
         self.ids = list(coach_ids)
+        if mqtt is None:
+            self.link: HttpLink | MqttLink = HttpLink(self.client)
+        else:
+            client_id = f"trainclimate-gateway-{train_id}-{os.getpid()}"
+            self.link = MqttLink(mqtt, self.ids, client_id, timeout_s)
         self.train_id = train_id
         self.active = set(active)
         self.speedup = float(speedup)
@@ -114,10 +217,9 @@ class Gateway:
         for cid, rows in self.buffer.items():
             if not rows:
                 continue
-            body = {"coach_id": cid, "rows": [to_wire(r) for r in rows]}
             try:
-                self.client.post("/telemetry", json=body).raise_for_status()
-            except httpx.HTTPError as exc:
+                self.link.send(cid, rows)
+            except LinkError as exc:
                 self.stats.failed_posts += 1
                 log.warning("telemetry for %s not sent (kept for the next batch): %s", cid, exc)
                 continue
@@ -126,12 +228,8 @@ class Gateway:
 
     def _pull(self) -> None:
         for c, cid in enumerate(self.ids):
-            try:
-                reply = self.client.get(f"/coaches/{cid}/setpoint")
-                reply.raise_for_status()
-                sp = reply.json()
-            except httpx.HTTPError as exc:
-                log.warning("no setpoint for %s (keeping the last while valid): %s", cid, exc)
+            sp = self.link.setpoint(cid)
+            if sp is None:
                 continue
             if sp["t_ref_c"] is None or sp["valid_until"] is None:
                 self.valid_until[c] = None
@@ -165,7 +263,10 @@ class Gateway:
             ahead = self.stats.minutes * 60.0 / self.speedup - (time.monotonic() - wall0)
             if ahead > 0:
                 time.sleep(ahead)
-        self._flush()
+        try:
+            self._flush()
+        finally:
+            self.link.close()
         return self.stats
 
     def _flush(self, patience_s: float = 60.0) -> None:

@@ -1,5 +1,6 @@
-"""Coaches: the fleet's list, one coach, registering a live coach, its time series, its setpoint
-now (the live feed's pull) and its history, and switching the DDPC layer for it."""
+"""Coaches: the fleet's list, one coach (each coach's view kept in the read cache while its data
+is unchanged), registering a live coach, its time series, its setpoint now (the live feed's pull)
+and its history, and switching the DDPC layer for it."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import AwareDatetime
-from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
@@ -31,9 +32,7 @@ router = APIRouter()
 def list_coaches(request: Request, s: DB, _: Viewer) -> list:
     """Every coach with its train, layer, status (ok, warm-up, stale, fallback, override,
     inactive, not-regular, no-data), latest readings and setpoint."""
-    cfg = settings(request)
-    coaches = s.scalars(select(Coach).order_by(Coach.id)).all()
-    return [queries.coach_view(s, c, period(request), cfg.stale_periods) for c in coaches]
+    return [_cached_view(request, s, c, state) for c, state in queries.coach_states(s)]
 
 
 @router.post(
@@ -67,8 +66,17 @@ def register_coach(
 )
 def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
     """One coach, as in the list."""
-    coach = queries.coach_or_404(s, coach_id)
-    return queries.coach_view(s, coach, period(request), settings(request).stale_periods)
+    [(coach, state)] = queries.coach_states(s, coach_id)
+    return _cached_view(request, s, coach, state)
+
+
+def _cached_view(request: Request, s: Session, coach: Coach, state: tuple) -> dict:
+    """The coach's view, from the read cache while its state is unchanged."""
+    return request.app.state.read_cache.get(
+        ("coach", coach.id),
+        state,
+        lambda: queries.coach_view(s, coach, period(request), settings(request).stale_periods),
+    )
 
 
 @router.get(

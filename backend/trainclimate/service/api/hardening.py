@@ -9,20 +9,34 @@
   window frees; requests without a token (the dashboard's files) are still served;
 - :class:`BodySizeLimit` — a request body over ``max_body_bytes`` answers 413, read off
   ``Content-Length`` when given, else counted while it streams in (chunked), never read whole
-  first.
+  first;
+- :class:`Admission` — at most ``worker_threads`` API requests at once (:class:`Slots`); one
+  more waits up to ``overload_wait_s`` for a slot, first come first served, and else answers
+  503 with ``Retry-After``, so that an overloaded service says so at once instead of answering
+  late or not at all. Liveness and readiness (:data:`UNCOUNTED`) and the dashboard's files are
+  not counted.
+
+:func:`database_unavailable` answers a database that does not answer (``OperationalError``) or
+whose connections are all in use (the pool's ``TimeoutError``) with 503 and ``Retry-After``;
+:func:`pace_threads` sets, at start, how many threads run the requests and how often the
+interpreter switches between threads.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
+import sys
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 
+from anyio import to_thread
 from starlette.datastructures import Headers, MutableHeaders
 from starlette.exceptions import HTTPException
+from starlette.requests import Request
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -217,3 +231,145 @@ class AuthFailureThrottle:
             await send(message)
 
         await self.app(scope, receive, watching_send)
+
+
+#: What a 503 of :class:`Admission` or of a pool time-out asks the client to wait. [s]
+OVERLOAD_RETRY_AFTER_S = 1
+#: What a 503 of a database that does not answer asks the client to wait. [s]
+DATABASE_RETRY_AFTER_S = 5
+#: :class:`Slots` logs its refusals at most this often. [s]
+OVERLOAD_LOG_EVERY_S = 10.0
+#: The interpreter's thread switch interval while the service runs (Python's default: 5 ms): the
+#: event loop and a thread back from the database take the GIL again within 1 ms of asking,
+#: rather than 5, while other threads compute. [s]
+SWITCH_INTERVAL_S = 0.001
+#: The API's paths that :class:`Admission` lets through without a slot: they stay cheap and say
+#: whether the service is alive and ready even when it is overloaded.
+UNCOUNTED = ("/api/v1/health", "/api/v1/ready")
+
+
+def pace_threads(worker_threads: int) -> None:
+    """At most ``worker_threads`` threads run the sync routes and dependencies (anyio's default
+    limiter of the running event loop), and the process switches threads every
+    :data:`SWITCH_INTERVAL_S` (for the whole process, until it ends)."""
+    to_thread.current_default_thread_limiter().total_tokens = worker_threads
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+
+
+def database_unavailable(retry_after_s: int) -> Callable[[Request, Exception], JSONResponse]:
+    """An exception handler answering 503 ``{"detail": the error's first line}`` with
+    ``Retry-After: retry_after_s``."""
+
+    def handler(_request: Request, exc: Exception) -> JSONResponse:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return JSONResponse(
+            {"detail": message}, status_code=503, headers={"Retry-After": str(retry_after_s)}
+        )
+
+    return handler
+
+
+class Slots:
+    """``size`` slots for requests, taken and given back in the server's event loop: a request
+    takes a free one at once, or waits up to ``wait_s`` (s) in line for one given back, first
+    come first served. ``busy`` counts the slots taken, ``waiting`` the requests in line,
+    ``rejected`` those that got none (since start); each refusal is logged at WARNING, at most
+    once per :data:`OVERLOAD_LOG_EVERY_S`."""
+
+    def __init__(
+        self, size: int, wait_s: float, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.size = size
+        self.wait_s = wait_s
+        self.clock = clock
+        self.busy = 0
+        self.rejected = 0
+        self._line: deque[asyncio.Future] = deque()
+        self._logged_at = -math.inf
+
+    @property
+    def waiting(self) -> int:
+        """Requests in line for a slot."""
+        return len(self._line)
+
+    async def acquire(self) -> bool:
+        """Take a slot, waiting up to ``wait_s`` for one; ``False`` if none came free (counted
+        and logged)."""
+        if self.busy < self.size and not self._line:
+            self.busy += 1
+            return True
+        loop = asyncio.get_running_loop()
+        turn = loop.create_future()  # True: a slot handed over by release(); False: time is up
+        self._line.append(turn)
+        timer = loop.call_later(self.wait_s, self._time_up, turn)
+        try:
+            granted = await turn
+        except asyncio.CancelledError:  # the client left; a slot it was handed goes on
+            if turn.done() and not turn.cancelled() and turn.result():
+                self.release()
+            raise
+        finally:
+            timer.cancel()
+            if turn in self._line:
+                self._line.remove(turn)
+        if not granted:
+            self._refused()
+        return granted
+
+    @staticmethod
+    def _time_up(turn: asyncio.Future) -> None:
+        if not turn.done():
+            turn.set_result(False)
+
+    def release(self) -> None:
+        """Give a slot back: to the first request in line, else free."""
+        while self._line:
+            turn = self._line.popleft()
+            if not turn.done():
+                turn.set_result(True)
+                return
+        self.busy -= 1
+
+    def _refused(self) -> None:
+        self.rejected += 1
+        now = self.clock()
+        if now - self._logged_at >= OVERLOAD_LOG_EVERY_S:
+            self._logged_at = now
+            log.warning(
+                "overloaded: %d API requests at once and no slot free within %g s; "
+                "%d requests answered 503 since start",
+                self.size,
+                self.wait_s,
+                self.rejected,
+            )
+
+
+class Admission:
+    """Lets an API request (a path under ``/api/`` but :data:`UNCOUNTED`) through only with one
+    of ``slots``, held until its answer is sent; without one, 503 ``{"detail": …}`` with
+    ``Retry-After`` (the app is not called)."""
+
+    def __init__(self, app: ASGIApp, slots: Slots) -> None:
+        self.app = app
+        self.slots = slots
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        path = scope.get("path", "")
+        if scope["type"] != "http" or not path.startswith("/api/") or path in UNCOUNTED:
+            await self.app(scope, receive, send)
+            return
+        if not await self.slots.acquire():
+            response = JSONResponse(
+                {
+                    "detail": f"the service is busy ({self.slots.size} requests at once); "
+                    f"try again in {OVERLOAD_RETRY_AFTER_S} s"
+                },
+                status_code=503,
+                headers={"Retry-After": str(OVERLOAD_RETRY_AFTER_S)},
+            )
+            await response(scope, receive, send)
+            return
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.slots.release()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from fastapi import APIRouter, HTTPException, Request
 from sqlalchemy import select
 
@@ -16,14 +18,16 @@ router = APIRouter()
 @router.get("/health", response_model=schemas.Health, tags=["health"])
 def health(request: Request) -> dict:
     """Liveness, without authentication, and what the service is still preparing (e.g. the
-    predictor model, with how far it is)."""
+    predictor model, with how far it is), and the MQTT feed's state and counts."""
     status = request.app.state.preparation.status
+    mqtt = request.app.state.mqtt
     preparing = [status] if status.state != "done" else []
     return {
         "status": "ok",
         "version": __version__,
         "database": request.app.state.db.dialect,
         "preparing": preparing,
+        "mqtt": dataclasses.asdict(mqtt.status) if mqtt is not None else None,
     }
 
 

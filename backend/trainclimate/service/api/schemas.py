@@ -40,6 +40,25 @@ class Preparing(BaseModel):
     detail: str = Field(examples=[""])
 
 
+class MqttFeed(BaseModel):
+    """The MQTT feed since the service started (``serve --mqtt``)."""
+
+    broker: str = Field(examples=["mqtt://127.0.0.1:1883"])
+    connected: bool
+    connections: int = Field(description="successful connections (more than 1: reconnected)")
+    messages: int = Field(description="telemetry messages handled (stored or dropped)")
+    rows_stored: int
+    duplicates: int = Field(description="rows already stored (a message delivered again)")
+    dropped: dict[str, int] = Field(
+        description="messages dropped, by reason: bad_topic, malformed_json, invalid_rows, "
+        "coach_mismatch, unknown_coach, not_live",
+        examples=[{"unknown_coach": 2}],
+    )
+    setpoints_published: int
+    database_retries: int
+    last_error: str | None
+
+
 class Health(BaseModel):
     status: str = Field(examples=["ok"])
     version: str = Field(examples=["0.1.0"])
@@ -48,6 +67,7 @@ class Health(BaseModel):
         description="background work still running or failed (empty when all is done); until "
         "the predictor model is ready the coaches run under T_rule"
     )
+    mqtt: MqttFeed | None = Field(default=None, description="null without --mqtt")
 
 
 class Ready(BaseModel):

@@ -1,11 +1,11 @@
 """Trains: the list, one train with its activated and deactivated coaches, and the pair's
-activated-vs-deactivated comparison."""
+activated-vs-deactivated comparison (kept in the read cache while its data is unchanged)."""
 
 from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Request
 from pydantic import AwareDatetime
 from sqlalchemy import select
 
@@ -52,6 +52,7 @@ def _train(t: Train) -> dict:
 )
 def train_comparison(
     train_id: str,
+    request: Request,
     s: DB,
     _: Viewer,
     start: AwareDatetime | None = None,
@@ -63,4 +64,8 @@ def train_comparison(
     train = queries.train_or_404(s, train_id)
     act, _deact = queries.pair_of(train)
     start, end = queries.time_range(s, act, start, end)
-    return queries.comparison(s, train, start, end, window_min)
+    return request.app.state.read_cache.get(
+        ("comparison", train.id, start, end, window_min),
+        queries.comparison_state(s, train, start, end),
+        lambda: queries.comparison(s, train, start, end, window_min),
+    )

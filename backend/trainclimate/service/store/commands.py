@@ -29,6 +29,7 @@ from trainclimate.service.store.queries import (
 )
 from trainclimate.service.store.telemetry import insert_rows
 from trainclimate.service.store.tokens import Principal, check_scope, create_token
+from trainclimate.service.store.upsert import advance, insert_new
 from trainclimate.sim.setpoint import U_BAND_K
 
 
@@ -54,17 +55,17 @@ def register_coach(session: Session, who: Principal, coach_id: str, train_id: st
     """Create a live coach (and its train) if new; an existing coach is left as it is.
     Returns (coach, created)."""
     coach = session.get(Coach, coach_id)
-    if coach is not None:
-        if coach.train_id != train_id:
-            raise ConflictError(f"coach {coach_id!r} belongs to train {coach.train_id!r}")
-        return coach, False
-    if session.get(Train, train_id) is None:
-        session.add(Train(id=train_id, name=train_id))
-        session.flush()
-    coach = Coach(id=coach_id, train_id=train_id, fleet="live", ddpc_active=active)
-    session.add(coach)
-    audit(session, who, "coach.register", coach_id, "", train_id=train_id, ddpc_active=active)
-    return coach, True
+    created = False
+    if coach is None:  # two gateways may register the same train or coach at once
+        insert_new(session, Train.__table__, [{"id": train_id, "name": train_id}], ["id"])
+        row = {"id": coach_id, "train_id": train_id, "fleet": "live", "ddpc_active": active}
+        created = insert_new(session, Coach.__table__, [row], ["id"]) == 1
+        coach = session.get(Coach, coach_id, populate_existing=True)
+    if coach.train_id != train_id:
+        raise ConflictError(f"coach {coach_id!r} belongs to train {coach.train_id!r}")
+    if created:
+        audit(session, who, "coach.register", coach_id, "", train_id=train_id, ddpc_active=active)
+    return coach, created
 
 
 def ingest(session: Session, coach_id: str, rows: list[dict]) -> tuple[int, int]:
@@ -75,13 +76,9 @@ def ingest(session: Session, coach_id: str, rows: list[dict]) -> tuple[int, int]
         # here would make its next write conflict, every time, and stop the demo
         raise ConflictError(f"coach {coach_id!r} is simulated by the {coach.fleet} fleet")
     stored = insert_rows(session, coach.id, rows)
-    if rows:
+    if rows:  # created by the first post ever, concurrent ones included
         newest = max(r["time"] for r in rows)
-        clock = session.get(FleetClock, "live", with_for_update=True)
-        if clock is None:
-            session.add(FleetClock(name="live", time=newest))
-        elif newest > clock.time:
-            clock.time = newest
+        advance(session, FleetClock.__table__, {"name": "live"}, "time", newest)
     return stored, len(rows) - stored
 
 

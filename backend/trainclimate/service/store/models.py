@@ -138,10 +138,14 @@ class Telemetry(Base):
 
 class Setpoint(Base):
     """The setpoint issued to one coach at one tick (unique): T_rule, T_ref (°C), source,
-    reason, solve and step time (ms), the predicted trajectory and the model it came from."""
+    reason, solve and step time (ms), the predicted trajectory, the model it came from and the
+    service replica that decided it (``--replica-name``, default ``host:pid``)."""
 
     __tablename__ = "setpoints"
-    __table_args__ = (UniqueConstraint("coach_id", "tick", name="uq_setpoint_coach_tick"),)
+    __table_args__ = (
+        UniqueConstraint("coach_id", "tick", name="uq_setpoint_coach_tick"),
+        Index("ix_setpoints_created_at", "created_at"),
+    )
     id: Mapped[int] = mapped_column(BigKey, primary_key=True, autoincrement=True)
     coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"))
     tick: Mapped[datetime] = mapped_column(UTCDateTime)
@@ -155,6 +159,7 @@ class Setpoint(Base):
     predicted: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     model_id: Mapped[int | None] = mapped_column(ForeignKey("predictor_models.id"), nullable=True)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    replica: Mapped[str | None] = mapped_column(String(64), nullable=True)
 
 
 class Override(Base):

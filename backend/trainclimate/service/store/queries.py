@@ -2,6 +2,10 @@
 
 The comparison is :func:`trainclimate.analysis.savings.compare` on the stored 1-minute telemetry —
 the same function the experiment reports use.
+
+:func:`coach_states` and :func:`comparison_state` read what a coach's view and a comparison are
+computed from, in a few index probes: the states their answers are kept under in
+:class:`~trainclimate.service.store.cache.ReadCache`.
 """
 
 from __future__ import annotations
@@ -137,6 +141,34 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
     }
 
 
+def coach_states(session: Session, coach_id: str | None = None) -> list[tuple[Coach, tuple]]:
+    """Every coach by id (or only ``coach_id``: :class:`NotFoundError` if there is none) with,
+    read in the same statement, the state its :func:`coach_view` is computed from: the coach's
+    own columns, its newest setpoint tick, its newest telemetry time, its fleet's clock, and how
+    many overrides it has and how many of them were cancelled. The view reads the same coach
+    row; setpoints and telemetry are only inserted, clocks only advance, and an override is only
+    ever cancelled once, so a coach whose state is unchanged has an unchanged view."""
+    newest_tick = select(func.max(Setpoint.tick)).where(Setpoint.coach_id == Coach.id)
+    newest_row = select(func.max(Telemetry.time)).where(Telemetry.coach_id == Coach.id)
+    clock = select(FleetClock.time).where(FleetClock.name == Coach.fleet)
+    overrides = select(func.count()).select_from(Override).where(Override.coach_id == Coach.id)
+    cancelled = select(func.count(Override.cancelled_at)).where(Override.coach_id == Coach.id)
+    query = select(
+        Coach,
+        newest_tick.scalar_subquery(),
+        newest_row.scalar_subquery(),
+        clock.scalar_subquery(),
+        overrides.scalar_subquery(),
+        cancelled.scalar_subquery(),
+    ).order_by(Coach.id)
+    if coach_id is not None:
+        query = query.where(Coach.id == coach_id)
+    rows = session.execute(query).all()
+    if coach_id is not None and not rows:
+        raise NotFoundError(f"no coach {coach_id!r}")
+    return [(c, (c.train_id, c.fleet, c.ddpc_active, *newest)) for c, *newest in rows]
+
+
 def time_range(
     session: Session, coach: Coach, start: datetime | None, end: datetime | None
 ) -> tuple[datetime, datetime]:
@@ -230,14 +262,22 @@ def current_setpoint(session: Session, coach: Coach, period: timedelta, stale_pe
     if sp is None:
         empty = ("tick", "t_ref_c", "t_rule_c", "source", "reason", "valid_until")
         return {"coach_id": coach.id, **dict.fromkeys(empty)}
+    return setpoint_view(coach.id, sp, stale_periods * period)
+
+
+def setpoint_view(coach_id: str, sp, valid_for: timedelta) -> dict:
+    """What a coach's gateway is told of setpoint ``sp`` (a :class:`Setpoint` or its row as a
+    dict), valid for ``valid_for`` after its tick — by ``GET /coaches/{id}/setpoint`` and on the
+    coach's MQTT setpoint topic."""
+    get = sp.get if isinstance(sp, dict) else lambda name: getattr(sp, name)
     return {
-        "coach_id": coach.id,
-        "tick": sp.tick,
-        "t_ref_c": sp.t_ref_c,
-        "t_rule_c": sp.t_rule_c,
-        "source": sp.source,
-        "reason": sp.reason,
-        "valid_until": sp.tick + stale_periods * period,
+        "coach_id": coach_id,
+        "tick": get("tick"),
+        "t_ref_c": get("t_ref_c"),
+        "t_rule_c": get("t_rule_c"),
+        "source": get("source"),
+        "reason": get("reason"),
+        "valid_until": get("tick") + valid_for,
     }
 
 
@@ -248,6 +288,33 @@ def pair_of(train: Train) -> tuple[Coach, Coach]:
     if not on or not off:
         raise RequestError(f"train {train.id} has no pair of an activated and a deactivated coach")
     return on[0], off[0]
+
+
+def comparison_state(session: Session, train: Train, start: datetime, end: datetime) -> tuple:
+    """What :func:`comparison` of ``train`` over (start, end] is computed from, besides the
+    parameters: the pair, each coach's first telemetry time and its number of rows in
+    (start, end] (rows are only inserted: a new one changes the count), and the overrides of
+    either coach that overlap the range as they are (cancelled or not)."""
+    pair = pair_of(train)
+    firsts = [
+        select(func.min(Telemetry.time)).where(Telemetry.coach_id == c.id).scalar_subquery()
+        for c in pair
+    ]
+    counts = [
+        select(func.count())
+        .select_from(Telemetry)
+        .where(Telemetry.coach_id == c.id, Telemetry.time > start, Telemetry.time <= end)
+        .scalar_subquery()
+        for c in pair
+    ]
+    telemetry = session.execute(select(*firsts, *counts)).one()
+    overrides = session.execute(
+        select(Override.id, Override.starts_at, Override.ends_at, Override.cancelled_at)
+        .where(Override.coach_id.in_([c.id for c in pair]))
+        .where(Override.starts_at < end, Override.ends_at > start)
+        .order_by(Override.id)
+    ).all()
+    return (*(c.id for c in pair), tuple(telemetry), tuple(tuple(o) for o in overrides))
 
 
 def _series(session: Session, coach: Coach, grid: pd.DatetimeIndex, start, end) -> CoachSeries:

@@ -20,6 +20,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from trainclimate.service.store.models import Telemetry
+from trainclimate.service.store.upsert import insert_new
 
 Y_COLS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
 D_COLS = ("t_amb_c", "q_gt_w_m2", "q_gs_w_m2", "occupancy_pct", "speed_kmh")
@@ -28,28 +29,14 @@ VALUE_COLS = (*Y_COLS, "t_ref_c", "t_rule_c", *D_COLS, "ghi_w_m2", "power_kw")
 
 def insert_rows(session: Session, coach_id: str, rows: list[dict]) -> int:
     """Insert telemetry rows of one coach, skipping times already stored (a gateway that resends
-    a batch after a lost connection changes nothing). Returns how many were new."""
-    if not rows:
-        return 0
-    times = [r["time"] for r in rows]
-    existing = set(
-        session.scalars(
-            select(Telemetry.time).where(
-                Telemetry.coach_id == coach_id,
-                Telemetry.time >= min(times),
-                Telemetry.time <= max(times),
-            )
-        )
-    )
+    a batch after a lost connection changes nothing, also when both copies arrive at once) and
+    repeated in the batch (the first is kept). Returns how many were new."""
     fresh, seen = [], set()
     for r in rows:
-        if r["time"] in existing or r["time"] in seen:
-            continue
-        seen.add(r["time"])
-        fresh.append({**r, "coach_id": coach_id})
-    if fresh:
-        session.execute(Telemetry.__table__.insert(), fresh)
-    return len(fresh)
+        if r["time"] not in seen:
+            seen.add(r["time"])
+            fresh.append({**r, "coach_id": coach_id})
+    return insert_new(session, Telemetry.__table__, fresh, ["coach_id", "time"])
 
 
 FRAME_COLS = ("time", *VALUE_COLS, "mode", "connected")
@@ -210,6 +197,19 @@ def to_wire(row: dict) -> dict:
     return {
         "time": pd.Timestamp(row["time"]).isoformat(),
         "t_room_c": [row["t_room_up_c"], row["t_room_mid_c"], row["t_room_low_c"]],
+        **{k: row[k] for k in WIRE_FIELDS},
+    }
+
+
+def from_wire(row: dict) -> dict:
+    """A validated row of ``POST /api/v1/telemetry`` (or of an MQTT telemetry message) as a
+    stored row: the inverse of :func:`to_wire`."""
+    up, mid, low = row["t_room_c"]
+    return {
+        "time": row["time"],
+        "t_room_up_c": up,
+        "t_room_mid_c": mid,
+        "t_room_low_c": low,
         **{k: row[k] for k in WIRE_FIELDS},
     }
 

@@ -1,0 +1,347 @@
+"""The MQTT live feed: the broker and its topics, and the service's side of the feed
+(:class:`MqttBridge`, started by ``serve --mqtt URL``). The gateway's side is
+:class:`trainclimate.service.adapters.gateway.MqttLink`.
+
+Topics, under a prefix (``trainclimate/v1`` unless ``--mqtt-prefix`` says otherwise):
+
+- ``{prefix}/coaches/{coach_id}/telemetry`` — a gateway publishes its coach's 1-minute rows, QoS 1,
+  in the wire format of ``POST /api/v1/telemetry``'s rows: one row object, a list of rows, or a
+  batch object ``{"rows": [...]}`` (whose ``coach_id``, if given, must be the topic's).
+- ``{prefix}/coaches/{coach_id}/setpoint`` — the service publishes every setpoint it issues to a
+  live coach, **retained**, QoS 1, as the JSON of ``GET /api/v1/coaches/{id}/setpoint``
+  (``coach_id``, ``tick``, ``t_ref_c``, ``t_rule_c``, ``source``, ``reason``, ``valid_until``). A
+  gateway that (re)connects gets its coaches' newest setpoint at once.
+
+**Exactly once.** The bridge's session with the broker is persistent (a fixed client id, clean
+session off) and it acknowledges a message only once its rows are committed (paho's manual
+acknowledgement). A message not yet stored when the service, its connection or the broker went
+away is delivered again, and rows already stored (same coach and time) are skipped, so a resent
+message changes nothing. While the database is unavailable the bridge retries the message with
+back-off and acknowledges nothing, so the broker keeps the rest (Mosquitto holds up to
+``max_queued_messages`` per client, 1 000 by default: raise it for a large fleet).
+
+**Bad messages** — a topic that names no coach, malformed JSON, rows the HTTP API would refuse
+(422), a coach not registered, a coach of the simulated demo fleet — are counted by reason in
+:attr:`MqttBridge.status` (shown by ``GET /api/v1/health``), logged with the reason, acknowledged
+and dropped; they never stop the feed. A broker that goes away is reconnected with back-off
+(1 s doubling to 60 s) while the HTTP API keeps serving.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+from dataclasses import dataclass, field
+from datetime import timedelta
+from pathlib import Path
+from urllib.parse import unquote, urlsplit
+
+import paho.mqtt.client as paho
+from pydantic import TypeAdapter, ValidationError
+from sqlalchemy import select
+from sqlalchemy.exc import OperationalError
+
+from trainclimate.service.api.schemas import TelemetryRow
+from trainclimate.service.settings import MQTT_PREFIX
+from trainclimate.service.store import commands
+from trainclimate.service.store.commands import ConflictError
+from trainclimate.service.store.db import Database
+from trainclimate.service.store.models import Coach
+from trainclimate.service.store.queries import NotFoundError, newest_setpoint, setpoint_view
+from trainclimate.service.store.telemetry import from_wire
+
+log = logging.getLogger(__name__)
+
+#: Reconnection back-off, s: from the first to the longest wait.
+BACKOFF_S = (1, 60)
+_ROWS = TypeAdapter(list[TelemetryRow])
+
+
+class BrokerError(ValueError):
+    """A broker URL or option that cannot be used (the message says why)."""
+
+
+@dataclass(frozen=True)
+class Broker:
+    """Where the broker is and how to reach it: ``mqtt://[USER[:PASSWORD]@]HOST[:PORT]`` (port 1883)
+    or ``mqtts://…`` (TLS, port 8883; ``ca_file`` a CA bundle, else the system's); ``prefix`` the
+    topics' prefix."""
+
+    host: str
+    port: int
+    tls: bool = False
+    username: str | None = None
+    password: str | None = None
+    ca_file: Path | None = None
+    prefix: str = MQTT_PREFIX
+
+    @classmethod
+    def from_url(
+        cls,
+        url: str,
+        *,
+        username: str | None = None,
+        password: str | None = None,
+        ca_file: str | Path | None = None,
+        prefix: str = MQTT_PREFIX,
+    ) -> Broker:
+        """The broker of ``url``; ``username`` and ``password`` win over those in the URL."""
+        parts = urlsplit(url)
+        if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
+            raise BrokerError(f"not an MQTT broker URL (mqtt://HOST[:PORT] or mqtts://…): {url!r}")
+        try:
+            port = parts.port or (8883 if parts.scheme == "mqtts" else 1883)
+        except ValueError:
+            raise BrokerError(f"bad port in {url!r}") from None
+        if parts.path not in ("", "/") or parts.query:
+            raise BrokerError(f"an MQTT broker URL has no path or query: {url!r}")
+        prefix = prefix.strip("/")
+        if not prefix or any(c in prefix for c in "+#"):
+            raise BrokerError(f"the topic prefix must be non-empty, without + or #: {prefix!r}")
+        ca = Path(ca_file) if ca_file else None
+        if ca is not None and not ca.is_file():
+            raise BrokerError(f"no CA file {ca}")
+        return cls(
+            host=parts.hostname,
+            port=port,
+            tls=parts.scheme == "mqtts" or ca is not None,
+            username=username or (unquote(parts.username) if parts.username else None),
+            password=password or (unquote(parts.password) if parts.password else None),
+            ca_file=ca,
+            prefix=prefix,
+        )
+
+    @property
+    def address(self) -> str:
+        """``mqtt[s]://HOST:PORT`` (without credentials: safe to log and show)."""
+        return f"mqtt{'s' if self.tls else ''}://{self.host}:{self.port}"
+
+    def topic(self, coach_id: str, kind: str) -> str:
+        """The coach's ``telemetry`` or ``setpoint`` topic."""
+        return f"{self.prefix}/coaches/{coach_id}/{kind}"
+
+    def coach_of(self, topic: str, kind: str) -> str | None:
+        """The coach id a ``kind`` topic names, None if it names none."""
+        head, tail = f"{self.prefix}/coaches/", f"/{kind}"
+        if not (topic.startswith(head) and topic.endswith(tail)):
+            return None
+        coach_id = topic[len(head) : -len(tail)]
+        return coach_id if coach_id and "/" not in coach_id else None
+
+    def client(self, client_id: str, *, persistent: bool = False, manual_ack: bool = False):
+        """A paho client for this broker (not yet connected): credentials, TLS, and reconnection
+        with back-off (:data:`BACKOFF_S`); ``persistent`` keeps the session (and the broker's
+        queue of QoS 1 messages for it) across disconnections."""
+        c = paho.Client(
+            paho.CallbackAPIVersion.VERSION2,
+            client_id=client_id,
+            clean_session=not persistent,
+            manual_ack=manual_ack,
+        )
+        if self.username:
+            c.username_pw_set(self.username, self.password)
+        if self.tls:
+            c.tls_set(ca_certs=str(self.ca_file) if self.ca_file else None)
+            c.tls_insecure_set(False)
+        c.reconnect_delay_set(*BACKOFF_S)
+        return c
+
+
+@dataclass
+class MqttStatus:
+    """The bridge's state and counts since the service started: ``connected`` to ``broker``
+    (the telemetry subscription confirmed; ``connections`` how many times); ``messages`` handled
+    (stored or dropped), ``rows_stored``, ``duplicates`` (rows already stored), ``dropped`` by
+    reason, ``setpoints_published``, ``database_retries`` (a message retried while the database
+    was unavailable) and the ``last_error``."""
+
+    broker: str
+    connected: bool = False
+    connections: int = 0
+    messages: int = 0
+    rows_stored: int = 0
+    duplicates: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    setpoints_published: int = 0
+    database_retries: int = 0
+    last_error: str | None = None
+
+
+class MessageError(Exception):
+    """A message that cannot be stored: ``reason`` (a short key) and the detail."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(detail)
+        self.reason = reason
+
+
+def parse_rows(payload: bytes, coach_id: str) -> list[dict]:
+    """The stored-row dicts of a telemetry message for ``coach_id`` (see the module docstring for
+    its three forms); :class:`MessageError` if it is not valid JSON or a row is out of range."""
+    try:
+        data = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise MessageError("malformed_json", f"not JSON: {exc}") from None
+    if isinstance(data, dict) and "rows" in data:
+        if data.get("coach_id", coach_id) != coach_id:
+            raise MessageError(
+                "coach_mismatch", f"coach_id {data['coach_id']!r} is not the topic's"
+            )
+        data = data["rows"]
+    if isinstance(data, dict):
+        data = [data]
+    if not isinstance(data, list) or not data:
+        raise MessageError("invalid_rows", 'expected a row, a list of rows or {"rows": [...]}')
+    try:
+        rows = _ROWS.validate_python(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        detail = f"{len(exc.errors())} error(s), first {where}: {first['msg']}"
+        raise MessageError("invalid_rows", detail) from None
+    return [from_wire(r.model_dump()) for r in rows]
+
+
+class MqttBridge:
+    """The service's side of the MQTT feed (see the module docstring): a paho network thread
+    receives, a worker thread stores, and :meth:`publish_setpoints` (a scheduler listener)
+    publishes."""
+
+    def __init__(
+        self,
+        db: Database,
+        broker: Broker,
+        *,
+        client_id: str,
+        valid_for: timedelta,
+    ):
+        self.db = db
+        self.broker = broker
+        self.valid_for = valid_for
+        self.status = MqttStatus(broker=broker.address)
+        self._inbox: queue.Queue = queue.Queue()
+        self._stop = threading.Event()
+        self._worker = threading.Thread(target=self._work, name="mqtt-store", daemon=True)
+        self.client = broker.client(client_id, persistent=True, manual_ack=True)
+        self.client.on_connect = self._on_connect
+        self.client.on_disconnect = self._on_disconnect
+        self.client.on_subscribe = self._on_subscribe
+        self.client.on_message = lambda _c, _u, msg: self._inbox.put(msg)
+
+    # --- connection ----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Connect in the background (retrying with back-off until the broker answers)."""
+        self._worker.start()
+        self.client.connect_async(self.broker.host, self.broker.port, keepalive=30)
+        self.client.loop_start()
+
+    def stop(self) -> None:
+        """Disconnect and stop the threads (messages not yet stored stay with the broker)."""
+        self._stop.set()
+        self.client.disconnect()
+        self.client.loop_stop()
+        self._inbox.put(None)
+        self._worker.join(timeout=10)
+
+    def _on_connect(self, client, _userdata, _flags, reason, _properties) -> None:
+        if reason.is_failure:
+            self.status.last_error = f"connection refused: {reason}"
+            log.error("MQTT broker %s refused the connection: %s", self.broker.address, reason)
+            return
+        client.subscribe(self.broker.topic("+", "telemetry"), qos=1)
+        self._republish()
+
+    def _on_subscribe(self, _client, _userdata, _mid, reasons, _properties) -> None:
+        if any(r.is_failure for r in reasons):
+            self.status.last_error = f"subscription refused: {reasons[0]}"
+            log.error("MQTT broker %s refused the subscription: %s", self.broker.address, reasons)
+            return
+        self.status.connected = True  # the feed is live once the broker confirms the subscription
+        self.status.connections += 1
+        log.info("MQTT: connected to %s", self.broker.address)
+
+    def _on_disconnect(self, _client, _userdata, _flags, reason, _properties) -> None:
+        self.status.connected = False
+        if not self._stop.is_set():
+            self.status.last_error = f"disconnected: {reason}"
+            log.warning("MQTT: lost %s (%s); reconnecting", self.broker.address, reason)
+
+    # --- telemetry in --------------------------------------------------------------------------
+    def _work(self) -> None:
+        while True:
+            msg = self._inbox.get()
+            if msg is None:
+                return
+            delay = BACKOFF_S[0]
+            while not self._stop.is_set():
+                try:
+                    self.handle(msg.topic, msg.payload)
+                    break
+                except OperationalError as exc:
+                    self.status.database_retries += 1
+                    self.status.last_error = f"database unavailable: {str(exc).splitlines()[0]}"
+                    log.warning("MQTT: database unavailable, retrying in %d s", delay)
+                    self._stop.wait(delay)
+                    delay = min(2 * delay, BACKOFF_S[1])
+            else:
+                return  # stopping: not acknowledged, the broker delivers it again
+            self.status.messages += 1
+            if msg.qos > 0:
+                self.client.ack(msg.mid, msg.qos)
+
+    def handle(self, topic: str, payload: bytes) -> None:
+        """Store one telemetry message (counted; a bad one dropped with its reason). Raises
+        only :class:`~sqlalchemy.exc.OperationalError` (the database is unavailable)."""
+        try:
+            coach_id = self.broker.coach_of(topic, "telemetry")
+            if coach_id is None:
+                raise MessageError("bad_topic", f"topic {topic!r} names no coach")
+            rows = parse_rows(payload, coach_id)
+            try:
+                with self.db.transaction() as session:
+                    stored, duplicates = commands.ingest(session, coach_id, rows)
+            except NotFoundError as exc:
+                raise MessageError("unknown_coach", str(exc)) from None
+            except ConflictError as exc:
+                raise MessageError("not_live", str(exc)) from None
+        except MessageError as exc:
+            self.status.dropped[exc.reason] = self.status.dropped.get(exc.reason, 0) + 1
+            log.warning("MQTT: dropped a message on %s (%s): %s", topic, exc.reason, exc)
+            return
+        self.status.rows_stored += stored
+        self.status.duplicates += duplicates
+
+    # --- setpoints out ------------------------------------------------------------------------
+    def publish_setpoints(self, fleet: str, rows: list[dict]) -> None:
+        """Publish the setpoints just issued to live coaches (a scheduler listener), retained."""
+        if fleet != "live":
+            return
+        for row in rows:
+            self._publish(setpoint_view(row["coach_id"], row, self.valid_for))
+
+    def _republish(self) -> None:
+        """On (re)connection: every live coach's newest setpoint, in case one was issued while
+        the broker was away."""
+        try:
+            with self.db.transaction() as session:
+                views = []
+                for coach in session.scalars(select(Coach).where(Coach.fleet == "live")):
+                    sp = newest_setpoint(session, coach)
+                    if sp is not None:
+                        views.append(setpoint_view(coach.id, sp, self.valid_for))
+        except OperationalError as exc:
+            log.warning("MQTT: setpoints not republished (database unavailable): %s", exc)
+            return
+        for view in views:
+            self._publish(view)
+
+    def _publish(self, view: dict) -> None:
+        payload = json.dumps(view, default=lambda t: t.isoformat())
+        info = self.client.publish(
+            self.broker.topic(view["coach_id"], "setpoint"), payload, qos=1, retain=True
+        )
+        if info.rc == paho.MQTT_ERR_SUCCESS:
+            self.status.setpoints_published += 1
+        # else: not connected; the newest is republished on reconnection (_republish)

@@ -1,0 +1,78 @@
+"""An in-process cache of the expensive reads: each coach's view (the fleet list is made of them)
+and the pair comparisons.
+
+An answer is kept under its request's key (a coach; a train, range and window length) together
+with the state of everything it is computed from, read from the database at the start of each
+request in a few index probes (:func:`~trainclimate.service.store.queries.coach_states`,
+:func:`~trainclimate.service.store.queries.comparison_state`). It is served only while that state
+is unchanged. Telemetry and setpoints are only ever inserted, clocks only advance and an override
+is only ever cancelled once, so a new telemetry row, setpoint or override, or a cancellation,
+changes the state, and the next request computes its answer afresh: a served answer is the one a
+fresh computation gives at the time of the request.
+
+The cache is bounded (least recently used keys go first) and shared by the server's threads.
+Requests that miss on the same key and state at the same time compute the answer once: the first
+computes, the others wait for its answer (or its error).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
+from concurrent.futures import Future
+from typing import Any
+
+
+class ReadCache:
+    """At most ``size`` answers, one per key, the least recently used dropped first (``size`` 0:
+    nothing is kept, every request computes); thread-safe. ``misses`` counts the answers
+    computed, ``hits`` those served without computing (kept, or computed by another request at
+    the same time). A served answer is shared: callers must not change it."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.hits = 0
+        self.misses = 0
+        self._answers: OrderedDict[Hashable, tuple[Hashable, Any]] = OrderedDict()
+        self._computing: dict[tuple[Hashable, Hashable], Future] = {}
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self._answers)
+
+    def get(self, key: Hashable, state: Hashable, compute: Callable[[], Any]) -> Any:
+        """The answer kept under ``key`` if it was computed in ``state``; else ``compute()``'s,
+        kept under ``key`` with ``state`` (an error is raised, not kept), or the answer of
+        another thread computing the same key and state."""
+        if self.size == 0:
+            return compute()
+        with self._lock:
+            kept = self._answers.get(key)
+            if kept is not None and kept[0] == state:
+                self._answers.move_to_end(key)
+                self.hits += 1
+                return kept[1]
+            pending = self._computing.get((key, state))
+            if pending is None:
+                self.misses += 1
+                self._computing[key, state] = mine = Future()
+            else:
+                self.hits += 1
+        if pending is not None:
+            return pending.result()
+        try:
+            answer = compute()
+        except BaseException as exc:
+            with self._lock:
+                del self._computing[key, state]
+            mine.set_exception(exc)
+            raise
+        with self._lock:
+            del self._computing[key, state]
+            self._answers[key] = (state, answer)
+            self._answers.move_to_end(key)
+            if len(self._answers) > self.size:
+                self._answers.popitem(last=False)
+        mine.set_result(answer)
+        return answer

@@ -1,0 +1,87 @@
+"""Concurrent writers against a real ``serve`` process, on SQLite and PostgreSQL: ten gateways
+registering the same trains and coaches at once, then fifty first telemetry posts at once (the
+same minutes twice among them) — every answer a 2xx, every row stored once, the fleet's clock the
+newest row, one audit entry per coach created."""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import httpx
+from sqlalchemy import func, select
+
+from service_processes import token_cli
+from service_support import at, flat_rows
+from trainclimate.service.store.db import Database
+from trainclimate.service.store.models import AuditLog, Coach, FleetClock, Telemetry, Train
+from trainclimate.service.store.telemetry import to_wire
+
+GATEWAYS = 10
+
+
+def all_at_once(requests: list[tuple[str, str, dict]], url: str, token: str) -> list[int]:
+    """Send ``requests`` (method, path, body) from as many threads, released together; the
+    status codes (599 for a connection error)."""
+    start = threading.Barrier(len(requests))
+
+    def send(request):
+        method, path, body = request
+        with httpx.Client(
+            base_url=f"{url}/api/v1", headers={"Authorization": f"Bearer {token}"}, timeout=30
+        ) as client:
+            start.wait()
+            try:
+                return client.request(method, path, json=body).status_code
+            except httpx.TransportError:
+                return 599
+
+    with ThreadPoolExecutor(len(requests)) as pool:
+        return list(pool.map(send, requests))
+
+
+def wire(first: int, last: int) -> list[dict]:
+    return [to_wire(r) for r in flat_rows(first, last)]
+
+
+def test_concurrent_first_writes_never_fail(db_url, servers, proc_env):
+    server = servers(db_url).start()
+    token = token_cli(db_url, "operator", proc_env)
+    coaches = [(f"{g}-{side}", str(g)) for g in range(1, GATEWAYS + 1) for side in "AB"]
+    # every gateway registers its two coaches, and each request is sent twice
+    register = [("POST", "/coaches", {"id": c, "train_id": t}) for c, t in coaches] * 2
+    codes = all_at_once(register, server.url, token)
+    assert sorted(set(codes)) in ([200, 201], [201]), codes
+    assert codes.count(201) == len(coaches)  # each coach created once, then found
+    # fifty first posts: five per gateway — coach A's first minutes twice, and three more
+    posts = []
+    for g in range(1, GATEWAYS + 1):
+        a, b = f"{g}-A", f"{g}-B"
+
+        def post(coach, first, last):
+            return ("POST", "/telemetry", {"coach_id": coach, "rows": wire(first, last)})
+
+        posts += [post(a, 1, 3), post(a, 1, 3), post(b, 1, 3), post(a, 2, 5), post(b, 4, max(g, 4))]
+    assert len(posts) == 50
+    codes = all_at_once(posts, server.url, token)
+    assert codes == [200] * 50, codes
+    server.stop()
+    db = Database(db_url)
+    try:
+        with db.transaction() as s:
+            assert s.scalar(select(func.count()).select_from(Coach)) == len(coaches)
+            assert s.scalar(select(func.count()).select_from(Train)) == GATEWAYS
+            registered = select(func.count()).where(AuditLog.action == "coach.register")
+            assert s.scalar(registered) == len(coaches)
+            for g in range(1, GATEWAYS + 1):
+                times = s.scalars(
+                    select(Telemetry.time)
+                    .where(Telemetry.coach_id == f"{g}-A")
+                    .order_by(Telemetry.time)
+                ).all()
+                assert times == [at(m) for m in range(1, 6)]
+                count = select(func.count()).where(Telemetry.coach_id == f"{g}-B")
+                assert s.scalar(count) == max(g, 4)
+            assert s.get(FleetClock, "live").time == at(GATEWAYS)
+    finally:
+        db.dispose()
