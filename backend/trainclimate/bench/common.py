@@ -1,5 +1,5 @@
 """What several benchmarks share: the machine description every result carries, peak resident
-memory, percentiles in milliseconds and the child-process runner."""
+memory, percentiles in milliseconds and the child-process runners."""
 
 from __future__ import annotations
 
@@ -57,3 +57,17 @@ def child(name: str, *args: str) -> dict:
         text=True,
     )
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def start_child(name: str, *args: str, stderr) -> subprocess.Popen:
+    """Start the child entry ``name(*args)`` like :func:`child`, without waiting for it, so that
+    several run at once: its stdin and stdout are pipes of text lines (for a child that takes
+    turns with its parent), its stderr goes to the open file ``stderr``."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "trainclimate.bench", name, *args],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=stderr,
+        text=True,
+        bufsize=1,
+    )

@@ -30,13 +30,18 @@ def cmd_serve(args: argparse.Namespace) -> None:
     from sqlalchemy.exc import OperationalError
 
     from trainclimate.service.app import create_app
-    from trainclimate.service.settings import Settings
+    from trainclimate.service.settings import REPLICA_NAME_MAX, Settings
     from trainclimate.service.store.db import migrate
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
         raise UsageError("--speedup must be positive")
     broker = mqtt_broker(args)
+    if args.replica_name is not None and not (
+        0 < len(args.replica_name) <= REPLICA_NAME_MAX and args.replica_name.isprintable()
+    ):
+        raise UsageError(f"--replica-name must be 1 to {REPLICA_NAME_MAX} printable characters")
     settings = Settings(
+        **({"replica_name": args.replica_name} if args.replica_name else {}),
         database_url=db_url(args),
         fleet=args.fleet,
         speedup=args.speedup,
@@ -266,6 +271,12 @@ def register(sub) -> None:
         "--mqtt-client-id",
         default="trainclimate-service",
         help="the service's client id: its persistent session on the broker",
+    )
+    p.add_argument(
+        "--replica-name",
+        default=None,
+        help="this process's name in the setpoints it decides (default: HOST:PID); replicas "
+        "sharing one PostgreSQL database split the coaches",
     )
 
     tsub = add_group(sub, "token", "API tokens")

@@ -47,7 +47,7 @@ from trainclimate.service.preparation import ModelPreparation, has_model, regist
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.cache import ReadCache
-from trainclimate.service.store.db import Database, migrate
+from trainclimate.service.store.db import Database, head_revision, migrate
 
 log = logging.getLogger(__name__)
 #: Plotly.js as the installed plotly package ships it (served at /vendor/plotly.min.js).
@@ -70,6 +70,7 @@ async def lifespan(app: FastAPI):
     docstring); stop them and close the database when the server stops."""
     settings: Settings = app.state.settings
     migrate(settings.database_url)
+    app.state.migrations_head = head_revision()
     # the threads running the sync routes, and a pooled connection for each (store/db.py)
     pace_threads(settings.worker_threads)
     db = Database(settings.database_url, settings.worker_threads)
@@ -85,11 +86,13 @@ async def lifespan(app: FastAPI):
     if app.state.mqtt is not None:
         scheduler.listeners.append(app.state.mqtt.publish_setpoints)
         app.state.mqtt.start()
-    stop = threading.Event()
+    stop = app.state.stop = threading.Event()  # set: every loop of this replica stops
     threads = [threading.Thread(target=scheduler.run_live, args=(stop,), name="live-loop")]
+    scheduler.beat("live", scheduler.period_s)  # counted as running from its start
     if settings.fleet == "demo":
         fleet = demo.DemoFleet(db, scheduler, settings.speedup)
         threads.append(threading.Thread(target=fleet.run, args=(stop,), name="demo-fleet"))
+        scheduler.beat(demo.FLEET, scheduler.period_s / settings.speedup)
     for t in threads:
         t.start()
     try:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import logging
 import threading
+import time
 from collections.abc import Callable
 from datetime import datetime, timedelta
 
@@ -38,7 +39,7 @@ from trainclimate.predict.artifact import load_predictor_bytes
 from trainclimate.predict.setting import RHO
 from trainclimate.service import policy
 from trainclimate.service.policy import Decision
-from trainclimate.service.settings import Settings
+from trainclimate.service.settings import LOOP_READY_MIN_S, Settings
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import (
     Coach,
@@ -79,6 +80,11 @@ class Scheduler:
         #: called as ``listener(fleet, rows)`` with the setpoint rows of each batch of ticks once
         #: they are committed (the MQTT feed publishes them); a listener's failure is logged
         self.listeners: list[Callable[[str, list[dict]], None]] = []
+        #: this process, as recorded with each setpoint it decides
+        self.replica = settings.replica_name
+        #: loop name → (monotonic time of its last completed iteration [s], how long it may
+        #: stay silent and still count as running [s]); see :meth:`beat`
+        self.heartbeats: dict[str, tuple[float, float]] = {}
 
     # --- the model -------------------------------------------------------------------------
     def refresh_model(self, session: Session) -> None:
@@ -178,7 +184,9 @@ class Scheduler:
                 .where(*self._due(fleet, tick, reported_only))
                 .order_by(Coach.id)
                 .limit(batch)
-                .with_for_update(skip_locked=True)
+                # FOR NO KEY UPDATE: telemetry of a coach being ticked (its foreign key takes
+                # a KEY SHARE lock on the coach) is stored without waiting for the tick
+                .with_for_update(skip_locked=True, key_share=True)
             ).all()
             if not coaches:
                 return 0
@@ -195,7 +203,7 @@ class Scheduler:
                 except Exception as exc:  # one coach's failure never stops the others
                     log.exception("tick %s for coach %s failed", tick, coach.id)
                     decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
-                rows.append(_row(coach.id, tick, decision, self._model_id))
+                rows.append(_row(coach.id, tick, decision, self._model_id, self.replica))
                 coach.last_tick = tick
             session.execute(Setpoint.__table__.insert(), rows)
         for listener in self.listeners:
@@ -229,12 +237,37 @@ class Scheduler:
         tick = floor_tick(now, self.period)
         return self.tick_fleet("live", tick, reported_only=now < tick + self.live_grace)
 
+    # --- the loops' heartbeats ---------------------------------------------------------------
+    def beat(self, loop: str, period_wall_s: float) -> None:
+        """Record that ``loop`` completed an iteration now. It counts as running for two of its
+        fleet's periods, ``period_wall_s`` each in wall time (s), at least
+        :data:`~trainclimate.service.settings.LOOP_READY_MIN_S` (``loop_ready_s`` of the
+        settings, if set, instead)."""
+        allowed = self.settings.loop_ready_s or max(2 * period_wall_s, LOOP_READY_MIN_S)
+        self.heartbeats[loop] = (time.monotonic(), allowed)
+
+    def loop_ages(self) -> dict[str, float]:
+        """Seconds since each loop's last completed iteration."""
+        now = time.monotonic()
+        return {loop: now - at for loop, (at, _) in sorted(self.heartbeats.items())}
+
+    def stalled_loops(self) -> list[str]:
+        """A sentence per loop whose last completed iteration is older than it may be."""
+        now = time.monotonic()
+        return [
+            f"the {loop} loop completed no iteration for {now - at:.0f} s (limit {allowed:g} s)"
+            for loop, (at, allowed) in sorted(self.heartbeats.items())
+            if now - at > allowed
+        ]
+
     def run_live(self, stop: threading.Event) -> None:
         """The live fleet's loop, until ``stop``; a database that is briefly unavailable leaves
-        the last setpoints standing (the gateways keep them) and is retried."""
+        the last setpoints standing (the gateways keep them) and is retried. Its clock is real
+        time: it beats with a period of ``sampling_min`` (see :meth:`beat`)."""
         while not stop.is_set():
             try:
                 self.run_live_once()
+                self.beat("live", self.period_s)
             except OperationalError as exc:
                 log.warning("database unavailable, retrying: %s", str(exc).splitlines()[0])
             except Exception:
@@ -257,8 +290,9 @@ def active_overrides(session: Session, coach_ids: list[str], at: datetime) -> di
     return {o.coach_id: o for o in rows}
 
 
-def _row(coach_id: str, tick: datetime, d: Decision, model_id: int | None) -> dict:
-    """The setpoint row of decision ``d`` (the model only for a DDPC setpoint)."""
+def _row(coach_id: str, tick: datetime, d: Decision, model_id: int | None, replica: str) -> dict:
+    """The setpoint row of decision ``d`` (the model only for a DDPC setpoint) decided by
+    ``replica``."""
     return {
         "coach_id": coach_id,
         "tick": tick,
@@ -272,4 +306,5 @@ def _row(coach_id: str, tick: datetime, d: Decision, model_id: int | None) -> di
         "predicted": d.predicted,
         "model_id": model_id if d.source == "ddpc" else None,
         "created_at": pd.Timestamp.now(tz="UTC").to_pydatetime(),
+        "replica": replica,
     }

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import os
+import socket
 from pathlib import Path
 
 from pydantic import Field, field_validator
@@ -14,6 +16,18 @@ from trainclimate.service.store.db import WORKER_THREADS
 
 #: The MQTT topics' prefix (see :mod:`trainclimate.service.adapters.mqtt`).
 MQTT_PREFIX = "trainclimate/v1"
+
+
+#: A loop of the service counts as running for at least this long after its last completed
+#: iteration (``/api/v1/ready``), however fast its clock. [s]
+LOOP_READY_MIN_S = 10.0
+#: The longest replica name (the ``setpoints.replica`` column).
+REPLICA_NAME_MAX = 64
+
+
+def default_replica_name() -> str:
+    """``host:pid``: this process on this machine."""
+    return f"{socket.gethostname()}:{os.getpid()}"[:REPLICA_NAME_MAX]
 
 
 def default_database_url() -> str:
@@ -41,7 +55,11 @@ class Settings(BaseSettings):
     telemetry from and publish setpoints to, with its ``mqtt_username``, ``mqtt_password``
     (env ``TRAINCLIMATE_MQTT_PASSWORD``), ``mqtt_ca_file``, topic ``mqtt_prefix`` and the
     service's ``mqtt_client_id`` (its persistent session: see
-    :mod:`trainclimate.service.adapters.mqtt`)."""
+    :mod:`trainclimate.service.adapters.mqtt`); ``replica_name`` (``--replica-name``,
+    default ``host:pid``) names this process in the setpoints it decides (replicas sharing one
+    PostgreSQL database split the coaches); ``loop_ready_s`` how long after its last completed
+    iteration a loop of this replica still counts as running for ``/api/v1/ready`` (default: two
+    periods of its fleet's clock in wall time, at least :data:`LOOP_READY_MIN_S`)."""
 
     model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
 
@@ -68,6 +86,10 @@ class Settings(BaseSettings):
     mqtt_ca_file: Path | None = None
     mqtt_prefix: str = MQTT_PREFIX
     mqtt_client_id: str = "trainclimate-service"
+    replica_name: str = Field(
+        default_factory=default_replica_name, min_length=1, max_length=REPLICA_NAME_MAX
+    )
+    loop_ready_s: float | None = Field(default=None, gt=0)
 
     @field_validator("fleet")
     @classmethod

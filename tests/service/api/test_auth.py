@@ -26,6 +26,7 @@ from trainclimate.service.store.tokens import RANK
 #: (method, path, the lowest role allowed) for every route behind a token.
 ROUTES = [
     ("GET", "/me", "viewer"),
+    ("GET", "/replicas", "viewer"),
     ("GET", "/coaches", "viewer"),
     ("POST", "/coaches", "operator"),
     ("GET", "/coaches/{coach_id}", "viewer"),
@@ -106,7 +107,7 @@ def test_every_protected_route_checks_token_and_role(client, tokens):
             else:  # let in: whatever the route then says about the request itself
                 assert reply.status_code not in (401, 403, 500), (method, path, role, reply.text)
             checked += 1
-    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 210
+    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 220
 
 
 def test_health_and_readiness_need_no_token(client):
@@ -115,7 +116,14 @@ def test_health_and_readiness_need_no_token(client):
     assert health.json()["status"] == "ok" and health.json()["database"] in ("sqlite", "postgresql")
     ready = client.get(f"{API}/ready")
     assert ready.status_code == 200
-    assert ready.json() == {"status": "ready", "migrations": "0003", "model_version": 1}
+    body = ready.json()
+    assert {k: body[k] for k in ("status", "migrations", "model_version", "under_rule")} == {
+        "status": "ready",
+        "migrations": "0003",
+        "model_version": 1,
+        "under_rule": False,
+    }
+    assert body["replica"] and set(body["loops_s"]) == {"live"}
 
 
 def _all_stored_text(settings) -> str:

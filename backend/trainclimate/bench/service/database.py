@@ -36,11 +36,12 @@ def libpq_url(url: str) -> str:
 
 
 class BenchDatabase:
-    """A fresh database on the server (created here, dropped at the end), or the database ``url``
-    names, which must be empty (the benchmark fills and truncates its tables). As a context
-    manager: the migrated database's libpq URL."""
+    """A fresh database on the server ``server`` (default ``$TRAINCLIMATE_TEST_PG_URL``, else
+    :data:`PG_SERVER`; created here, dropped at the end), or the database ``url`` names, which
+    must be empty (the benchmark fills and truncates its tables). As a context manager: the
+    migrated database's libpq URL."""
 
-    def __init__(self, url: str | None):
+    def __init__(self, url: str | None, server: str | None = None):
         import uuid
 
         self.given = url is not None
@@ -48,7 +49,7 @@ class BenchDatabase:
             self.url = libpq_url(url)
             self.name = None
         else:
-            server = libpq_url(os.environ.get("TRAINCLIMATE_TEST_PG_URL") or PG_SERVER)
+            server = libpq_url(server or os.environ.get("TRAINCLIMATE_TEST_PG_URL") or PG_SERVER)
             self.server = server
             self.name = f"tc_bench_{uuid.uuid4().hex[:10]}"
             self.url = f"{server.rsplit('/', 1)[0]}/{self.name}"

@@ -9,9 +9,12 @@ import numpy as np
 
 
 def pair_ids(prefix: str, trains: int) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Coach ids ``{prefix}{train:03d}-A`` (activated) and ``-B`` of ``trains`` trains: (ids,
-    train index, activated) per coach, A and B of each train next to each other."""
-    ids = [f"{prefix}{t:03d}-{s}" for t in range(trains) for s in "AB"]
+    """Coach ids ``{prefix}{train:03d}-A`` (activated) and ``-B`` of ``trains`` trains (the
+    train's number on as many digits as the largest needs, at least 3: every id of one length, as
+    a COPY block takes them): (ids, train index, activated) per coach, A and B of each train next
+    to each other."""
+    width = max(3, len(str(trains - 1)))
+    ids = [f"{prefix}{t:0{width}d}-{s}" for t in range(trains) for s in "AB"]
     train = np.repeat(np.arange(trains), 2)
     active = np.tile([True, False], trains)
     return ids, train, active

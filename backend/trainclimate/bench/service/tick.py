@@ -4,6 +4,7 @@ same decisions in memory (the controller steps alone)."""
 from __future__ import annotations
 
 import time
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -24,12 +25,9 @@ def run(url: str, model: Path, coaches: int, lead_ticks: int, repeats: int) -> d
     parts each timed on their own: its telemetry reads, the samples' extraction, the decisions
     and a tick with no telemetry in its window (every coach stale: the claim and the writes).
     """
-    from datetime import timedelta
-
     from sqlalchemy import select
 
     from trainclimate.predict.artifact import load_predictor
-    from trainclimate.service.app import register_model_file
     from trainclimate.service.scheduler import Scheduler
     from trainclimate.service.settings import Settings
     from trainclimate.service.store.db import Database
@@ -38,15 +36,9 @@ def run(url: str, model: Path, coaches: int, lead_ticks: int, repeats: int) -> d
 
     settings = Settings(database_url=url, predictor_path=model)
     period = timedelta(minutes=settings.sampling_min)
-    minutes = round((lead_ticks + repeats) * period / timedelta(minutes=1))
-    ids, start, block = _fleet_block(coaches, minutes)
-    register(url, ids, "live")
-    copy_telemetry(url, [block])
-    sql(url, "VACUUM ANALYZE telemetry", autocommit=True)
+    ids, start = live_fleet(url, model, coaches, lead_ticks + repeats, period)
     db = Database(url)
-    with db.transaction() as session:
-        register_model_file(session, settings)
-    warm = start.to_pydatetime() + lead_ticks * period
+    warm = start + lead_ticks * period
     ticks = [warm + j * period for j in range(1, repeats + 1)]
 
     scheduler = Scheduler(db, settings)
@@ -132,6 +124,28 @@ def run(url: str, model: Path, coaches: int, lead_ticks: int, repeats: int) -> d
         "target_s": TARGET_S,
         "telemetry_rows_stored": rows_stored,
     }
+
+
+def live_fleet(
+    url: str, model: Path, coaches: int, ticks: int, period: timedelta
+) -> tuple[list[str], datetime]:
+    """``coaches`` live coaches (half activated) registered in the database at ``url``, their
+    1-minute telemetry over ``ticks`` sampling periods of ``period`` loaded with COPY (then
+    ``VACUUM ANALYZE``), and the model file ``model`` registered as the active model: (the coach
+    ids, the time the telemetry starts — a tick; its first row is stamped a minute later)."""
+    from trainclimate.service.app import register_model_file
+    from trainclimate.service.settings import Settings
+    from trainclimate.service.store.db import Database
+
+    ids, start, block = _fleet_block(coaches, round(ticks * period / timedelta(minutes=1)))
+    register(url, ids, "live")
+    copy_telemetry(url, [block])
+    sql(url, "VACUUM ANALYZE telemetry", autocommit=True)
+    db = Database(url)
+    with db.transaction() as session:
+        register_model_file(session, Settings(database_url=url, predictor_path=model))
+    db.dispose()
+    return ids, start.to_pydatetime()
 
 
 def _fleet_block(coaches: int, minutes: int):

@@ -209,7 +209,9 @@ class DemoFleet:
                     now = session.get(FleetClock, FLEET).time
                 if now + self.period <= target:
                     self.advance()
+                    self.scheduler.beat(FLEET, self.period.total_seconds() / self.speedup)
                     continue
+                self.scheduler.beat(FLEET, self.period.total_seconds() / self.speedup)
             except OperationalError as exc:
                 log.warning("database unavailable, retrying: %s", str(exc).splitlines()[0])
             except Exception:

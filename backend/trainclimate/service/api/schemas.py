@@ -72,8 +72,31 @@ class Health(BaseModel):
 
 class Ready(BaseModel):
     status: str = Field(examples=["ready"])
-    migrations: str = Field(examples=["0002"])
+    replica: str = Field(examples=["backend-1:7"], description="this process (--replica-name)")
+    migrations: str = Field(examples=["0003"])
     model_version: int | None = Field(examples=[1])
+    under_rule: bool = Field(
+        description="no model yet: the first one is being prepared and the coaches run under "
+        "T_rule meanwhile"
+    )
+    loops_s: dict[str, float] = Field(
+        description="seconds since each loop of this replica completed an iteration",
+        examples=[{"live": 0.4, "demo": 0.1}],
+    )
+
+
+class NotReady(BaseModel):
+    detail: str = Field(examples=["not ready: the live loop completed no iteration for 700 s"])
+    reasons: list[str]
+
+
+class ReplicaOut(BaseModel):
+    replica: str = Field(examples=["backend-1:7"])
+    this: bool = Field(description="the replica answering this request")
+    coaches: list[str] = Field(description="the coaches it issued ticks to")
+    ticks: int
+    first_seen: datetime
+    last_seen: datetime
 
 
 class CoachOut(BaseModel):

@@ -111,6 +111,16 @@ def migrate(url: str, revision: str = "head") -> None:
     command.upgrade(alembic_config(url), revision)
 
 
+def head_revision() -> str:
+    """The newest revision of ``migrations/`` (what :func:`migrate` brings a database to)."""
+    from alembic.config import Config
+    from alembic.script import ScriptDirectory
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(MIGRATIONS))
+    return ScriptDirectory.from_config(cfg).get_current_head()
+
+
 def downgrade(url: str, revision: str = "base") -> None:
     """Take the database at ``url`` back to ``revision`` (default: empty)."""
     from alembic import command

@@ -385,3 +385,39 @@ def comparison(
         "baseline_violation_k": c.baseline_violation_k,
         "excluded_minutes": c.excluded_minutes,
     }
+
+
+def replicas(session: Session, since: datetime) -> list[dict]:
+    """The service replicas that decided setpoints since ``since`` (by when the setpoints were
+    made, wall time): per replica its ``coaches`` (sorted ids), ``ticks`` and the first and last
+    time it was seen; busiest first. Setpoints from before replicas were recorded count under
+    ``unknown``."""
+    rows = session.execute(
+        select(
+            Setpoint.replica,
+            Setpoint.coach_id,
+            func.count(),
+            func.min(Setpoint.created_at),
+            func.max(Setpoint.created_at),
+        )
+        .where(Setpoint.created_at >= since)
+        .group_by(Setpoint.replica, Setpoint.coach_id)
+    ).all()
+    out: dict[str, dict] = {}
+    for replica, coach_id, ticks, first, last in rows:
+        r = out.setdefault(
+            replica or "unknown",
+            {
+                "replica": replica or "unknown",
+                "coaches": [],
+                "ticks": 0,
+                "first_seen": first,
+                "last_seen": last,
+            },
+        )
+        r["coaches"].append(coach_id)
+        r["ticks"] += ticks
+        r["first_seen"], r["last_seen"] = min(r["first_seen"], first), max(r["last_seen"], last)
+    for r in out.values():
+        r["coaches"].sort()
+    return sorted(out.values(), key=lambda r: (-r["ticks"], r["replica"]))

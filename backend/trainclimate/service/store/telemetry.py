@@ -30,12 +30,15 @@ VALUE_COLS = (*Y_COLS, "t_ref_c", "t_rule_c", *D_COLS, "ghi_w_m2", "power_kw")
 def insert_rows(session: Session, coach_id: str, rows: list[dict]) -> int:
     """Insert telemetry rows of one coach, skipping times already stored (a gateway that resends
     a batch after a lost connection changes nothing, also when both copies arrive at once) and
-    repeated in the batch (the first is kept). Returns how many were new."""
+    repeated in the batch (the first is kept). Returns how many were new. Inserted in time
+    order, so two writers of overlapping batches take the rows' locks in the same order and
+    cannot deadlock."""
     fresh, seen = [], set()
     for r in rows:
         if r["time"] not in seen:
             seen.add(r["time"])
             fresh.append({**r, "coach_id": coach_id})
+    fresh.sort(key=lambda r: r["time"])
     return insert_new(session, Telemetry.__table__, fresh, ["coach_id", "time"])
 
 
