@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import time
 from datetime import UTC, datetime, timedelta
 
 import pytest
@@ -52,10 +51,25 @@ def test_two_replicas_one_killed(db_url, servers, proc_env, tmp_path):
     token = gateway_token(db_url, coaches, proc_env)
     gateways = []
     for t in TRAINS:
-        args = [*CLI, "gateway", "--server", survivor.url, "--coaches", f"{t}-A,{t}-B",
-                "--token", token, "--hours", str(HOURS), "--speedup", str(SPEEDUP), "--json"]
-        out, err = (tmp_path / f"gateway-{t}.json").open("wb"), (tmp_path / f"gw-{t}.log").open("wb")
-        gateways.append((subprocess.Popen(args, env=proc_env, stdout=out, stderr=err), t))  # fmt: skip
+        args = [
+            *CLI,
+            "gateway",
+            "--server",
+            survivor.url,
+            "--coaches",
+            f"{t}-A,{t}-B",
+            "--token",
+            token,
+            "--hours",
+            str(HOURS),
+            "--speedup",
+            str(SPEEDUP),
+            "--json",
+        ]
+        json_out, log = tmp_path / f"gateway-{t}.json", tmp_path / f"gw-{t}.log"
+        with json_out.open("wb") as out, log.open("wb") as err:
+            proc = subprocess.Popen(args, env=proc_env, stdout=out, stderr=err)
+        gateways.append((proc, t))
     db = Database(db_url)
     try:
         # both replicas decide ticks (whichever loop claims a tick's coaches first) …
