@@ -177,11 +177,23 @@ async function showFleet() {
     draw();
   }));
   await every(REFRESH_MS, async () => {
-    coaches = await api("/coaches");
+    const [list, replicas] = await Promise.all([api("/coaches"), api("/replicas")]);
+    coaches = list;
     const clock = coaches.map((c) => c.clock).filter(Boolean).sort().pop();
     view.querySelector("#fleet-clock").textContent = clock ? `fleet clock ${local(clock)} (Zurich)` : "";
     draw();
+    drawReplicas(view.querySelector("#replicas tbody"), replicas);
   });
+}
+
+/** The replicas that decided ticks in the last hour: which coaches each took, how many ticks. */
+function drawReplicas(body, replicas) {
+  body.replaceChildren(...replicas.map((r) => el("tr", { "data-replica": r.replica },
+    el("td", { text: r.this ? `${r.replica} (this one)` : r.replica }),
+    el("td", { text: `${r.coaches.length}: ${r.coaches.join(", ")}` }),
+    el("td", { class: "num", text: String(r.ticks) }),
+    el("td", { text: local(r.last_seen) }))));
+  if (!replicas.length) body.append(el("tr", {}, el("td", { colspan: "4", text: "no ticks decided in the last hour" })));
 }
 
 // --- pair comparison (the paper's experiment figure, live) ---------------------------------

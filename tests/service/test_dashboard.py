@@ -131,6 +131,13 @@ def test_pages_load_and_charts_have_data(browser, server):
     page.click("th[data-sort='id']")
     assert first.get_attribute("data-coach") == "D3-B"
     assert page.locator("th.sorted-desc[data-sort='id']").count() == 1
+    # the one replica, which decided every demo coach's ticks
+    replica = page.locator("#replicas tbody tr").first
+    replica.wait_for()
+    cells = replica.locator("td").all_inner_texts()
+    assert page.locator("#replicas tbody tr").count() == 1
+    assert cells[0].endswith("(this one)") and cells[1].startswith("6: D1-A, D1-B")
+    assert int(cells[2]) >= 6
     w.shot("dashboard-fleet")
 
     # the pair comparison: the paper's four panels with data and the summary
