@@ -14,12 +14,21 @@ from trainclimate.cli.common import (
 
 def cmd_bench(args: argparse.Namespace) -> None:
     """``bench TARGET``: run one benchmark and print its figures (``--json``: its dict)."""
-    from trainclimate.bench import controller, load, pipeline, predictor, service, simulator
+    from trainclimate.bench import (
+        controller,
+        load,
+        pipeline,
+        predictor,
+        replicas,
+        service,
+        simulator,
+    )
 
     if args.target == "simulator":
-        if args.coaches < 1 or args.days <= 0:
+        coaches = 100 if args.coaches is None else args.coaches
+        if coaches < 1 or args.days <= 0:
             raise UsageError("--coaches must be ≥ 1 and --days positive")
-        emit(args, simulator.run(args.coaches, args.days, args.loop_coaches), simulator.text)
+        emit(args, simulator.run(coaches, args.days, args.loop_coaches), simulator.text)
     elif args.target == "pipeline":
         emit(args, pipeline.run(), pipeline.text)
     elif args.target == "predictor":
@@ -53,6 +62,14 @@ def cmd_bench(args: argparse.Namespace) -> None:
             except load.LoadBenchError as exc:
                 raise UsageError(str(exc)) from None
         emit(args, data, load.text)
+    elif args.target == "replicas":
+        coaches = 10_000 if args.coaches is None else args.coaches
+        with progress_bar(3, "replicas benchmark", "stage") as bar:
+            try:
+                data = replicas.run(coaches, args.db, progress=bar.update)
+            except replicas.ReplicasBenchError as exc:
+                raise UsageError(str(exc)) from None
+        emit(args, data, replicas.text)
     else:
         emit(args, controller.run(), controller.text)
 
@@ -62,7 +79,7 @@ def register(sub) -> None:
     p = add_command(sub, "bench", cmd_bench, "run a benchmark")
     p.add_argument(
         "target",
-        choices=("simulator", "pipeline", "predictor", "controller", "service", "load"),
+        choices=("simulator", "pipeline", "predictor", "controller", "service", "load", "replicas"),
     )
     p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
     p.add_argument("--data", default=None, help="predictor: dataset directory")
@@ -71,7 +88,8 @@ def register(sub) -> None:
         default=None,
         help="service: an empty PostgreSQL database (default: a new one on the server "
         "$TRAINCLIMATE_TEST_PG_URL names, else 127.0.0.1:5432, dropped at the end); load: a "
-        "PostgreSQL server to make a throw-away database on (default: SQLite)",
+        "PostgreSQL server to make a throw-away database on (default: SQLite); replicas: a "
+        "PostgreSQL server to make a throw-away database on (default as for service)",
     )
     p.add_argument("--clients", type=int, default=50, help="load: concurrent clients")
     p.add_argument("--requests", type=int, default=2000, help="load: requests in all")
@@ -88,7 +106,12 @@ def register(sub) -> None:
         default=None,
         help="load: live coaches fed over MQTT (pairs; default 10; 0: none)",
     )
-    p.add_argument("--coaches", type=int, default=100)
+    p.add_argument(
+        "--coaches",
+        type=int,
+        default=None,
+        help="simulator: coaches simulated (default 100); replicas: live coaches (default 10 000)",
+    )
     p.add_argument("--days", type=float, default=1.0)
     p.add_argument(
         "--loop-coaches", type=int, default=5, help="coaches simulated one by one for the baseline"

@@ -40,9 +40,9 @@ from trainclimate.service.api.hardening import (
     FailureCounter,
     SecurityHeaders,
     Slots,
-    database_unavailable,
     pace_threads,
 )
+from trainclimate.service.api.retry import RetryConflicts, database_error
 from trainclimate.service.preparation import ModelPreparation, has_model, register_predictor
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
@@ -163,8 +163,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(api.router)
     for exc, status in api.ERROR_STATUS.items():
         app.add_exception_handler(exc, _error(status))
-    app.add_exception_handler(OperationalError, database_unavailable(DATABASE_RETRY_AFTER_S))
-    app.add_exception_handler(PoolTimeoutError, database_unavailable(OVERLOAD_RETRY_AFTER_S))
+    # a database that does not answer, or whose connections are all in use: 503 with
+    # Retry-After; a transaction that lost a race (deadlock, serialization) is run again first
+    app.add_exception_handler(OperationalError, database_error(DATABASE_RETRY_AFTER_S))
+    app.add_exception_handler(PoolTimeoutError, database_error(OVERLOAD_RETRY_AFTER_S))
     app.add_exception_handler(RequestValidationError, _validation_error)
     if settings.cors_origins:
         app.add_middleware(
@@ -174,9 +176,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["Authorization", "Content-Type"],
         )
     # outermost last: the headers on every answer (429, 413 and 503 included), then the
-    # throttle, the body limit and the admission
+    # throttle, the body limit, the admission and the rerun of requests that lost a race
     app.state.read_cache = ReadCache(settings.read_cache_size)
     app.state.admission = Slots(settings.worker_threads, settings.overload_wait_s)
+    app.add_middleware(RetryConflicts)
     app.add_middleware(Admission, slots=app.state.admission)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.state.auth_failures = FailureCounter(

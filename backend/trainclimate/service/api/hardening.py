@@ -16,8 +16,6 @@
   late or not at all. Liveness and readiness (:data:`UNCOUNTED`) and the dashboard's files are
   not counted.
 
-:func:`database_unavailable` answers a database that does not answer (``OperationalError``) or
-whose connections are all in use (the pool's ``TimeoutError``) with 503 and ``Retry-After``;
 :func:`pace_threads` sets, at start, how many threads run the requests and how often the
 interpreter switches between threads.
 """
@@ -36,7 +34,6 @@ from collections.abc import Callable
 from anyio import to_thread
 from starlette.datastructures import Headers, MutableHeaders
 from starlette.exceptions import HTTPException
-from starlette.requests import Request
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -254,19 +251,6 @@ def pace_threads(worker_threads: int) -> None:
     :data:`SWITCH_INTERVAL_S` (for the whole process, until it ends)."""
     to_thread.current_default_thread_limiter().total_tokens = worker_threads
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-
-
-def database_unavailable(retry_after_s: int) -> Callable[[Request, Exception], JSONResponse]:
-    """An exception handler answering 503 ``{"detail": the error's first line}`` with
-    ``Retry-After: retry_after_s``."""
-
-    def handler(_request: Request, exc: Exception) -> JSONResponse:
-        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        return JSONResponse(
-            {"detail": message}, status_code=503, headers={"Retry-After": str(retry_after_s)}
-        )
-
-    return handler
 
 
 class Slots:
