@@ -181,9 +181,22 @@ async function showFleet() {
     coaches = list;
     const clock = coaches.map((c) => c.clock).filter(Boolean).sort().pop();
     view.querySelector("#fleet-clock").textContent = clock ? `fleet clock ${local(clock)} (Zurich)` : "";
+    drawFeedDown(view.querySelector("#feed-down"), coaches);
     draw();
     drawReplicas(view.querySelector("#replicas tbody"), replicas);
   });
+}
+
+/** "Feed down since …" when there are live coaches and nothing arrives from any of them. */
+function drawFeedDown(node, coaches) {
+  const live = coaches.filter((c) => c.fleet === "live");
+  const seen = live.map((c) => c.last_seen_at).filter(Boolean).sort();
+  const down = live.length > 0 && seen.length > 0 && live.every((c) => c.status === "stale" || !c.last_seen_at);
+  node.hidden = !down;
+  node.textContent = down
+    ? `Live feed down since ${local(seen[seen.length - 1])} (Zurich): no telemetry arrives from any gateway. ` +
+      "The coaches' HVACs follow their own T_rule once their last setpoint expires."
+    : "";
 }
 
 /** The replicas that decided ticks in the last hour: which coaches each took, how many ticks. */

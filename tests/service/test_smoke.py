@@ -8,4 +8,4 @@ def test_health_and_coaches(client, tokens):
     reply = client.get("/api/v1/coaches", headers=tokens["viewer"])
     assert reply.status_code == 200 and reply.json() == []
     ready = client.get("/api/v1/ready").json()
-    assert ready["migrations"] == "0003" and ready["model_version"] == 1
+    assert ready["migrations"] == "0004" and ready["model_version"] == 1

@@ -119,7 +119,7 @@ def test_health_and_readiness_need_no_token(client):
     body = ready.json()
     assert {k: body[k] for k in ("status", "migrations", "model_version", "under_rule")} == {
         "status": "ready",
-        "migrations": "0003",
+        "migrations": "0004",
         "model_version": 1,
         "under_rule": False,
     }

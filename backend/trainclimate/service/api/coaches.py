@@ -23,7 +23,7 @@ from trainclimate.service.api.deps import (
     settings,
 )
 from trainclimate.service.store import commands, queries
-from trainclimate.service.store.models import Coach
+from trainclimate.service.store.models import Coach, FleetClock, utcnow
 
 router = APIRouter()
 
@@ -32,7 +32,8 @@ router = APIRouter()
 def list_coaches(request: Request, s: DB, _: Viewer) -> list:
     """Every coach with its train, layer, status (ok, warm-up, stale, fallback, override,
     inactive, not-regular, no-data), latest readings and setpoint."""
-    return [_cached_view(request, s, c, state) for c, state in queries.coach_states(s)]
+    live = queries.live_clock(s)
+    return [_cached_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
 
 
 @router.post(
@@ -67,16 +68,21 @@ def register_coach(
 def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
     """One coach, as in the list."""
     [(coach, state)] = queries.coach_states(s, coach_id)
-    return _cached_view(request, s, coach, state)
+    return _cached_view(request, s, coach, state, queries.live_clock(s))
 
 
-def _cached_view(request: Request, s: Session, coach: Coach, state: tuple) -> dict:
-    """The coach's view, from the read cache while its state is unchanged."""
-    return request.app.state.read_cache.get(
+def _cached_view(
+    request: Request, s: Session, coach: Coach, state: tuple, live_clock: FleetClock | None
+) -> dict:
+    """The coach's view, from the read cache while its state is unchanged, with a live coach's
+    silence judged now (:func:`.queries.with_liveness`)."""
+    stale_periods = settings(request).stale_periods
+    view = request.app.state.read_cache.get(
         ("coach", coach.id),
         state,
-        lambda: queries.coach_view(s, coach, period(request), settings(request).stale_periods),
+        lambda: queries.coach_view(s, coach, period(request), stale_periods),
     )
+    return queries.with_liveness(view, live_clock, utcnow(), period(request), stale_periods)
 
 
 @router.get(
@@ -146,4 +152,8 @@ def set_controller(
     """Switch the DDPC layer on or off for a coach; audited."""
     coach = commands.set_controller(s, who, coach_id, body.active, body.reason)
     request.app.state.scheduler.forget(coach.id)
-    return queries.coach_view(s, coach, period(request), settings(request).stale_periods)
+    stale_periods = settings(request).stale_periods
+    view = queries.coach_view(s, coach, period(request), stale_periods)
+    return queries.with_liveness(
+        view, queries.live_clock(s), utcnow(), period(request), stale_periods
+    )

@@ -24,6 +24,7 @@ FORBIDDEN = {
 }
 NOT_FOUND = {404: {"model": schemas.Message, "description": "no such coach or train"}}
 AUTH = {**UNAUTHORIZED, **FORBIDDEN}
+CONFLICT = {409: {"model": schemas.Message, "description": "a conflict with the stored state"}}
 #: The largest id, version or offset taken: the columns are 32-bit integers (a larger value
 #: cannot exist, and PostgreSQL refuses to compare with it).
 INT32_MAX = 2**31 - 1

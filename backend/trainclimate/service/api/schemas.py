@@ -122,6 +122,11 @@ class CoachOut(BaseModel):
     last_solve_ms: float | None = Field(examples=[0.09])
     override_until: datetime | None = None
     clock: datetime | None = Field(description="the coach's fleet clock")
+    last_seen_at: datetime | None = Field(
+        default=None,
+        description="when its telemetry last arrived (wall time; live coaches: stale after two "
+        "periods of the fleet clock's pace without)",
+    )
     comfort_band_k: float = Field(
         examples=[1.0], description="the decks are to stay within T_rule ± this (K)"
     )

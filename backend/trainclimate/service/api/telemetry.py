@@ -6,7 +6,13 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from trainclimate.service.api import schemas
-from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, GatewayOrOperatorTelemetry
+from trainclimate.service.api.deps import (
+    AUTH,
+    CONFLICT,
+    DB,
+    NOT_FOUND,
+    GatewayOrOperatorTelemetry,
+)
 from trainclimate.service.store import commands
 from trainclimate.service.store.telemetry import from_wire
 
@@ -17,11 +23,12 @@ router = APIRouter()
     "/telemetry",
     response_model=schemas.TelemetryAccepted,
     tags=["live feed"],
-    responses={**AUTH, **NOT_FOUND},
+    responses={**AUTH, **NOT_FOUND, **CONFLICT},
 )
 def post_telemetry(batch: schemas.TelemetryBatch, s: DB, _: GatewayOrOperatorTelemetry) -> dict:
     """A gateway's batch of 1-minute rows for one coach; rows already stored are skipped. A
-    gateway token may send it for the coaches of its scope."""
+    gateway token may send it for the coaches of its scope. 409 for a coach of the demo
+    fleet."""
     rows = [from_wire(r.model_dump()) for r in batch.rows]
     stored, dup = commands.ingest(s, batch.coach_id, rows)
     return {"received": len(rows), "stored": stored, "duplicates": dup}

@@ -9,6 +9,7 @@ from datetime import datetime, timedelta
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
+from trainclimate.service.store import liveness
 from trainclimate.service.store.models import (
     ApiToken,
     AuditLog,
@@ -69,16 +70,20 @@ def register_coach(session: Session, who: Principal, coach_id: str, train_id: st
 
 
 def ingest(session: Session, coach_id: str, rows: list[dict]) -> tuple[int, int]:
-    """Store a batch of telemetry; advance the live fleet's clock. Returns (stored, duplicates)."""
+    """Store a batch of telemetry, advance the live fleet's clock and note the arrival
+    (:mod:`.liveness`). Returns (stored, duplicates)."""
     coach = coach_or_404(session, coach_id)
     if coach.fleet != "live":
         # the demo fleet writes its coaches' rows itself, without skipping any: a row posted
         # here would make its next write conflict, every time, and stop the demo
         raise ConflictError(f"coach {coach_id!r} is simulated by the {coach.fleet} fleet")
+    if not rows:
+        return 0, 0
+    newest = max(r["time"] for r in rows)
     stored = insert_rows(session, coach.id, rows)
-    if rows:  # created by the first post ever, concurrent ones included
-        newest = max(r["time"] for r in rows)
-        advance(session, FleetClock.__table__, {"name": "live"}, "time", newest)
+    # the clock is created by the first post ever, concurrent ones included
+    advance(session, FleetClock.__table__, {"name": liveness.LIVE}, "time", newest)
+    liveness.note_arrival(session, coach, utcnow())
     return stored, len(rows) - stored
 
 

@@ -96,18 +96,24 @@ class Coach(Base):
     ddpc_active: Mapped[bool] = mapped_column(Boolean, default=False)
     last_tick: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    #: when its telemetry last arrived (wall time; live coaches)
+    last_seen_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     train: Mapped[Train] = relationship(back_populates="coaches")
 
 
 class FleetClock(Base):
     """A fleet's clock: the demo fleet's simulated time with the simulator's state, or the
-    live fleet's newest telemetry time."""
+    live fleet's newest telemetry time, with when telemetry last arrived (wall time) and the
+    anchor its pace is measured from (:mod:`trainclimate.service.store.liveness`)."""
 
     __tablename__ = "fleet_clocks"
     name: Mapped[str] = mapped_column(String(16), primary_key=True)
     time: Mapped[datetime] = mapped_column(UTCDateTime)
     state: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, onupdate=utcnow)
+    arrived_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    anchor_time: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    anchor_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
 
 
 class Telemetry(Base):

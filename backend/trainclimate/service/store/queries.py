@@ -19,6 +19,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.analysis.savings import CoachSeries, compare
 from trainclimate.control.ocp import OCPSettings
+from trainclimate.service.store import liveness
 from trainclimate.service.store.models import (
     Coach,
     FleetClock,
@@ -111,9 +112,11 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
             .order_by(Override.created_at.desc())
             .limit(1)
         )
+    # a live coach's silence is judged on the wall clock (with_liveness), the demo's on its clock
+    behind = coach.fleet != liveness.LIVE and clock is not None
     if setpoint is None and row is None:
         status = "no-data"
-    elif row is None or (clock is not None and row.time < clock - stale_periods * period):
+    elif row is None or (behind and row.time < clock - stale_periods * period):
         status = "stale"
     elif override is not None:
         status = "override"
@@ -138,7 +141,30 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
         "last_solve_ms": setpoint.solve_time_ms if setpoint else None,
         "override_until": override.ends_at if override else None,
         "clock": clock,
+        "last_seen_at": coach.last_seen_at,
     }
+
+
+def with_liveness(
+    view: dict, live_clock: FleetClock | None, now: datetime, period: timedelta, stale_periods: int
+) -> dict:
+    """The :func:`coach_view` ``view`` with a live coach's status judged by arrivals (wall time
+    ``now``; :mod:`.liveness`): ``stale`` when nothing has arrived from it for ``stale_periods``
+    periods at the live clock's pace; while its telemetry arrives, a tick decided ``stale`` (its
+    rows behind the fleet's clock) shows as ``fallback``: its gateway is alive. Kept apart from
+    the view, which is cached while its data is unchanged: silence changes nothing stored."""
+    if view["fleet"] != liveness.LIVE or view["status"] == "no-data":
+        return view
+    if liveness.silent(view["last_seen_at"], live_clock, now, period, stale_periods):
+        return {**view, "status": "stale"}
+    if view["status"] == "stale":
+        return {**view, "status": "fallback"}
+    return view
+
+
+def live_clock(session: Session) -> FleetClock | None:
+    """The live fleet's clock row (None before any telemetry)."""
+    return session.get(FleetClock, liveness.LIVE)
 
 
 def coach_states(session: Session, coach_id: str | None = None) -> list[tuple[Coach, tuple]]:
@@ -166,7 +192,9 @@ def coach_states(session: Session, coach_id: str | None = None) -> list[tuple[Co
     rows = session.execute(query).all()
     if coach_id is not None and not rows:
         raise NotFoundError(f"no coach {coach_id!r}")
-    return [(c, (c.train_id, c.fleet, c.ddpc_active, *newest)) for c, *newest in rows]
+    return [
+        (c, (c.train_id, c.fleet, c.ddpc_active, c.last_seen_at, *newest)) for c, *newest in rows
+    ]
 
 
 def time_range(
