@@ -108,6 +108,44 @@ def db_url(args: argparse.Namespace) -> str:
     return args.db or os.environ.get("TRAINCLIMATE_DATABASE_URL") or default_database_url()
 
 
+#: The database URLs the service takes.
+DB_FORMS = "sqlite:///FILE or postgresql://USER@HOST:PORT/NAME"
+
+
+def migrated_database(url: str) -> str:
+    """Bring the database at ``url`` to the newest migration and return ``url``; a URL or a
+    database that cannot be used is one line (:class:`UsageError`, exit 2) saying what to do:
+    a wrong scheme, an unparsable URL, a PostgreSQL database that does not exist (``createdb``),
+    a server that does not answer."""
+    import re
+
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError, OperationalError
+
+    from trainclimate.service.store.db import migrate
+
+    try:
+        parsed = make_url(url)
+    except ArgumentError:
+        raise UsageError(f"not a database URL: {url!r} (use {DB_FORMS})") from None
+    shown = parsed.render_as_string(hide_password=True)
+    if parsed.get_backend_name() not in ("sqlite", "postgresql"):
+        raise UsageError(f"unsupported database {shown!r}: use {DB_FORMS}")
+    try:
+        migrate(url)
+    except OperationalError as exc:
+        first = str(exc.orig or exc).strip().splitlines()[0]
+        missing = re.search(r'database "([^"]+)" does not exist', first)
+        if missing:
+            where = f"{parsed.host}:{parsed.port or 5432}"
+            raise UsageError(
+                f"the database {missing[1]!r} does not exist on {where}: create it first "
+                f"(createdb {missing[1]}), then try again"
+            ) from None
+        raise UsageError(f"cannot use the database {shown}: {first}") from None
+    return url
+
+
 def predictor_from(args: argparse.Namespace):
     """``--predictor FILE`` or the cached default model (fitted once on the default dataset)."""
     from trainclimate.predict.artifact import load_predictor

@@ -20,6 +20,7 @@ from trainclimate.cli.common import (
     add_group,
     db_url,
     emit,
+    migrated_database,
     out_file,
 )
 
@@ -27,11 +28,9 @@ from trainclimate.cli.common import (
 def cmd_serve(args: argparse.Namespace) -> None:
     """``serve``: migrate, then run the API, the dashboard and the loops until Ctrl-C."""
     import uvicorn
-    from sqlalchemy.exc import OperationalError
 
     from trainclimate.service.app import create_app
     from trainclimate.service.settings import REPLICA_NAME_MAX, Settings
-    from trainclimate.service.store.db import migrate
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
         raise UsageError("--speedup must be positive")
@@ -60,11 +59,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         ),
     )
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
-    try:  # a database that cannot be reached is a one-line error, not a traceback
-        migrate(settings.database_url)
-    except OperationalError as exc:
-        first = str(exc.orig).strip().splitlines()[0] if exc.orig else type(exc).__name__
-        raise UsageError(f"cannot use the database: {first}") from None
+    migrated_database(settings.database_url)  # else one line, not a traceback
     lines = [f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})"]
     if broker is not None:
         lines.append(f"trainclimate: MQTT feed on {broker.address}, topics {broker.prefix}/…")
@@ -123,7 +118,6 @@ def _create_token(
 def cmd_token_create(args: argparse.Namespace) -> None:
     """``token create``: a new token for a new user, shown once (or written to ``--out``); a
     gateway's is scoped to ``--coaches``."""
-    from trainclimate.service.store.db import migrate
     from trainclimate.service.store.tokens import check_scope
 
     coaches = None
@@ -142,8 +136,7 @@ def cmd_token_create(args: argparse.Namespace) -> None:
         if not (np.isfinite(args.expires) and 0 < args.expires <= 3650):
             raise UsageError("--expires takes a number of days in (0, 3650]")
         expires_at = datetime.now(UTC) + timedelta(days=args.expires)
-    url = db_url(args)
-    migrate(url)
+    url = migrated_database(db_url(args))
     data = _create_token(url, args.role, args.name, coaches, expires_at)
     out = out_file(args.out, "the token file")
     if out is not None:  # for another process to read (the compose demo's gateways): owner-only
