@@ -141,6 +141,7 @@ def cmd_token_create(args: argparse.Namespace) -> None:
     out = out_file(args.out, "the token file")
     if out is not None:  # for another process to read (the compose demo's gateways): owner-only
         out.touch(mode=0o600)
+        out.chmod(0o600)  # also when the file was there before, with another mode
         out.write_text(data["token"] + "\n")
         data = {**data, "token": None, "file": str(out)}
         emit(args, data, lambda d: f"token written to {d['file']}")
