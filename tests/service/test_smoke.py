@@ -1,5 +1,7 @@
 """The service starts on both databases, answers health without a token and lists coaches."""
 
+import pytest
+
 
 def test_health_and_coaches(client, tokens):
     health = client.get("/api/v1/health")
@@ -9,3 +11,20 @@ def test_health_and_coaches(client, tokens):
     assert reply.status_code == 200 and reply.json() == []
     ready = client.get("/api/v1/ready").json()
     assert ready["migrations"] == "0004" and ready["model_version"] == 1
+
+
+def test_serve_json_prints_one_object_then_logs(db_url, servers):
+    """``serve --json``: one JSON object on stdout (URL, token, database without its password,
+    replica, model status), once it accepts connections."""
+    import json
+
+    if not db_url.startswith("sqlite"):
+        pytest.skip("the printing does not depend on the database")
+    srv = servers(db_url, "--new-token", "viewer", "--replica-name", "r-1", "--json").start()
+    line = srv.printed(r"(?m)^\{.*\}$").group(0)
+    data = json.loads(line)
+    assert data["url"] == f"{srv.url}/" and data["token"].startswith("tc_")
+    assert data["role"] == "viewer" and data["replica"] == "r-1"
+    assert data["database"] == db_url and data["model"]["state"] in ("done", "running")
+    assert data["mqtt"] is None
+    assert "dashboard:" not in srv.output()  # the human lines are not printed with --json

@@ -28,6 +28,7 @@ from trainclimate.cli.common import (
 def cmd_serve(args: argparse.Namespace) -> None:
     """``serve``: migrate, then run the API, the dashboard and the loops until Ctrl-C."""
     import uvicorn
+    from sqlalchemy.engine import make_url
 
     from trainclimate.service.app import create_app
     from trainclimate.service.settings import REPLICA_NAME_MAX, Settings
@@ -63,28 +64,47 @@ def cmd_serve(args: argparse.Namespace) -> None:
     lines = [f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})"]
     if broker is not None:
         lines.append(f"trainclimate: MQTT feed on {broker.address}, topics {broker.prefix}/…")
-    out = []
+    token = None
     if args.new_token:
         token = _create_token(settings.database_url, args.new_token, f"demo-{args.new_token}")
-        out = [f"dashboard: {url}", f"{args.new_token} token: {token['token']}"]
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level)
     server = uvicorn.Server(config)
+
+    def announce() -> dict:
+        """What ``serve`` prints once it accepts connections."""
+        status = app.state.preparation.status
+        return {
+            "url": url,
+            "token": token["token"] if token else None,
+            "role": args.new_token,
+            "database": make_url(settings.database_url).render_as_string(hide_password=True),
+            "replica": settings.replica_name,
+            "model": {"state": status.state, "stage": status.stage, "detail": status.detail},
+            "mqtt": broker.address if broker is not None else None,
+        }
+
     threading.Thread(
-        target=_announce, args=(server, lines, out), name="announce", daemon=True
+        target=_announce, args=(server, args, lines, announce), name="announce", daemon=True
     ).start()
     server.run()
 
 
-def _announce(server, stderr_lines: list[str], stdout_lines: list[str]) -> None:
-    """Print the URL (and token) once the server accepts connections."""
+def _announce(server, args: argparse.Namespace, stderr_lines: list[str], what) -> None:
+    """Once the server accepts connections: with ``--json`` one JSON object on stdout (``what()``:
+    URL, token, database, replica, model status, MQTT broker), else the log lines on stderr and
+    the dashboard's URL and token on stdout."""
     while not server.started:
         if server.should_exit:
             return
         time.sleep(0.05)
+    data = what()
+    if args.json:
+        print(json.dumps(data), flush=True)
+        return
     print("\n".join(stderr_lines), file=sys.stderr, flush=True)
-    if stdout_lines:
-        print("\n".join(stdout_lines), flush=True)
+    if data["token"]:
+        print(f"dashboard: {data['url']}\n{data['role']} token: {data['token']}", flush=True)
 
 
 def _create_token(
