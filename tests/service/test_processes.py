@@ -16,6 +16,7 @@ Every child process gets ``$TRAINCLIMATE_HOME`` in a temporary directory and the
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import time
@@ -120,6 +121,10 @@ def test_gateway_end_to_end(db_url, servers, proc_env):
     wall = time.monotonic() - started
     stats = json.loads(done.stdout)
     assert stats["minutes"] == minutes
+    # a line per minute of its clock on stderr: when, rows sent and kept, the T_ref applied
+    line = r"(?m)^trainclimate: 2024-\d\d-\d\d \d\d:\d\d: \d+ rows sent, \d+ kept; T_ref "
+    lines = re.findall(line, done.stderr)
+    assert len(lines) == minutes, done.stderr[-2000:]
     assert stats["rows_sent"] == 2 * minutes
     assert stats["failed_posts"] == 0
     assert stats["setpoints_applied"] + stats["fallbacks_to_rule"] == 2 * minutes
@@ -251,7 +256,7 @@ def test_gateway_keeps_telemetry_while_the_server_is_down(db_url, servers, proc_
         # … registers its coaches once it answers and sends what it kept
         wait_for(
             lambda: all(len(stored_times(db, c)) > 0 for c in ("124-A", "124-B")),
-            30,
+            60,  # the gateway's next attempt may be up to 16 s away (its back-off)
             "the first rows",
         )
         before = len(stored_times(db, "124-A"))
@@ -383,7 +388,7 @@ def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
         ),
         (
             ["serve", "--db", "postgresql://nobody@127.0.0.1:9/none"],
-            "cannot use the database: connection failed",
+            "port 9 failed: Connection refused",
         ),
     ],
     ids=[

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import logging
 import os
 import sys
 import threading
@@ -235,6 +236,8 @@ def cmd_gateway(args: argparse.Namespace) -> None:
             "--token, --token-file or TRAINCLIMATE_TOKEN is required: a gateway token for the"
             " coaches (or an operator token)"
         )
+    if args.quiet:
+        logging.getLogger(Gateway.__module__).setLevel(logging.WARNING)
     gateway = Gateway(
         args.server,
         token,
@@ -324,9 +327,23 @@ def register(sub) -> None:
         help="a gateway token for the coaches, or an operator token (or $TRAINCLIMATE_TOKEN)",
     )
     p.add_argument("--token-file", default=None, help="a file holding the token")
-    p.add_argument("--scenario", default="parked-heating-nov", help="weather and operation")
-    p.add_argument("--speedup", type=float, default=60.0, help="clock × real time")
+    p.add_argument(
+        "--scenario",
+        default="parked-heating-nov",
+        help="weather and operation (default: parked-heating-nov)",
+    )
+    p.add_argument(
+        "--speedup",
+        type=float,
+        default=60.0,
+        help="its clock × real time (default: 60, a simulated hour per wall minute)",
+    )
     p.add_argument("--hours", type=float, default=None, help="how long (default: the scenario's)")
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no line per minute of its clock (sent, kept, T_ref); warnings still show",
+    )
     add_mqtt_options(
         p, "send telemetry and take setpoints over this broker instead of HTTP, mqtt[s]://…"
     )

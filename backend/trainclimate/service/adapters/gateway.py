@@ -57,6 +57,9 @@ class GatewayStats:
     sources: dict[str, int] = field(default_factory=dict)
 
 
+#: Waits between attempts to reach the server while it is unreachable: from the first to the
+#: longest (doubling), in wall time. [s]
+BACKOFF_S = (1.0, 60.0)
 #: What a setpoint message must hold for the gateway to apply it.
 SETPOINT_KEYS = {"t_ref_c", "valid_until", "source"}
 
@@ -189,6 +192,17 @@ class Gateway:
         self.buffer: dict[str, list[dict]] = {cid: [] for cid in self.ids}
         self.registered = False
         self.stats = GatewayStats()
+        #: no attempt to reach the server before this (monotonic, s), and the next wait
+        self._retry_at, self._backoff_s = 0.0, BACKOFF_S[0]
+
+    def _unreachable(self) -> None:
+        """An attempt failed: wait before the next one, twice as long as last time (capped)."""
+        self._retry_at = time.monotonic() + self._backoff_s
+        log.warning("server unreachable; next attempt in %.0f s", self._backoff_s)
+        self._backoff_s = min(2 * self._backoff_s, BACKOFF_S[1])
+
+    def _reachable(self) -> None:
+        self._retry_at, self._backoff_s = 0.0, BACKOFF_S[0]
 
     def register(self) -> bool:
         """Register the coaches; False while the server is unreachable or unavailable (5xx).
@@ -200,12 +214,15 @@ class Gateway:
         except httpx.HTTPStatusError as exc:
             if exc.response.status_code < 500:
                 raise
-            log.warning("coaches not registered (server unavailable), retrying: %s", exc)
+            log.warning("coaches not registered (server unavailable): %s", exc)
+            self._unreachable()
             return False
         except httpx.TransportError as exc:
-            log.warning("coaches not registered (server unreachable), retrying: %s", exc)
+            log.warning("coaches not registered (server unreachable): %s", exc)
+            self._unreachable()
             return False
         self.registered = True
+        self._reachable()
         return True
 
     def _policy(self, k: int, sim: FleetSimulator) -> np.ndarray:
@@ -213,7 +230,10 @@ class Gateway:
         valid = np.array([v is not None and now < v for v in self.valid_until])
         return apply_setpoint(self.t_ref, sim.t_rule(k), valid & (sim.env.mode[k] == MODE_REGULAR))
 
-    def _send(self) -> None:
+    def _send(self) -> int:
+        """Send what the buffer keeps; returns the rows sent. The first failure stops this
+        attempt (the rest stays kept) and backs off (:meth:`_unreachable`)."""
+        sent = 0
         for cid, rows in self.buffer.items():
             if not rows:
                 continue
@@ -222,9 +242,14 @@ class Gateway:
             except LinkError as exc:
                 self.stats.failed_posts += 1
                 log.warning("telemetry for %s not sent (kept for the next batch): %s", cid, exc)
-                continue
+                self._unreachable()
+                break
             self.stats.rows_sent += len(rows)
+            sent += len(rows)
             self.buffer[cid] = []
+        else:
+            self._reachable()
+        return sent
 
     def _pull(self) -> None:
         for c, cid in enumerate(self.ids):
@@ -249,10 +274,18 @@ class Gateway:
         self.stats.fallbacks_to_rule += len(applied) - sum(applied)
         for cid, rows in rows_from_simulation(self.sim, k0, self.sim.k, self.ids).items():
             self.buffer[cid].extend(rows)
-        if self.registered or self.register():
-            self._send()
+        sent = 0
+        if time.monotonic() >= self._retry_at and (self.registered or self.register()):
+            sent = self._send()
             self._pull()
         self.stats.minutes += 1
+        kept = sum(len(rows) for rows in self.buffer.values())
+        t_ref = ", ".join(
+            f"{cid} {t:.1f} °C" if np.isfinite(t) and valid else f"{cid} T_rule"
+            for cid, t, valid in zip(self.ids, self.t_ref, applied, strict=True)
+        )
+        log.info("%s: %d rows sent, %d kept; T_ref %s", now.strftime("%Y-%m-%d %H:%M"), sent,
+                 kept, t_ref)  # fmt: skip
 
     def run(self) -> GatewayStats:
         """Run to the end of the scenario's span, ``speedup`` times faster than real time."""
