@@ -20,6 +20,10 @@ def small_default(dataset, monkeypatch):
 @pytest.mark.slow  # the session's raw logs: 4 simulated coach-days
 def test_the_controller_benchmark_reports_solve_step_and_tick_times(small_default):
     d = controller.run(n_steps=5, n_naive=2, fleet=4)
+    assert d["target"] == controller.TARGET
+    assert d["target_met"] == (
+        d["fast_median_ms"] <= 1.0 and d["naive_over_fast"] >= 20 and d["fleet_1000_tick_s"] <= 2
+    )
     assert (d["rho"], d["horizon"], d["instances"], d["fleet_coaches"]) == (12, 6, 5, 4)
     for path in ("fast", "cvxpy_dpp", "cvxpy_naive", "controller_step"):
         assert 0 < d[f"{path}_median_ms"] <= d[f"{path}_p99_ms"] < 10_000

@@ -10,6 +10,7 @@ from trainclimate.bench import pipeline
 def test_the_pipeline_benchmark_reports_throughput_and_memory(pregenerated):
     days = pregenerated
     d = pipeline.run(days=days, copies=(1, 2))
+    assert d["target_met"] == (d["memory_growth"] <= d["target"]["memory_growth_max"])
     small, large = d["runs"]
     assert small["coach_days"] == 2 * days and large["coach_days"] == 2 * 2 * days
     assert large["raw_rows"] == 2 * small["raw_rows"] and d["size_ratio"] == 2

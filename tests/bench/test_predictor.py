@@ -10,6 +10,7 @@ from trainclimate.bench import predictor
 def test_the_predictor_benchmark_reports_fit_times_and_memory(dataset):
     steps = []
     d = predictor.run((1, 2), dataset, rho=6, horizon=3, progress=steps.append)
+    assert isinstance(d["target_met"], bool) and "streaming_extra_mb_growth_max" in d["target"]
     assert steps == [1, 1, 1]
     assert [(r["mode"], r["scale"]) for r in d["runs"]] == [
         ("one_shot", 1),

@@ -25,6 +25,7 @@ def test_the_service_benchmark_runs_at_a_small_scale():
     )
     assert steps == [1, 1, 1, 1]
     i, c, t = d["ingest"], d["comparison"], d["fleet_tick"]
+    assert d["target_met"] == (t["tick_s"] <= t["target_s"] == d["target"]["fleet_tick_s"])
     assert i["rows"] == 4 * 2 * 60 and i["batches"] == 8
     assert min(i["http_rows_per_s"], i["direct_rows_per_s"], i["plain_insert_rows_per_s"]) > 0
     assert i["http_batch_latency"]["requests"] == 8

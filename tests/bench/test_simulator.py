@@ -5,6 +5,7 @@ from trainclimate.bench import simulator
 
 def test_the_simulator_benchmark_reports_coach_days_per_second():
     d = simulator.run(coaches=4, days=0.02, loop_coaches=2)
+    assert d["target_met"] == (d["coach_days_per_s"] >= d["target"]["coach_days_per_s"] == 10)
     assert (d["coaches"], d["days"], d["loop_coaches"], d["dt_s"]) == (4, 0.02, 2, 10.0)
     assert d["steps"] == round(0.02 * 86400 / 10.0)
     assert d["coach_days_per_s"] > 0 and d["loop_coach_days_per_s"] > 0 and d["fleet_seconds"] > 0

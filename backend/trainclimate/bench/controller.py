@@ -10,6 +10,10 @@ import numpy as np
 
 from trainclimate.bench.common import machine, percentiles_ms
 
+#: The controller's targets: the fast path's median solve [ms], its speed-up over the naive
+#: cvxpy formulation [-], a 1 000-coach tick [s].
+TARGET = {"fast_median_ms": 1.0, "naive_over_fast": 20.0, "fleet_1000_tick_s": 2.0}
+
 
 def run(n_steps: int = 1000, n_naive: int = 60, fleet: int = 1000) -> dict:
     """Controller speed at ρ = 12, T = 6 (the default model) on realistic inputs.
@@ -84,6 +88,10 @@ def run(n_steps: int = 1000, n_naive: int = 60, fleet: int = 1000) -> dict:
         "rho": predictor.rho,
         "horizon": predictor.horizon,
         "instances": len(cases),
+        "target": TARGET,
+        "target_met": fast_med <= TARGET["fast_median_ms"]
+        and naive_med / fast_med >= TARGET["naive_over_fast"]
+        and fleet_s * 1000 / fleet <= TARGET["fleet_1000_tick_s"],
         "machine": machine(),
     }
 

@@ -12,6 +12,11 @@ from trainclimate.bench.common import child, machine
 FLEET_COACHES, YEAR_DAYS = 900, 365
 
 
+#: Bounded memory: the peak at ``copies[1] / copies[0]`` times the data may be at most this
+#: many times the small run's. [-]
+TARGET_MEMORY_GROWTH = 1.2
+
+
 def run(days: int = 4, copies: tuple[int, int] = (2, 20)) -> dict:
     """Pipeline throughput (raw rows/s) and peak memory (MB) at two dataset sizes.
 
@@ -56,6 +61,8 @@ def run(days: int = 4, copies: tuple[int, int] = (2, 20)) -> dict:
         "fleet_year_hours_estimate": _fleet_year_hours(large),
         "fleet_year_1min_hours_estimate": _fleet_year_hours(winter),
         "winter_1min_run": winter,
+        "target": {"memory_growth_max": TARGET_MEMORY_GROWTH},
+        "target_met": large["peak_rss_mb"] / small["peak_rss_mb"] <= TARGET_MEMORY_GROWTH,
         "machine": machine(),
     }
 

@@ -7,6 +7,10 @@ from pathlib import Path
 
 from trainclimate.bench.common import child, machine
 
+#: The streaming fit's extra memory at the largest scale may be at most this many times the
+#: smallest's (at least 1 MB). [-]
+TARGET_MEMORY_GROWTH = 1.5
+
 
 def run(
     scales: tuple[int, ...] = (1, 10, 100),
@@ -35,6 +39,7 @@ def run(
     one_shot = runs[0]
     streaming = {r["scale"]: r for r in runs[1:]}
     first = streaming[scales[0]]
+    extra = {s: r["peak_rss_mb"] - r["rss_before_fit_mb"] for s, r in streaming.items()}
     return {
         "rho": rho,
         "horizon": horizon,
@@ -44,12 +49,14 @@ def run(
         "runs": runs,
         "streaming_vs_one_shot_time": first["seconds"] / one_shot["seconds"],
         "one_shot_extra_mb": one_shot["peak_rss_mb"] - one_shot["rss_before_fit_mb"],
-        "streaming_extra_mb": {
-            s: r["peak_rss_mb"] - r["rss_before_fit_mb"] for s, r in streaming.items()
-        },
+        "streaming_extra_mb": extra,
         "seconds_per_million_columns": {
             s: r["seconds"] / r["columns"] * 1e6 for s, r in streaming.items()
         },
+        # memory proportional to rows², not columns: the largest fit takes no more than the
+        # smallest (plus a margin for the allocator)
+        "target": {"streaming_extra_mb_growth_max": TARGET_MEMORY_GROWTH},
+        "target_met": max(extra.values()) <= TARGET_MEMORY_GROWTH * max(min(extra.values()), 1.0),
         "machine": machine(),
     }
 

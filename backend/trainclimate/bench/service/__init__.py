@@ -88,6 +88,8 @@ def run(
         "ingest": ingested,
         "comparison": compared,
         "fleet_tick": ticked,
+        "target": {"fleet_tick_s": ticked["target_s"]},
+        "target_met": ticked["tick_s"] <= ticked["target_s"],
         "model": model_kind,
         "database": {"created": db_url is None, **server},
         "machine": machine(),
