@@ -5,6 +5,7 @@ directory, a predictor model)."""
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import sys
@@ -74,18 +75,44 @@ def json_default(value):
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
+#: Without a terminal, a progress line at most this often. [s]
+PROGRESS_LINE_EVERY_S = 5.0
+
+
+class _Lines(io.TextIOBase):
+    """A stream for tqdm when stderr is not a terminal (a log file, CI): each redraw becomes a
+    line of its own instead of a carriage return over the last."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        for part in text.replace("\r", "\n").split("\n"):
+            if part.strip():
+                self.stream.write(part.rstrip() + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
 def progress_bar(total: int, desc: str, unit: str = "step"):
-    """A tqdm progress bar on stderr when it is a terminal, else a no-op."""
+    """A tqdm progress bar on stderr, with how far, the rate and the time left: redrawn in place
+    on a terminal, else, once the run has taken :data:`PROGRESS_LINE_EVERY_S` s, a line at most
+    that often and one at the end."""
     from tqdm import tqdm
 
+    tty = sys.stderr.isatty()
     return tqdm(
         total=total,
         desc=desc,
         unit=unit,
-        file=sys.stderr,
-        leave=False,
-        disable=not sys.stderr.isatty(),
-        mininterval=0.5,
+        file=sys.stderr if tty else _Lines(sys.stderr),
+        leave=not tty,
+        mininterval=0.5 if tty else PROGRESS_LINE_EVERY_S,
+        delay=0 if tty else PROGRESS_LINE_EVERY_S,  # short runs (and quick errors) print none
+        dynamic_ncols=tty,
+        ncols=None if tty else 100,
     )
 
 
