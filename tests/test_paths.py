@@ -121,7 +121,7 @@ def test_serve_with_a_home_in_the_way_exits_2_before_serving(tmp_path):
         "token create --role viewer --out {f}/token",
         "experiment run --scenario parked-heating-nov --html {f}/r.html",
         "dataset build --days 1 --coaches 1 --out {f}/data",
-        "demo --out {f}/demo",
+        "report demo --out {f}/demo",
     ],
 )
 def test_an_output_path_under_a_file_is_refused_before_any_work(capsys, tmp_path, command):

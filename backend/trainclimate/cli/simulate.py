@@ -10,6 +10,7 @@ import pandas as pd
 from trainclimate.cli.common import (
     UsageError,
     add_command,
+    add_group,
     add_model_options,
     emit,
     out_dir,
@@ -150,6 +151,13 @@ def register(sub) -> None:
     p.add_argument("--default", action="store_true", help="the default parameters")
     p.add_argument("--file", default=None, help="validate and print a parameter file")
 
-    p = add_command(sub, "demo", cmd_demo, "simulate winter-day and write an HTML report")
+    rsub = add_group(sub, "report", "HTML reports")
+    p = add_command(
+        rsub,
+        "demo",
+        cmd_demo,
+        "simulate winter-day three ways (rule, DDPC, band edge) and write an HTML report "
+        "(the dashboard's demo is `make demo`)",
+    )
     p.add_argument("--out", default="out/demo", help="output directory")
     p.add_argument("--coaches", type=int, default=3)

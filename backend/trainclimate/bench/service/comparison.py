@@ -16,7 +16,8 @@ from trainclimate.bench.service.database import (
     sql,
     table_size,
 )
-from trainclimate.bench.service.fleet import app, pair_ids, register, synthetic, tokens
+from trainclimate.bench.service.fleet import client as fleet_client
+from trainclimate.bench.service.fleet import pair_ids, register, synthetic, tokens
 
 
 def run(url: str, model: Path, trains: int, days: int, requests: int, progress) -> dict:
@@ -99,7 +100,6 @@ def _time_requests(model: Path, databases: dict, n: int, seed: int) -> dict:
     import contextlib
 
     import pandas as pd
-    from fastapi.testclient import TestClient
 
     rng = np.random.default_rng(seed)
     start = pd.Timestamp("2024-11-01T00:00Z")
@@ -107,7 +107,7 @@ def _time_requests(model: Path, databases: dict, n: int, seed: int) -> dict:
     windows: dict[str, int] = {}
     with contextlib.ExitStack() as stack:
         clients = {
-            name: (stack.enter_context(TestClient(app(url, model))), tokens(url, "viewer")[0])
+            name: (stack.enter_context(fleet_client(url, model)), tokens(url, "viewer")[0])
             for name, (url, _, _) in databases.items()
         }
         for i in range(n + 5):

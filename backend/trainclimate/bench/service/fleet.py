@@ -132,3 +132,15 @@ def app(url: str, model: Path):
 
     settings = Settings(database_url=url, predictor_path=model, scheduler_interval_s=3600.0)
     return create_app(settings)
+
+
+def client(url: str, model: Path):
+    """:func:`app` behind starlette's TestClient (in this process, its lifespan run). Starlette
+    warns, when its test client is imported, that driving it with httpx (the HTTP client the
+    product pins) is deprecated; that says nothing about the figures, so it is not printed."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Using `httpx` with `starlette.testclient`")
+        from fastapi.testclient import TestClient
+    return TestClient(app(url, model))

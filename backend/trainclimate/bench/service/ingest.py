@@ -11,7 +11,8 @@ import numpy as np
 
 from trainclimate.bench.common import latency_ms
 from trainclimate.bench.service.database import RESET, sql
-from trainclimate.bench.service.fleet import app, pair_ids, register, synthetic, tokens
+from trainclimate.bench.service.fleet import client as fleet_client
+from trainclimate.bench.service.fleet import pair_ids, register, synthetic, tokens
 
 
 def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) -> dict:
@@ -22,7 +23,6 @@ def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) 
     and one transaction. ``coaches`` coaches × ``batches`` hourly batches of ``rows_per_batch``
     1-minute rows; the HTTP requests' latencies in ms. Empties the tables afterwards."""
     import pandas as pd
-    from fastapi.testclient import TestClient
     from sqlalchemy import text
 
     from trainclimate.service.store import commands
@@ -74,7 +74,7 @@ def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) 
     table = Telemetry.__table__
     plain_s = direct_s = http_s = 0.0
     latencies = []
-    with TestClient(app(url, model)) as client:
+    with fleet_client(url, model) as client:
         for (i, rows), body in zip(batch_rows, bodies, strict=True):
             plain_rows = [{**r, "coach_id": way_ids["plain"][i]} for r in rows]
             t0 = time.perf_counter()  # the baseline: a plain INSERT of the batch
