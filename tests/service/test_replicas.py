@@ -80,3 +80,20 @@ def test_each_setpoint_records_its_replica_and_replicas_lists_them(app_client, s
     assert seen["replica-a"]["this"] and not seen["replica-b"]["this"]
     assert seen["replica-a"]["ticks"] == 2
     assert [r["replica"] for r in reply.json()] == ["replica-b", "replica-a"]  # busiest first
+
+
+def test_a_database_that_does_not_answer_is_not_ready(app_client, monkeypatch):
+    from contextlib import contextmanager
+
+    from sqlalchemy.exc import OperationalError
+
+    @contextmanager
+    def unreachable():
+        raise OperationalError("SELECT 1", {}, Exception("connection refused"))
+        yield  # pragma: no cover - a generator, like the real one
+
+    monkeypatch.setattr(app_client.app.state.db, "transaction", unreachable)
+    reply = app_client.get(f"{API}/ready")
+    assert reply.status_code == 503
+    assert any(r.startswith("database: ") and "connection refused" in r
+               for r in reply.json()["reasons"])  # fmt: skip
