@@ -81,11 +81,12 @@ class Server:
         self.proc.wait(timeout=10)
 
 
-def token_cli(db_url: str, role: str, env: dict[str, str]) -> str:
-    """``trainclimate token create --json`` (the console script): the new token."""
+def token_cli(db_url: str, role: str, env: dict[str, str], *options: str) -> str:
+    """``trainclimate token create --role ROLE [OPTIONS…] --json`` (the console script): the new
+    token."""
     assert SCRIPT.exists(), f"no console script {SCRIPT}"
     done = subprocess.run(
-        [str(SCRIPT), "token", "create", "--db", db_url, "--role", role, "--json"],
+        [str(SCRIPT), "token", "create", "--db", db_url, "--role", role, *options, "--json"],
         env=env,
         capture_output=True,
         text=True,

@@ -7,7 +7,6 @@ still — and the dashboard says the feed is down."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import time
 from pathlib import Path
@@ -15,7 +14,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service_processes import CLI, SCRIPT
+from service_processes import CLI, token_cli
 from service_support import wait_for
 
 SPEEDUP = 120.0
@@ -24,26 +23,14 @@ STALE_AFTER_S = 2 * 300 / SPEEDUP
 CHROMIUM = Path("/usr/bin/chromium")
 
 
-def token(db_url: str, env: dict, role: str, *options: str) -> str:
-    done = subprocess.run(
-        [str(SCRIPT), "token", "create", "--db", db_url, "--role", role, *options, "--json"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout)["token"]
-
-
 def test_dead_gateways_turn_their_coaches_stale(db_url, servers, proc_env, tmp_path):
     if not db_url.startswith("sqlite"):
         pytest.skip("judged the same on both databases: one run of the processes is enough")
     server = servers(db_url).start()
     trains = ("124", "125", "126", "130")
     coaches = [f"{t}-{s}" for t in trains for s in "AB"]
-    gw_token = token(db_url, proc_env, "gateway", "--coaches", ",".join(coaches))
-    viewer = {"Authorization": f"Bearer {token(db_url, proc_env, 'viewer')}"}
+    gw_token = token_cli(db_url, "gateway", proc_env, "--coaches", ",".join(coaches))
+    viewer = {"Authorization": f"Bearer {token_cli(db_url, 'viewer', proc_env)}"}
     gateways: dict[str, subprocess.Popen] = {}
 
     def start(train: str) -> None:

@@ -26,7 +26,7 @@ import pytest
 from sqlalchemy import func, select
 from sqlalchemy.exc import OperationalError
 
-from service_processes import CLI, Mosquitto
+from service_processes import CLI, Mosquitto, token_cli
 from service_support import T0, at, flat_row, flat_rows, wait_for
 from trainclimate.service.adapters import demo
 from trainclimate.service.adapters.mqtt import (
@@ -339,15 +339,7 @@ def test_gateway_over_mqtt_end_to_end(db_url, servers, proc_env, broker):
     client_id = f"test-serve-{uuid.uuid4().hex[:10]}"
     server = servers(db_url, *mqtt, "--mqtt-client-id", client_id, env=env).start()
     wait_for(lambda: _health(server)["mqtt"]["connected"], 10, "the server's MQTT connection")
-    create = ["token", "create", "--db", db_url, "--role", "gateway", "--coaches", "8-A,8-B"]
-    done = subprocess.run(
-        [*CLI, *create, "--json"],
-        env=proc_env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    token = json.loads(done.stdout)["token"]
+    token = token_cli(db_url, "gateway", proc_env, "--coaches", "8-A,8-B")
     run = ["--hours", str(hours), "--speedup", "1200", "--json", *mqtt]
     done = subprocess.run(
         [*CLI, "gateway", "--server", server.url, "--coaches", "8-A,8-B", "--token", token, *run],

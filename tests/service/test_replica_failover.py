@@ -12,7 +12,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from sqlalchemy import func, select
 
-from service_processes import CLI, SCRIPT
+from service_processes import CLI, token_cli
 from service_support import wait_for
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import Setpoint, Telemetry
@@ -21,16 +21,6 @@ from trainclimate.sim import scenarios
 TRAINS = ("124", "125", "126")
 HOURS, SPEEDUP = 2.0, 120.0
 PERIOD, MINUTE = timedelta(minutes=5), timedelta(minutes=1)
-
-
-def gateway_token(db_url: str, coaches: list[str], env: dict) -> str:
-    done = subprocess.run(
-        [str(SCRIPT), "token", "create", "--db", db_url, "--role", "gateway", "--coaches",
-         ",".join(coaches), "--json"],
-        env=env, capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout)["token"]
 
 
 def decided_by(db: Database) -> dict[str, int]:
@@ -48,7 +38,7 @@ def test_two_replicas_one_killed(db_url, servers, proc_env, tmp_path):
     survivor = servers(db_url, "--replica-name", "replica-1", env=env).start()
     victim = servers(db_url, "--replica-name", "replica-2", env=env).start()
     coaches = [f"{t}-{s}" for t in TRAINS for s in "AB"]
-    token = gateway_token(db_url, coaches, proc_env)
+    token = token_cli(db_url, "gateway", proc_env, "--coaches", ",".join(coaches))
     gateways = []
     for t in TRAINS:
         args = [
