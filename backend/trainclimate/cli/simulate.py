@@ -161,3 +161,5 @@ def register(sub) -> None:
     )
     p.add_argument("--out", default="out/demo", help="output directory")
     p.add_argument("--coaches", type=int, default=3)
+    p.add_argument("--hours", type=float, default=None, help="how long (default: the day)")
+    add_model_options(p, "ddpc: ")
