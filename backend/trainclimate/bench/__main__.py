@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from trainclimate.bench.common import peak_rss_mb
+from trainclimate.bench.replicas import run_replica
 from trainclimate.sim import scenarios, simulator  # noqa: F401  (loaded in every child: see above)
 
 
@@ -87,7 +88,12 @@ def run_fit(path: str, mode: str, scale: str, rho: str, horizon: str) -> dict:
     }
 
 
-CHILDREN = {"run_pipeline": run_pipeline, "run_parse_only": run_parse_only, "run_fit": run_fit}
+CHILDREN = {
+    "run_pipeline": run_pipeline,
+    "run_parse_only": run_parse_only,
+    "run_fit": run_fit,
+    "run_replica": run_replica,  # a service replica of ``bench replicas``
+}
 
 if __name__ == "__main__":
     print(json.dumps(CHILDREN[sys.argv[1]](*sys.argv[2:])))

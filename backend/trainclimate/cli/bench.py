@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 from trainclimate.cli.common import (
     UsageError,
@@ -10,6 +11,13 @@ from trainclimate.cli.common import (
     emit,
     progress_bar,
 )
+
+
+def report(args: argparse.Namespace, data: dict, text) -> None:
+    """Print a benchmark's ``data`` (``--json``: the dict, with its ``target`` and
+    ``target_met``), else ``text(data)`` and a line saying whether its target was met."""
+    emit(args, data, lambda d: f"{text(d)}\ntarget {'met' if d['target_met'] else 'MISSED'}: "
+                                 f"{json.dumps(d['target'])}")  # fmt: skip
 
 
 def cmd_bench(args: argparse.Namespace) -> None:
@@ -28,9 +36,9 @@ def cmd_bench(args: argparse.Namespace) -> None:
         coaches = 100 if args.coaches is None else args.coaches
         if coaches < 1 or args.days <= 0:
             raise UsageError("--coaches must be ≥ 1 and --days positive")
-        emit(args, simulator.run(coaches, args.days, args.loop_coaches), simulator.text)
+        report(args, simulator.run(coaches, args.days, args.loop_coaches), simulator.text)
     elif args.target == "pipeline":
-        emit(args, pipeline.run(), pipeline.text)
+        report(args, pipeline.run(), pipeline.text)
     elif args.target == "predictor":
         try:
             scales = tuple(int(x) for x in args.scales.split(","))
@@ -38,14 +46,14 @@ def cmd_bench(args: argparse.Namespace) -> None:
             raise UsageError("--scales takes integers separated by commas, e.g. 1,10,100") from None
         with progress_bar(len(scales) + 1, "predictor fits", "fit") as bar:
             data = predictor.run(scales, args.data, progress=bar.update)
-        emit(args, data, predictor.text)
+        report(args, data, predictor.text)
     elif args.target == "service":
         with progress_bar(4, "service benchmark", "stage") as bar:
             try:
                 data = service.run(args.db, progress=bar.update)
             except service.ServiceBenchError as exc:
                 raise UsageError(str(exc)) from None
-        emit(args, data, service.text)
+        report(args, data, service.text)
     elif args.target == "load":
         with progress_bar(3, "load benchmark", "stage") as bar:
             try:
@@ -61,7 +69,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
                 )
             except load.LoadBenchError as exc:
                 raise UsageError(str(exc)) from None
-        emit(args, data, load.text)
+        report(args, data, load.text)
     elif args.target == "replicas":
         coaches = 10_000 if args.coaches is None else args.coaches
         with progress_bar(3, "replicas benchmark", "stage") as bar:
@@ -69,9 +77,9 @@ def cmd_bench(args: argparse.Namespace) -> None:
                 data = replicas.run(coaches, args.db, progress=bar.update)
             except replicas.ReplicasBenchError as exc:
                 raise UsageError(str(exc)) from None
-        emit(args, data, replicas.text)
+        report(args, data, replicas.text)
     else:
-        emit(args, controller.run(), controller.text)
+        report(args, controller.run(), controller.text)
 
 
 def register(sub) -> None:
