@@ -546,7 +546,18 @@ document.getElementById("signin-form").addEventListener("submit", async (event) 
 document.getElementById("signout").addEventListener("click", signOut);
 window.addEventListener("hashchange", route);
 
+/** A URL that carries a token in its fragment (`#token=…`, as `make demo` prints it: a fragment
+ *  reaches no server log) signs in: the token is kept for the browser session like a pasted one
+ *  and removed from the address bar at once. */
+function tokenFromFragment() {
+  const m = location.hash.match(/^#token=([^&]+)/);
+  if (!m) return null;
+  history.replaceState(null, "", `${location.pathname}${location.search}#/`);
+  return decodeURIComponent(m[1]);
+}
+
 (async () => {
+  state.token = tokenFromFragment() || state.token;
   if (!state.token) return showSignIn();
   try {
     await signIn(state.token);

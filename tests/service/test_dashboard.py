@@ -48,7 +48,8 @@ def server(tmp_path_factory, model_file):
     srv = Server([*args, *demo], env, port, home / "server.log")
     srv.start()
     printed = srv.printed(r"dashboard: (\S+)\noperator token: (tc_\S+)")
-    assert printed.group(1) == f"{srv.url}/", srv.output()
+    assert printed.group(1) == f"{srv.url}/#token={printed.group(2)}", srv.output()
+    srv.signin_url = printed.group(1)
     migrate(db_url)
     db = Database(db_url)
     with db.transaction() as s:
@@ -173,6 +174,22 @@ def test_pages_load_and_charts_have_data(browser, server):
     page.wait_for_selector("#audit thead")
     assert w.errors == []
     w.close()
+
+
+def test_the_printed_url_signs_in_and_leaves_no_token_in_the_address_bar(browser, server):
+    context = browser.new_context(viewport=LAPTOP)
+    page = context.new_page()
+    try:
+        page.goto(server.signin_url)  # as `make demo` prints it: nothing typed
+        page.wait_for_selector("#who:has-text('(operator)')")
+        page.wait_for_selector("#coaches tbody tr[data-coach='D1-A']")
+        assert "token" not in page.url and page.url.endswith("/#/")
+        assert not page.locator("#signin").evaluate("d => d.open")
+        # kept for the browser session: a reload stays signed in
+        page.reload()
+        page.wait_for_selector("#who:has-text('(operator)')")
+    finally:
+        context.close()
 
 
 def test_viewer_sees_no_write_controls(browser, server):

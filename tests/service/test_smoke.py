@@ -24,6 +24,7 @@ def test_serve_json_prints_one_object_then_logs(db_url, servers):
     line = srv.printed(r"(?m)^\{.*\}$").group(0)
     data = json.loads(line)
     assert data["url"] == f"{srv.url}/" and data["token"].startswith("tc_")
+    assert data["dashboard"] == f"{srv.url}/#token={data['token']}"  # the URL that signs in
     assert data["role"] == "viewer" and data["replica"] == "r-1"
     assert data["database"] == db_url and data["model"]["state"] in ("done", "running")
     assert data["mqtt"] is None

@@ -77,6 +77,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
         status = app.state.preparation.status
         return {
             "url": url,
+            # the one URL that signs in (the token in the fragment reaches no server log)
+            "dashboard": f"{url}#token={token['token']}" if token else url,
             "token": token["token"] if token else None,
             "role": args.new_token,
             "database": make_url(settings.database_url).render_as_string(hide_password=True),
@@ -105,7 +107,7 @@ def _announce(server, args: argparse.Namespace, stderr_lines: list[str], what) -
         return
     print("\n".join(stderr_lines), file=sys.stderr, flush=True)
     if data["token"]:
-        print(f"dashboard: {data['url']}\n{data['role']} token: {data['token']}", flush=True)
+        print(f"dashboard: {data['dashboard']}\n{data['role']} token: {data['token']}", flush=True)
 
 
 def _create_token(
