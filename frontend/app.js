@@ -1,5 +1,5 @@
-// trainclimate operator dashboard: fleet overview, pair comparison, coach detail, audit log,
-// API tokens (admins only).
+// trainclimate operator dashboard: fleet overview (savings, comfort, attention), the coaches'
+// list, pair comparison, coach detail, model health, audit log, API tokens (admins only).
 // Plain JavaScript, no build step; Plotly.js is served by the backend (no CDN).
 "use strict";
 
@@ -128,13 +128,143 @@ function report(err) {
 async function route() {
   if (!state.me) return;
   const [, page, id] = (location.hash || "#/").split("/");
-  document.querySelectorAll("[data-nav]").forEach((a) => a.classList.toggle("active", a.dataset.nav === (page || "fleet")));
+  document.querySelectorAll("[data-nav]").forEach((a) => a.classList.toggle("active", a.dataset.nav === (page || "overview")));
   clearInterval(state.timer);
   if (page === "train" && id) return showTrain(decodeURIComponent(id));
   if (page === "coach" && id) return showCoach(decodeURIComponent(id));
+  if (page === "coaches") return showFleet();
+  if (page === "model") return showModel();
   if (page === "audit") return showAudit();
   if (page === "tokens" && state.me.role === "admin") return showTokens(); // others never ask /tokens
-  return showFleet();
+  return showOverview();
+}
+
+// --- fleet overview: savings, comfort and what needs attention -----------------------------
+const PLOT_CONFIG = { responsive: true, displaylogo: false };
+const KIND_LABEL = { stale: "stale", fallback: "fallback", override: "override", comfort: "comfort" };
+
+async function showOverview() {
+  const view = mount("tpl-overview");
+  let summary = null;
+  const drawTrains = () => summary && drawTrainFigures(view, summary);
+  view.querySelector("#train-sort").addEventListener("change", drawTrains);
+  view.querySelector("#hours").addEventListener("change", () => refresh().catch(report));
+  async function refresh() {
+    const hours = view.querySelector("#hours").value;
+    const [s, health, coaches] = await Promise.all([api(`/fleet/summary?hours=${hours}`), modelHealth(hours), api("/coaches")]);
+    summary = s;
+    drawFeedDown(view.querySelector("#feed-down"), coaches);
+    const end = s.trains.map((t) => t.end).sort().pop();
+    view.querySelector("#overview-clock").textContent = end ? `fleet clock ${local(end)} (Zurich)` : "";
+    drawFleetKpis(view.querySelector("#fleet-kpis"), s, health);
+    drawModelFlag(view.querySelector("#model-flag"), health);
+    drawEnergy(view.querySelector("#energy-figure"), s);
+    drawTrains();
+    drawAttention(view.querySelector("#attention tbody"), s.attention);
+    view.querySelector("#by-status").replaceChildren(...Object.entries(s.coaches_by_status).map(([status, n]) =>
+      el("a", { href: "#/coaches", class: "status-count", "data-status": status }, el("span", { class: `badge ${status}`, text: status }), el("span", { text: ` ${n}` }))));
+  }
+  await every(2 * REFRESH_MS, refresh);
+}
+
+/** The active model's health, or null while there is none (the first start prepares it). */
+async function modelHealth(hours) {
+  const active = (await api("/models")).find((m) => m.active);
+  return active ? api(`/models/${active.version}/health?hours=${hours}`) : null;
+}
+
+function drawFleetKpis(node, s, health) {
+  const saved = s.energy_deactivated_kwh - s.energy_activated_kwh;
+  const trains = s.trains.length;
+  node.replaceChildren(
+    kpi("Fleet energy savings", s.savings_pct === null ? "–" : `${fmt(s.savings_pct, 1)} %`, "kpi-fleet-savings"),
+    kpi("Energy saved", `${fmt(saved, 0)} kWh`, "kpi-saved"),
+    kpi("Avg hourly violation, activated", `${fmt(s.avg_hourly_violation_activated_k, 3)} K`, "kpi-violation"),
+    kpi("… deactivated (reference)", `${fmt(s.avg_hourly_violation_deactivated_k, 3)} K`),
+    kpi("Trains compared", `${trains}`, "kpi-trains"),
+    kpi("Excluded", `${fmt(s.excluded_minutes / 60, 1)} train-hours`),
+    kpi("Model, first-step error", health && health.mae_per_step_c.length && health.mae_per_step_c[0] !== null
+      ? `${fmt(health.mae_per_step_c[0], 3)} K (bound ${fmt(health.bound_c, 2)} K)` : "–", "kpi-model"));
+}
+
+function drawModelFlag(node, health) {
+  node.hidden = !(health && health.exceeds_bound);
+  node.replaceChildren();
+  if (node.hidden) return;
+  node.append(`Model v${health.version}: its online first-step error ${fmt(health.mae_per_step_c[0], 3)} K exceeds the ${fmt(health.bound_c, 2)} K bound. `,
+    el("a", { href: "#/model", text: "Model health →" }));
+}
+
+function drawEnergy(node, s) {
+  let act = 0, deact = 0;
+  const x = s.windows.map((w) => local(new Date(new Date(w.start).getTime() + s.window_min * 60e3).toISOString()));
+  const yAct = s.windows.map((w) => (act += w.energy_activated_kwh));
+  const yDeact = s.windows.map((w) => (deact += w.energy_deactivated_kwh));
+  const traces = [
+    { x, y: yDeact, name: "deactivated coaches", line: { color: COLOUR.deact, shape: "hv" } },
+    { x, y: yAct, name: "activated coaches", line: { color: COLOUR.act, shape: "hv" } },
+  ];
+  Plotly.react(node, traces, { margin: { t: 20, r: 20, l: 60, b: 50 }, hovermode: "x unified", legend: { orientation: "h", y: -0.2 },
+    yaxis: { title: { text: "cumulative energy (kWh)" }, rangemode: "tozero" },
+    xaxis: { title: { text: "local time (Europe/Zurich), windows counted for both coaches of a train" } } }, PLOT_CONFIG);
+}
+
+function drawTrainFigures(view, s) {
+  const by = view.querySelector("#train-sort").value;
+  const trains = [...s.trains].sort(by === "id" ? (a, b) => (a.id > b.id ? 1 : -1)
+    : (a, b) => (b.savings_pct ?? -Infinity) - (a.savings_pct ?? -Infinity));
+  const names = trains.map((t) => t.id);
+  const hover = trains.map((t) => `${t.name}<br>${fmt(t.energy_activated_kwh, 1)} / ${fmt(t.energy_deactivated_kwh, 1)} kWh, ${fmt(t.excluded_minutes, 0)} min excluded`);
+  const savings = view.querySelector("#savings-figure");
+  Plotly.react(savings, [{ type: "bar", x: names, y: trains.map((t) => t.savings_pct), hovertext: hover, customdata: names,
+    hovertemplate: "%{x}: %{y:.1f} %<br>%{hovertext}<extra></extra>", marker: { color: COLOUR.savings } }],
+  { margin: { t: 20, r: 20, l: 60, b: 50 }, yaxis: { title: { text: "savings (%)" } }, xaxis: { title: { text: "train" }, type: "category" } }, PLOT_CONFIG);
+  savings.removeAllListeners?.("plotly_click");
+  savings.on("plotly_click", (event) => { location.hash = `#/train/${encodeURIComponent(event.points[0].customdata)}`; });
+  Plotly.react(view.querySelector("#violation-figure"), [
+    { type: "bar", x: names, y: trains.map((t) => t.avg_hourly_violation_activated_k), name: "activated", marker: { color: COLOUR.act } },
+    { type: "bar", x: names, y: trains.map((t) => t.avg_hourly_violation_deactivated_k), name: "deactivated", marker: { color: COLOUR.deact } },
+  ], { barmode: "group", margin: { t: 20, r: 20, l: 60, b: 50 }, legend: { orientation: "h", y: -0.2 },
+    yaxis: { title: { text: "avg hourly violation (K)" }, rangemode: "tozero" }, xaxis: { type: "category" } }, PLOT_CONFIG);
+}
+
+function drawAttention(body, items) {
+  body.replaceChildren(...(items.length ? items.map((a) => el("tr", { "data-coach": a.coach_id, "data-kind": a.kind },
+    el("td", {}, el("a", { href: `#/coach/${encodeURIComponent(a.coach_id)}`, text: a.coach_id })),
+    el("td", {}, el("span", { class: `badge ${a.kind === "comfort" ? "stale" : a.status}`, text: KIND_LABEL[a.kind] })),
+    el("td", { text: a.detail })))
+    : [el("tr", {}, el("td", { text: "nothing: every coach is fed, on its setpoint and within comfort" }))]));
+}
+
+// --- model health: the stored predictions against what happened ----------------------------
+async function showModel() {
+  const view = mount("tpl-model");
+  view.querySelector("#model-hours").addEventListener("change", () => refresh().catch(report));
+  async function refresh() {
+    const h = await modelHealth(view.querySelector("#model-hours").value);
+    if (!h) {
+      view.querySelector("#model-kpis").textContent = "No model is active yet: the coaches follow the rule-based setpoint.";
+      return;
+    }
+    view.querySelector("#model-title").textContent = `Model health: version ${h.version}`;
+    view.querySelector("#model-kpis").replaceChildren(
+      kpi("First-step MAE", h.mae_per_step_c[0] === undefined || h.mae_per_step_c[0] === null ? "–" : `${fmt(h.mae_per_step_c[0], 3)} K`, "kpi-first-step"),
+      kpi("Bound", `${fmt(h.bound_c, 2)} K`),
+      kpi("Within the bound", h.samples ? (h.exceeds_bound ? "no" : "yes") : "–", "kpi-within"),
+      kpi("Samples", `${h.samples}`, "kpi-samples"),
+      kpi("Prediction step", `${fmt(h.step_min, 0)} min`));
+    const steps = h.mae_per_step_c.map((_, k) => (k + 1) * h.step_min);
+    Plotly.react(view.querySelector("#mae-figure"), [
+      { x: steps, y: h.mae_per_step_c, name: "MAE over coaches and decks", mode: "lines+markers", line: { color: COLOUR.act } },
+      { x: steps.length ? [steps[0], steps[steps.length - 1]] : [], y: [h.bound_c, h.bound_c], name: `bound ${fmt(h.bound_c, 2)} K`, mode: "lines", line: { color: "#b42318", dash: "dash" } },
+    ], { margin: { t: 20, r: 20, l: 60, b: 50 }, legend: { orientation: "h", y: -0.2 },
+      xaxis: { title: { text: "prediction horizon (min)" } }, yaxis: { title: { text: "mean absolute error (K)" }, rangemode: "tozero" } }, PLOT_CONFIG);
+    view.querySelector("#model-coaches tbody").replaceChildren(...(h.coaches.length ? h.coaches.map((c) => el("tr", { "data-coach": c.coach_id },
+      el("td", {}, el("a", { href: `#/coach/${encodeURIComponent(c.coach_id)}`, text: c.coach_id })),
+      el("td", { class: c.first_step_mae_c > h.bound_c ? "num expired" : "num", text: fmt(c.first_step_mae_c, 3) }),
+      el("td", { class: "num", text: String(c.samples) }))) : [el("tr", {}, el("td", { text: "no prediction in the window yet" }))]));
+  }
+  await every(2 * REFRESH_MS, refresh);
 }
 
 // --- fleet overview ------------------------------------------------------------------------

@@ -25,12 +25,17 @@ def test_the_service_benchmark_runs_at_a_small_scale():
     )
     assert steps == [1, 1, 1, 1]
     i, c, t = d["ingest"], d["comparison"], d["fleet_tick"]
-    assert d["target_met"] == (t["tick_s"] <= t["target_s"] == d["target"]["fleet_tick_s"])
+    assert d["target"]["fleet_tick_s"] == t["target_s"]
+    summary_met = c["summary"]["large"]["p95_ms"] <= d["target"]["summary_p95_ms"]
+    assert d["target_met"] == (t["tick_s"] <= t["target_s"] and summary_met)
     assert i["rows"] == 4 * 2 * 60 and i["batches"] == 8
     assert min(i["http_rows_per_s"], i["direct_rows_per_s"], i["plain_insert_rows_per_s"]) > 0
     assert i["http_batch_latency"]["requests"] == 8
     assert c["large"]["rows_stored"] == 2 * 2 * 2 * 1440 and c["large"]["requests"] == 3
     assert c["large"]["windows_per_reply"] in (47, 48)
+    assert c["summary"]["large"]["trains_per_reply"] == 2 and c["summary"]["large"]["requests"] == 3
+    assert c["summary"]["small"]["trains_per_reply"] == 1
+    assert d["target"]["summary_p95_ms"] == 150.0
     assert c["copy"]["rows"] == c["large"]["rows_stored"] and c["copy"]["rows_per_s"] > 0
     # the timed tick reached every coach: the activated ones past their lead-in solve
     assert t["setpoints_written"] == [20] and t["reasons"] == {"ok": 10, "inactive": 10}
@@ -38,7 +43,8 @@ def test_the_service_benchmark_runs_at_a_small_scale():
     assert d["database"]["created"] and d["database"]["version"]
     assert d["model"] in ("small (fitted here)", "default (cached)")
     lines = service.text(d).splitlines()
-    assert len(lines) == 3 and lines[2].startswith("fleet tick of 20 coaches")
+    assert len(lines) == 4 and lines[2].startswith("24-h fleet summary of 2 trains")
+    assert lines[3].startswith("fleet tick of 20 coaches")
 
 
 def test_the_service_benchmark_needs_postgresql(capsys):

@@ -1,7 +1,9 @@
 """The dashboard in a real browser: Playwright driving Debian's Chromium (headless) against
 ``trainclimate serve --fleet demo`` running as its own process on SQLite.
 
-Pages load without console errors and their charts have data; a viewer sees no write controls;
+Pages load without console errors and their charts have data: the fleet overview (the first
+screen: fleet savings, per-train bars that click through to the pair, attention, model health),
+the coaches, the pair, the coach, the model's health; a viewer sees no write controls;
 an operator's override is applied (the next tick issues it) and audited, an invalid one shows the
 API's message, and cancelling ends it. With ``TRAINCLIMATE_SCREENSHOT_DIR`` set, the screenshots of
 the operator guide are written there (``docs/img``).
@@ -18,6 +20,7 @@ import pytest
 
 from service_processes import CLI, Server, free_port
 from service_support import wait_for
+from trainclimate.service.adapters import demo
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
 
@@ -112,13 +115,116 @@ class Watched:
         self.context.close()
 
 
+def test_the_overview_answers_with_fleet_figures_and_clicks_through(browser, server):
+    w = Watched(browser, server, "viewer", WALL)
+    page = w.page
+    # the first screen: the overview with its charts, no table
+    page.wait_for_function(
+        "() => (document.querySelector('#savings-figure') || {}).data", timeout=20_000
+    )
+    assert page.locator("#coaches").count() == 0
+    w.shot("dashboard-overview")
+    # another window: the API is asked for it, and the tiles show what it answered
+    with page.expect_response(lambda r: "/fleet/summary?hours=6" in r.url and r.ok) as info:
+        page.select_option("#hours", "6")
+    summary = info.value.json()
+    if summary["savings_pct"] is not None:
+        expected = f"{summary['savings_pct']:.1f} %"
+        page.wait_for_function(
+            "(v) => document.querySelector('#kpi-fleet-savings .value').textContent === v",
+            arg=expected,
+        )
+    assert page.locator("#kpi-trains .value").inner_text() == str(len(demo.TRAINS))
+    energy = {t["name"]: t["points"] for t in w.traces("#energy-figure")}
+    assert energy["activated coaches"] == energy["deactivated coaches"] == len(summary["windows"])
+    assert len(summary["windows"]) >= 2
+    [bars] = w.traces("#savings-figure")
+    # a bar per train; none where its deactivated coach used no energy (HVAC off) yet
+    with_savings = [t for t in summary["trains"] if t["savings_pct"] is not None]
+    assert bars["type"] == "bar" and bars["points"] == len(with_savings) >= 1
+    x = page.evaluate("() => document.querySelector('#savings-figure').data[0].x")
+    assert len(x) == len(demo.TRAINS)
+    assert {t["name"] for t in w.traces("#violation-figure")} == {"activated", "deactivated"}
+    assert page.locator("#savings-figure .main-svg").count() > 0  # drawn, not only data
+    # sorted by savings, largest first; by train on request
+    order = page.evaluate("() => document.querySelector('#savings-figure').data[0].x")
+    by_savings = sorted(summary["trains"], key=lambda t: -(t["savings_pct"] or -1e9))
+    assert order == [t["id"] for t in by_savings]
+    page.select_option("#train-sort", "id")
+    order = page.evaluate("() => document.querySelector('#savings-figure').data[0].x")
+    assert order == sorted(order)
+    # statuses as the API counts them; the attention list links to the coaches
+    for status, n in summary["coaches_by_status"].items():
+        cell = page.locator(f"#by-status [data-status='{status}']")
+        assert cell.inner_text().split() == [status, str(n)]
+    model = page.locator("#kpi-model .value").inner_text()
+    assert model.endswith("(bound 0.25 K)"), model
+    # a bar opens its train's pair comparison
+    # (a real click where the bar is drawn: Plotly's drag layer over it takes the mouse)
+    box = page.locator("#savings-figure .bars .point path").first.bounding_box()
+    page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.wait_for_url(re.compile(r".*#/train/D\d+$"))
+    page.wait_for_selector("#pair-figure .main-svg", timeout=20_000)
+    assert w.errors == []
+    w.close()
+
+
+def test_the_attention_list_names_an_overridden_coach(browser, server):
+    headers = {"Authorization": f"Bearer {server.tokens['operator']}"}
+    body = {"t_ref_c": 21.5, "duration_min": 600, "reason": "attention list check"}
+    reply = httpx.post(f"{server.url}/api/v1/coaches/D7-A/override", json=body, headers=headers)
+    assert reply.status_code == 201, reply.text
+    try:
+        w = Watched(browser, server, "viewer")
+        row = w.page.locator("#attention tr[data-coach='D7-A'][data-kind='override']")
+        row.wait_for(timeout=20_000)
+        assert "operator's setpoint until" in row.inner_text()
+        row.locator("a").click()
+        w.page.wait_for_selector("#coach-title:has-text('Coach D7-A')")
+        assert w.errors == []
+        w.close()
+    finally:
+        reason = "attention list check done"
+        httpx.delete(
+            f"{server.url}/api/v1/coaches/D7-A/override", params={"reason": reason}, headers=headers
+        )
+
+
+def test_the_model_page_draws_the_error_per_step_against_the_bound(browser, server):
+    w = Watched(browser, server, "viewer")
+    w.go("#/model")
+    page = w.page
+    page.wait_for_function(
+        "() => (document.querySelector('#mae-figure') || {}).data", timeout=20_000
+    )
+    with page.expect_response(lambda r: "/health?hours=6" in r.url and r.ok) as info:
+        page.select_option("#model-hours", "6")
+    health = info.value.json()
+    assert health["samples"] > 0
+    page.wait_for_function(
+        "(n) => document.querySelector('#kpi-samples .value').textContent === n",
+        arg=str(health["samples"]),
+    )
+    traces = {t["name"]: t["points"] for t in w.traces("#mae-figure")}
+    assert traces["MAE over coaches and decks"] == len(health["mae_per_step_c"]) == 6
+    assert traces["bound 0.25 K"] == 2
+    assert page.locator("#model-title").inner_text() == f"Model health: version {health['version']}"
+    # the activated coaches that predicted (one in service only later in the day may not yet)
+    assert page.locator("#model-coaches tbody tr").count() == len(health["coaches"]) >= 5
+    w.shot("dashboard-model")
+    assert w.errors == []
+    w.close()
+
+
 def test_pages_load_and_charts_have_data(browser, server):
     w = Watched(browser, server, "viewer", WALL)
     page = w.page
+    w.go("#/coaches")
     # fleet: every demo coach, with its status and deck temperatures
     page.wait_for_selector("#coaches tbody tr[data-coach='D3-B']")
     rows = page.locator("#coaches tbody tr")
-    assert rows.count() == 6
+    ids = sorted(demo.coach_ids())
+    assert rows.count() == len(ids) >= 20
     assert page.locator("tr[data-coach='D1-A'] td").nth(2).inner_text() == "activated"
     assert page.locator("tr[data-coach='D1-B'] td").nth(2).inner_text() == "deactivated"
     temps = page.locator("tr[data-coach='D1-A'] td").nth(5).inner_text()
@@ -130,15 +236,15 @@ def test_pages_load_and_charts_have_data(browser, server):
     first = page.locator("#coaches tbody tr").first
     assert first.get_attribute("data-coach") == "D1-A"  # by coach, ascending
     page.click("th[data-sort='id']")
-    assert first.get_attribute("data-coach") == "D3-B"
+    assert first.get_attribute("data-coach") == ids[-1]  # "D9-B": by id as text, descending
     assert page.locator("th.sorted-desc[data-sort='id']").count() == 1
     # the one replica, which decided every demo coach's ticks
     replica = page.locator("#replicas tbody tr").first
     replica.wait_for()
     cells = replica.locator("td").all_inner_texts()
     assert page.locator("#replicas tbody tr").count() == 1
-    assert cells[0].endswith("(this one)") and cells[1].startswith("6: D1-A, D1-B")
-    assert int(cells[2]) >= 6
+    assert cells[0].endswith("(this one)") and cells[1] == f"{len(ids)}: {', '.join(ids)}"
+    assert int(cells[2]) >= len(ids)
     w.shot("dashboard-fleet")
 
     # the pair comparison: the paper's four panels with data and the summary
@@ -182,7 +288,9 @@ def test_the_printed_url_signs_in_and_leaves_no_token_in_the_address_bar(browser
     try:
         page.goto(server.signin_url)  # as `make demo` prints it: nothing typed
         page.wait_for_selector("#who:has-text('(operator)')")
-        page.wait_for_selector("#coaches tbody tr[data-coach='D1-A']")
+        page.wait_for_function(  # the overview, with its charts
+            "() => (document.querySelector('#savings-figure') || {}).data", timeout=20_000
+        )
         assert "token" not in page.url and page.url.endswith("/#/")
         assert not page.locator("#signin").evaluate("d => d.open")
         # kept for the browser session: a reload stays signed in
@@ -268,6 +376,7 @@ def test_a_service_preparing_its_model_says_so_and_runs_the_coaches_under_t_rule
         printed = srv.printed(r"operator token: (tc_\S+)")
         srv.tokens = {"operator": printed.group(1)}
         w = Watched(browser, srv, "operator")
+        w.go("#/coaches")
         notice = w.page.locator("#preparing")
         notice.wait_for(state="visible", timeout=10_000)
         assert re.match(r"Preparing the predictor model: .+, \d+ %\.", notice.inner_text())

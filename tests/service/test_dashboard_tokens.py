@@ -230,7 +230,7 @@ def test_no_tokens_page_below_admin(browser, server, role):
     w = Watched(browser, server, role)
     page = w.page
     fetches = "performance.getEntriesByType('resource').map((e) => e.name)"
-    page.wait_for_selector("#coaches thead")
+    page.wait_for_selector("#fleet-kpis .kpi")
     page.wait_for_load_state("networkidle")
     # what the page fetched while signing in, and every request from here on
     asked: list[str] = page.evaluate(fetches)
@@ -238,13 +238,13 @@ def test_no_tokens_page_below_admin(browser, server, role):
     page.on("request", lambda r: asked.append(r.url))
     assert page.locator("[data-nav='tokens']").count() == 1  # in the page, not shown
     assert not page.locator("[data-nav='tokens']").is_visible()
-    # asked for directly, also on a fresh load: the fleet instead (it asks /coaches, not /tokens)
+    # asked for directly, also on a fresh load: the overview instead (it never asks /tokens)
     w.go("#/tokens")
     page.reload()
     page.wait_for_selector(f"#who:has-text('({role})')")
     page.wait_for_load_state("networkidle")
     assert page.locator("#tokens").count() == 0
-    assert page.locator("#coaches").count() == 1
+    assert page.locator("#fleet-kpis").count() == 1
     assert [u for u in asked if "/api/v1/tokens" in u] == []
     assert w.errors == []
     w.close()

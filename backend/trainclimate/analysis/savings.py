@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from trainclimate.analysis.kpi import avg_hourly_violation_k, discomfort_kh
+from trainclimate.analysis.kpi import discomfort_kh
 
 
 @dataclass
@@ -73,6 +73,89 @@ class CoachSeries:
         if shapes != {(n,)}:
             raise ValueError("a coach's series must all have the length of its time axis")
         self.affected = self.affected | ~np.isfinite(self.power_kw)
+
+
+@dataclass
+class PairTotals:
+    """What a pair's savings and comfort over a period are computed from, and what pools over
+    trains: a fleet's totals are the sum of its pairs' (``+``).
+
+    Attributes
+    ----------
+    energy_activated_kwh, energy_deactivated_kwh : float
+        Energy of each coach over the included windows. [kWh]
+    windows, excluded_windows : int
+        Windows in the period, and those excluded (affected, or not covered by the series).
+    window_min : float
+        Window length. [min]
+    counted_hours : float
+        Time counted for violation and discomfort (both coaches in band, nothing affected). [h]
+    discomfort_kh, baseline_discomfort_kh : numpy.ndarray of shape (3,)
+        Discomfort per deck of the activated and the deactivated coach. [K·h]
+    """
+
+    energy_activated_kwh: float
+    energy_deactivated_kwh: float
+    windows: int
+    excluded_windows: int
+    window_min: float
+    counted_hours: float
+    discomfort_kh: np.ndarray
+    baseline_discomfort_kh: np.ndarray
+
+    @property
+    def savings_pct(self) -> float | None:
+        """Savings over the included windows, 100 (1 − E_act / E_deact) [%]; None when the
+        deactivated coach used no energy in them."""
+        return savings_pct(self.energy_activated_kwh, self.energy_deactivated_kwh)
+
+    @property
+    def excluded_minutes(self) -> float:
+        """Length of the excluded windows. [min]"""
+        return self.excluded_windows * self.window_min
+
+    @property
+    def avg_hourly_violation_k(self) -> float:
+        """The activated coach's average hourly violation (Table II); 0 when nothing was
+        counted. [K]"""
+        return _per_hour(self.discomfort_kh, self.counted_hours)
+
+    @property
+    def baseline_violation_k(self) -> float:
+        """The deactivated coach's average hourly violation; 0 when nothing was counted. [K]"""
+        return _per_hour(self.baseline_discomfort_kh, self.counted_hours)
+
+    def __add__(self, other: PairTotals) -> PairTotals:
+        """Pooled: energies, windows, counted hours and discomfort added (same window length).
+
+        Raises
+        ------
+        ValueError
+            If the window lengths differ.
+        """
+        if other.window_min != self.window_min:
+            raise ValueError("totals of different window lengths do not add up")
+        return PairTotals(
+            energy_activated_kwh=self.energy_activated_kwh + other.energy_activated_kwh,
+            energy_deactivated_kwh=self.energy_deactivated_kwh + other.energy_deactivated_kwh,
+            windows=self.windows + other.windows,
+            excluded_windows=self.excluded_windows + other.excluded_windows,
+            window_min=self.window_min,
+            counted_hours=self.counted_hours + other.counted_hours,
+            discomfort_kh=self.discomfort_kh + other.discomfort_kh,
+            baseline_discomfort_kh=self.baseline_discomfort_kh + other.baseline_discomfort_kh,
+        )
+
+    @classmethod
+    def empty(cls, window_min: float = 30.0) -> PairTotals:
+        """No window, nothing counted: the start of a sum."""
+        return cls(0.0, 0.0, 0, 0, window_min, 0.0, np.zeros(3), np.zeros(3))
+
+
+def _per_hour(discomfort_kh: np.ndarray, hours: float) -> float:
+    """Discomfort per deck (K·h) divided by the hours counted, averaged over the decks (paper,
+    Table II: the average hourly violation) [K]; 0 when no time was counted."""
+    return float(np.mean(discomfort_kh) / hours) if hours > 0 else 0.0
 
 
 @dataclass
@@ -252,14 +335,21 @@ def compare(
     w_start = start + pd.to_timedelta(np.arange(n_windows) * window_s, unit="s")
     uncovered = (w_start < first) | (w_start + pd.Timedelta(seconds=window_s) > stop)
     excluded = (per_window(affected.astype(float)) > 0) | uncovered
-    included = ~excluded
     per = [None if excluded[w] else savings_pct(e_act[w], e_deact[w]) for w in range(n_windows)]
-    overall = savings_pct(float(e_act[included].sum()), float(e_deact[included].sum()))
-
     mask = counted & ~affected & activated.in_band & deactivated.in_band
-    d_act = discomfort_kh(activated.t_room_c, activated.t_rule_c, dt, t_max_k=t_max_k, mask=mask)
-    d_deact = discomfort_kh(
-        deactivated.t_room_c, deactivated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
+    totals = PairTotals(
+        energy_activated_kwh=float(e_act[~excluded].sum()),
+        energy_deactivated_kwh=float(e_deact[~excluded].sum()),
+        windows=n_windows,
+        excluded_windows=int(excluded.sum()),
+        window_min=window_min,
+        counted_hours=float(mask.sum() * dt / 3600.0),
+        discomfort_kh=discomfort_kh(
+            activated.t_room_c, activated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
+        ),
+        baseline_discomfort_kh=discomfort_kh(
+            deactivated.t_room_c, deactivated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
+        ),
     )
     return Comparison(
         window_start=w_start,
@@ -267,19 +357,15 @@ def compare(
         energy_deactivated_kwh=e_deact,
         savings_30min_pct=per,
         excluded=excluded,
-        savings_pct=overall,
-        energy_activated_total_kwh=float(e_act[included].sum()),
-        energy_deactivated_total_kwh=float(e_deact[included].sum()),
-        excluded_minutes=float(excluded.sum() * window_min),
+        savings_pct=totals.savings_pct,
+        energy_activated_total_kwh=totals.energy_activated_kwh,
+        energy_deactivated_total_kwh=totals.energy_deactivated_kwh,
+        excluded_minutes=totals.excluded_minutes,
         affected_minutes=float((counted & affected).sum() * dt / 60.0),
-        counted_hours=float(mask.sum() * dt / 3600.0),
-        avg_hourly_violation_k=avg_hourly_violation_k(
-            activated.t_room_c, activated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
-        ),
-        baseline_violation_k=avg_hourly_violation_k(
-            deactivated.t_room_c, deactivated.t_rule_c, dt, t_max_k=t_max_k, mask=mask
-        ),
-        discomfort_kh=d_act.tolist(),
-        baseline_discomfort_kh=d_deact.tolist(),
+        counted_hours=totals.counted_hours,
+        avg_hourly_violation_k=totals.avg_hourly_violation_k,
+        baseline_violation_k=totals.baseline_violation_k,
+        discomfort_kh=totals.discomfort_kh.tolist(),
+        baseline_discomfort_kh=totals.baseline_discomfort_kh.tolist(),
         window_min=window_min,
     )

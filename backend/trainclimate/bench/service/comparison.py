@@ -1,5 +1,6 @@
-"""Part 2 of the service benchmark: the latency (ms) of a 24-h pair comparison with a month of
-fleet data stored, against the same with one pair × one day stored; the COPY load rate."""
+"""Part 2 of the service benchmark: the latency (ms) of a 24-h pair comparison and of the 24-h
+fleet summary with a month of fleet data stored, each against the same with one pair × one day
+stored; the COPY load rate."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from trainclimate.bench.common import latency_ms
 from trainclimate.bench.service.database import (
@@ -19,13 +21,16 @@ from trainclimate.bench.service.database import (
 from trainclimate.bench.service.fleet import client as fleet_client
 from trainclimate.bench.service.fleet import pair_ids, register, synthetic, tokens
 
+#: The fleet summary's goal: p95 over 24 h of 100 coaches with 30 days stored. [ms]
+SUMMARY_TARGET_P95_MS = 150.0
+
 
 def run(url: str, model: Path, trains: int, days: int, requests: int, progress) -> dict:
-    """p95 latency (ms) of a 24-h pair comparison with ``trains`` pairs × ``days`` stored, against
-    the same with 1 pair × 1 day stored (its own tables, in schema ``bench_small`` of the same
-    database), ``requests`` requests of each taking turns; the COPY load rate of the large data
-    set (rows/s, MB sent, s for VACUUM ANALYZE). ``progress(1)`` after the load and after the
-    requests."""
+    """p95 latency (ms) of a 24-h pair comparison and of the 24-h fleet summary with ``trains``
+    pairs × ``days`` stored, against the same with 1 pair × 1 day stored (its own tables, in
+    schema ``bench_small`` of the same database), ``requests`` requests of each taking turns;
+    the COPY load rate of the large data set (rows/s, MB sent, s for VACUUM ANALYZE).
+    ``progress(1)`` after the load and after the requests."""
     from trainclimate.service.store.db import migrate
 
     small_url = in_schema(url, "bench_small")
@@ -45,9 +50,9 @@ def run(url: str, model: Path, trains: int, days: int, requests: int, progress) 
         vacuum_s = time.perf_counter() - t0
         if progress:
             progress(1)
-        timed = _time_requests(
-            model, {"large": (url, trains, days), "small": (small_url, 1, 1)}, requests, seed=3
-        )
+        databases = {"large": (url, trains, days), "small": (small_url, 1, 1)}
+        timed = _time_requests(model, databases, requests, _comparison, "windows", seed=3)
+        summary = _time_requests(model, databases, requests, _summary, "trains", seed=4)
         large, small = timed["large"], timed["small"]
         large["rows_stored"], large["table"] = n_rows, table_size(url)
         small["rows_stored"], small["table"] = 2 * 1440, table_size(small_url)
@@ -63,6 +68,11 @@ def run(url: str, model: Path, trains: int, days: int, requests: int, progress) 
         "small": small,
         "p95_large_vs_small": large["p95_ms"] / small["p95_ms"],
         "median_large_vs_small": large["median_ms"] / small["median_ms"],
+        "summary": {
+            **summary,
+            "p95_large_vs_small": summary["large"]["p95_ms"] / summary["small"]["p95_ms"],
+            "target_p95_ms": SUMMARY_TARGET_P95_MS,
+        },
         "copy": {
             "rows": n_rows,
             "seconds": copy_s,
@@ -77,8 +87,6 @@ def _rows(trains: int, days: int, seed: int):
     """Blocks for :func:`~.database.copy_telemetry`: ``trains`` pairs × ``days`` of 1-minute
     rows, one block per day, in the order a live feed stores them (hour by hour, coach after
     coach)."""
-    import pandas as pd
-
     ids, train, active = pair_ids("C", trains)
     start_s = pd.Timestamp("2024-11-01T00:00Z").timestamp()
     rng = np.random.default_rng(seed)
@@ -93,13 +101,30 @@ def _rows(trains: int, days: int, seed: int):
         yield copy_block(id_array, start_s + 60.0 * m, v)
 
 
-def _time_requests(model: Path, databases: dict, n: int, seed: int) -> dict:
-    """``n`` GET /trains/{id}/comparison on each of ``databases`` (name → (URL, trains, days)),
-    taking turns request by request, each of a random train over a random 24-h window (after a
-    few untimed ones): latency per database in ms, and the windows per reply."""
-    import contextlib
+def _comparison(rng, trains: int, first) -> tuple[str, dict]:
+    """A random train's pair comparison over the 24 h from ``first``."""
+    end = first + pd.Timedelta(hours=24)
+    train = f"C{int(rng.integers(trains)):03d}"
+    return f"/api/v1/trains/{train}/comparison", {
+        "start": first.isoformat(),
+        "end": end.isoformat(),
+    }
 
-    import pandas as pd
+
+def _summary(rng, trains: int, first) -> tuple[str, dict]:
+    """The fleet summary over the 24 h from ``first``."""
+    return "/api/v1/fleet/summary", {
+        "hours": 24,
+        "end": (first + pd.Timedelta(hours=24)).isoformat(),
+    }
+
+
+def _time_requests(model: Path, databases: dict, n: int, request, items: str, seed: int) -> dict:
+    """``n`` GETs ``request(rng, trains, first)`` → (path, params) on each of ``databases``
+    (name → (URL, trains, days)), taking turns request by request, each over a random 24-h
+    window from ``first`` (after a few untimed ones): latency per database in ms, and the
+    length of the reply's list ``items`` (``<items>_per_reply``)."""
+    import contextlib
 
     rng = np.random.default_rng(seed)
     start = pd.Timestamp("2024-11-01T00:00Z")
@@ -113,22 +138,17 @@ def _time_requests(model: Path, databases: dict, n: int, seed: int) -> dict:
         for i in range(n + 5):
             for name, (_, trains, days) in databases.items():
                 client, viewer = clients[name]
-                train = f"C{int(rng.integers(trains)):03d}"
                 first = start + pd.Timedelta(minutes=int(rng.integers(0, (days - 1) * 1440 + 1)))
-                params = {
-                    "start": first.isoformat(),
-                    "end": (first + pd.Timedelta(hours=24)).isoformat(),
-                }
-                path = f"/api/v1/trains/{train}/comparison"
+                path, params = request(rng, trains, first)
                 t0 = time.perf_counter()
                 reply = client.get(path, params=params, headers=viewer)
                 elapsed = time.perf_counter() - t0
                 if reply.status_code != 200:
-                    raise RuntimeError(f"comparison failed: {reply.status_code} {reply.text[:200]}")
+                    raise RuntimeError(f"{path} failed: {reply.status_code} {reply.text[:200]}")
                 if i >= 5:
                     latencies[name].append(elapsed)
-                    windows[name] = len(reply.json()["windows"])
+                    windows[name] = len(reply.json()[items])
     return {
-        name: {**latency_ms(latencies[name]), "windows_per_reply": windows[name]}
+        name: {**latency_ms(latencies[name]), f"{items}_per_reply": windows[name]}
         for name in databases
     }

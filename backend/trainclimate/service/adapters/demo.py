@@ -1,9 +1,18 @@
 """The demo fleet (``trainclimate serve --fleet demo``): simulated trains on an accelerated clock.
 
-Three trains, each with coach A (the DDPC layer activated) and coach B (deactivated) — twins that
-share place, weather, operation and occupancy, like the paper's pairs: one parked outdoors in Zug
-(like Experiment 4), one in service on the S12, one parked in Muelligen, on a cold late-November
-day (the scenarios' seeded weather and Zurich S-Bahn operations, :mod:`trainclimate.sim`).
+Ten trains, each with coach A (the DDPC layer activated) and coach B (deactivated) — twins that
+share place, weather, operation and occupancy, like the paper's pairs — in the situations of the
+paper's experiments and of the scenarios (:mod:`trainclimate.sim`: seeded weather, Zurich S-Bahn
+operations), on a late-November day that is cold and overcast for all but one of them:
+
+- parked outdoors in Zug (like Experiment 4), in Muelligen and in Wiesendangen;
+- in service on the S12, the S8 (all day, and at the peaks only) and the S14 (all day, and a late
+  shift), each with its own service day and layovers;
+- parked in Winterthur on a mild, sunny day, on which heating and cooling alternate (the HVAC's
+  mixed state);
+- parked in Zürich, coach A losing its connection from 14:00 to 14:40 local time every day
+  (:attr:`DemoTrain.connection_loss`): no setpoint reaches it, so it runs under its rule-based
+  T_rule, and its telemetry reports ``connected`` false, as in the paper's experiments.
 
 :class:`DemoFleet` advances the fleet one sampling period at a time, as fast as ``speedup`` allows:
 it simulates the period with the setpoints issued at its start, writes the coaches' telemetry (one
@@ -12,7 +21,8 @@ transaction, and then issues the tick at the period's end
 (:meth:`~trainclimate.service.scheduler.Scheduler.tick_fleet`). After a crash or restart it
 carries on from the stored clock and state, so no tick is lost or issued twice: before its first
 period it issues the tick at the stored clock, which a crash between storing a period and issuing
-its tick left undone.
+its tick left undone. A state stored by a fleet of another size (an earlier version's demo) is
+dropped with a warning: the coaches start afresh.
 """
 
 from __future__ import annotations
@@ -48,15 +58,36 @@ START_LOCAL = "2024-11-28 04:00"
 
 @dataclass(frozen=True)
 class DemoTrain:
-    """One demo train: its id, its name (where it is, in words) and the scenario of its day."""
+    """One demo train: its id, its name (where it is, in words), the scenario of its day, and
+    when coach A's connection is lost every day: local ``("HH:MM", "HH:MM")`` (start, end), or
+    None."""
 
     id: str
     name: str
     scenario: Scenario
+    connection_loss: tuple[str, str] | None = None
+
+    def connection_lost(self, times: pd.DatetimeIndex) -> np.ndarray:
+        """Whether coach A's link is down at each of ``times`` (UTC, one local day), shape
+        (len(times),) bool."""
+        if self.connection_loss is None:
+            return np.zeros(len(times), bool)
+        start, end = (scenarios.local_clock(times[0], c) for c in self.connection_loss)
+        return (times >= start) & (times < end)
 
 
-def _day(name: str, site: str, **kw) -> Scenario:
-    """A whole local day at ``site`` (the demo builds one day at a time)."""
+def _day(
+    name: str,
+    site: str,
+    *,
+    t_min_c: float = -1.0,
+    t_max_c: float = 4.0,
+    cloud_cover: float = 0.7,
+    **kw,
+) -> Scenario:
+    """A whole local day at ``site`` (the demo builds one day at a time), by default cold and
+    overcast: daily minimum and maximum ``t_min_c``, ``t_max_c`` (°C), mean ``cloud_cover``
+    (0…1)."""
     return Scenario(
         name=name,
         description=name,
@@ -64,9 +95,9 @@ def _day(name: str, site: str, **kw) -> Scenario:
         date="2024-11-28",
         start="00:00",
         hours=24.0,
-        t_min_c=-1.0,
-        t_max_c=4.0,
-        cloud_cover=0.7,
+        t_min_c=t_min_c,
+        t_max_c=t_max_c,
+        cloud_cover=cloud_cover,
         **kw,
     )
 
@@ -74,6 +105,17 @@ def _day(name: str, site: str, **kw) -> Scenario:
 S12_DAY = Service(
     lines=("S12",), first_departure="05:30", last_arrival="23:30", layovers=(("10:10", "11:00"),)
 )
+S8_DAY = Service(
+    lines=("S8",), first_departure="05:00", last_arrival="23:00", layovers=(("12:00", "12:45"),)
+)
+#: Morning and evening peaks only, stabled (slumber mode) in between.
+S8_PEAKS = Service(
+    lines=("S8",), first_departure="06:15", last_arrival="19:30", layovers=(("09:30", "15:30"),)
+)
+S14_DAY = Service(
+    lines=("S14",), first_departure="06:00", last_arrival="22:30", layovers=(("09:00", "10:30"),)
+)
+S14_LATE = Service(lines=("S14",), first_departure="13:00", last_arrival="23:30")
 TRAINS = (
     DemoTrain(
         "D1",
@@ -89,6 +131,49 @@ TRAINS = (
         "D3",
         "parked outdoors in Muelligen",
         _day("demo-muelligen", "muelligen", seed=3128, parked_heading_deg=75.0),
+    ),
+    DemoTrain(
+        "D4",
+        "in service on the S8 Winterthur – Pfäffikon SZ",
+        _day("demo-s8", "zurich", seed=4128, service=S8_DAY),
+    ),
+    DemoTrain(
+        "D5",
+        "in service on the S14 Zürich HB – Wetzikon",
+        _day("demo-s14", "zurich", seed=5128, service=S14_DAY),
+    ),
+    DemoTrain(
+        "D6",
+        "in service on the S8 at the peaks only, stabled 09:30–15:30",
+        _day("demo-s8-peaks", "zurich", seed=6128, service=S8_PEAKS),
+    ),
+    DemoTrain(
+        "D7",
+        "parked outdoors in Wiesendangen",
+        _day("demo-wiesendangen", "wiesendangen", seed=7128, parked_heading_deg=120.0),
+    ),
+    DemoTrain(
+        "D8",
+        "parked outdoors in Winterthur on a mild, sunny day (heating and cooling alternate)",
+        _day(
+            "demo-winterthur-mild",
+            "winterthur",
+            t_min_c=10.0,
+            t_max_c=20.0,
+            cloud_cover=0.15,
+            seed=8128,
+        ),
+    ),
+    DemoTrain(
+        "D9",
+        "parked outdoors in Zürich; D9-A loses its connection 14:00–14:40 daily",
+        _day("demo-zurich-lost", "zurich", seed=9128, parked_heading_deg=45.0),
+        connection_loss=("14:00", "14:40"),
+    ),
+    DemoTrain(
+        "D10",
+        "in service on the S14 Zürich HB – Wetzikon from 13:00 (late shift)",
+        _day("demo-s14-late", "zurich", seed=10128, service=S14_LATE),
     ),
 )
 
@@ -123,6 +208,8 @@ class DemoFleet:
         self.period = scheduler.period
         self.ids = coach_ids()
         self.sim: FleetSimulator | None = None
+        #: (steps, coaches) bool on the simulator's grid: where a coach's link is down
+        self.lost: np.ndarray | None = None
         self.day: pd.Timestamp | None = None
         self.caught_up = False
 
@@ -138,21 +225,32 @@ class DemoFleet:
         self.caught_up = True
 
     # --- the simulator, one local day at a time ------------------------------------------
-    def _build_day(self, day: pd.Timestamp) -> FleetSimulator:
-        envs, params = [], []
+    def _build_day(self, day: pd.Timestamp) -> tuple[FleetSimulator, np.ndarray]:
+        """The simulator of the local ``day`` and where each coach's link is down on its grid,
+        (steps, coaches) bool."""
+        envs, params, lost = [], [], []
         for train in TRAINS:
-            seed = train.scenario.seed + day.dayofyear
+            seed = train.scenario.seed + day.day_of_year
             sc = replace(train.scenario, date=f"{day:%Y-%m-%d}", seed=seed)
             env, p = scenarios.build(sc, n_coaches=1)
             envs += [env, env]  # coaches A and B: twins in one train
             params += [p[0], p[0]]
-        return FleetSimulator(params, Environment.side_by_side(envs), seed=int(day.dayofyear))
+            lost += [train.connection_lost(env.time), np.zeros(len(env.time), bool)]
+        sim = FleetSimulator(params, Environment.side_by_side(envs), seed=int(day.day_of_year))
+        return sim, np.column_stack(lost)
 
     def _ensure_simulator(self, at: datetime, state: dict | None) -> None:
         local_day = pd.Timestamp(at).tz_convert(LOCAL_TZ).normalize()
         if self.sim is None or self.day != local_day:
             carried = self.sim.snapshot() if self.sim is not None else state
-            self.sim = self._build_day(local_day)
+            if carried is not None and len(carried["T"]) != len(self.ids):
+                log.warning(
+                    "the stored demo state is of %d coaches, the fleet has %d: they start afresh",
+                    len(carried["T"]),
+                    len(self.ids),
+                )
+                carried = None
+            self.sim, self.lost = self._build_day(local_day)
             self.day = local_day
             if carried is not None:
                 self.sim.restore(carried)
@@ -180,10 +278,12 @@ class DemoFleet:
         start_k = self.sim.k
 
         def policy(k: int, sim: FleetSimulator) -> np.ndarray:
-            return apply_setpoint(t_ref, sim.t_rule(k), sim.env.mode[k] == MODE_REGULAR)
+            # a coach whose link is down runs under T_rule: no setpoint reaches it
+            use = (sim.env.mode[k] == MODE_REGULAR) & ~self.lost[k]
+            return apply_setpoint(t_ref, sim.t_rule(k), use)
 
         self.sim.run(policy, steps=steps)
-        rows = rows_from_simulation(self.sim, start_k, self.sim.k, self.ids)
+        rows = rows_from_simulation(self.sim, start_k, self.sim.k, self.ids, self.lost)
         t1 = t0 + self.period
         with self.db.transaction() as session:
             session.execute(

@@ -7,7 +7,7 @@ request that writes runs in one transaction.
 
 - :mod:`.deps` — the request's transaction, the role dependencies, the settings, the documented
   error answers; :mod:`.security` — the bearer token's check;
-- :mod:`.health`, :mod:`.users`, :mod:`.coaches`, :mod:`.overrides`, :mod:`.trains`,
+- :mod:`.health`, :mod:`.users`, :mod:`.coaches`, :mod:`.overrides`, :mod:`.trains`, :mod:`.fleet`,
   :mod:`.telemetry` (the live feed's push), :mod:`.models`, :mod:`.audit` — the routes;
 - :mod:`.schemas` — the request and response bodies; :mod:`.apidoc` — ``docs/api.md``.
 """
@@ -19,6 +19,7 @@ from fastapi import APIRouter, status
 from trainclimate.service.api import (
     audit,
     coaches,
+    fleet,
     health,
     models,
     overrides,
@@ -34,6 +35,7 @@ router.include_router(users.router)
 router.include_router(coaches.router)
 router.include_router(overrides.router)
 router.include_router(trains.router)
+router.include_router(fleet.router)
 router.include_router(telemetry.router)
 router.include_router(models.router)
 router.include_router(audit.router)

@@ -33,7 +33,7 @@ def list_coaches(request: Request, s: DB, _: Viewer) -> list:
     """Every coach with its train, layer, status (ok, warm-up, stale, fallback, override,
     inactive, not-regular, no-data), latest readings and setpoint."""
     live = queries.live_clock(s)
-    return [_cached_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
+    return [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
 
 
 @router.post(
@@ -68,14 +68,15 @@ def register_coach(
 def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
     """One coach, as in the list."""
     [(coach, state)] = queries.coach_states(s, coach_id)
-    return _cached_view(request, s, coach, state, queries.live_clock(s))
+    return current_view(request, s, coach, state, queries.live_clock(s))
 
 
-def _cached_view(
+def current_view(
     request: Request, s: Session, coach: Coach, state: tuple, live_clock: FleetClock | None
 ) -> dict:
-    """The coach's view, from the read cache while its state is unchanged, with a live coach's
-    silence judged now (:func:`.queries.with_liveness`)."""
+    """The coach's view as the fleet list and the fleet summary show it: from the read cache
+    while its state is unchanged, with a live coach's silence judged now
+    (:func:`.queries.with_liveness`)."""
     stale_periods = settings(request).stale_periods
     view = request.app.state.read_cache.get(
         ("coach", coach.id),

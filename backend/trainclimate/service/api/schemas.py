@@ -302,6 +302,61 @@ class Comparison(BaseModel):
     excluded_minutes: float
 
 
+class SavingsFigures(BaseModel):
+    """Savings and comfort of activated against deactivated coaches over included windows."""
+
+    savings_pct: float | None = Field(description="100 (1 − E_act / E_deact); null: no E_deact")
+    energy_activated_kwh: float
+    energy_deactivated_kwh: float
+    avg_hourly_violation_activated_k: float
+    avg_hourly_violation_deactivated_k: float
+    excluded_minutes: float = Field(description="windows affected or with data missing")
+    counted_hours: float = Field(description="the hours violation is averaged over")
+
+
+class TrainSavings(SavingsFigures):
+    """One train's pair over its window (as its pair comparison gives it)."""
+
+    id: str
+    name: str
+    activated: str
+    deactivated: str
+    start: datetime = Field(description="the first counted window's start")
+    end: datetime
+
+
+class Attention(BaseModel):
+    """A coach that needs an operator's attention, and why."""
+
+    coach_id: str
+    train_id: str
+    kind: Literal["stale", "fallback", "override", "comfort"]
+    status: str
+    reason: str | None = Field(description="the setpoint's reason code")
+    detail: str
+
+
+class FleetWindow(BaseModel):
+    """One window's energy over the trains that count it (not excluded for them)."""
+
+    start: datetime
+    energy_activated_kwh: float
+    energy_deactivated_kwh: float
+    trains: int
+
+
+class FleetSummary(SavingsFigures):
+    """The fleet at a glance: its trains' figures pooled, per train, per window, by status,
+    attention."""
+
+    hours: float
+    window_min: float
+    trains: list[TrainSavings]
+    windows: list[FleetWindow]
+    coaches_by_status: dict[str, int]
+    attention: list[Attention]
+
+
 class ModelOut(BaseModel):
     id: int
     version: int
@@ -383,3 +438,36 @@ class TokenInfo(BaseModel):
 
 class Message(BaseModel):
     detail: str
+
+
+class CoachHealth(BaseModel):
+    coach_id: str
+    first_step_mae_c: float | None = Field(
+        description="°C, over its predictions and decks at step 1; null without a sample"
+    )
+    samples: int = Field(description="its (prediction, step, deck) triples with an actual")
+
+
+class ModelHealth(BaseModel):
+    """A predictor model's stored predictions against the telemetry that followed them: the
+    predictions issued in (start, end], the ``hours`` up to the model's newest prediction tick
+    (the data's clock); an actual is the row stamped t + k·Δ, left out when missing, not
+    connected or not in regular mode."""
+
+    version: int
+    start: datetime | None = Field(description="null: the model never predicted")
+    end: datetime | None = Field(description="the model's newest prediction tick")
+    step_min: float = Field(examples=[5.0], description="Δ, the prediction step")
+    bound_c: float = Field(examples=[0.25], description="the paper's bound on the predictor's MAE")
+    predictions: int = Field(description="stored predictions in the window")
+    samples: int = Field(description="the sum of samples_per_step")
+    samples_per_step: list[int] = Field(
+        description="per step 1 … T: the (prediction, deck) pairs with an actual"
+    )
+    mae_per_step_c: list[float | None] = Field(
+        examples=[[0.12, 0.13, 0.13, 0.14, 0.14, 0.14]],
+        description="per step 1 … T: the mean absolute error over every coach, prediction and "
+        "deck with an actual, °C; null for a step without a sample; empty without predictions",
+    )
+    coaches: list[CoachHealth]
+    exceeds_bound: bool = Field(description="the first-step MAE over all coaches exceeds bound_c")

@@ -151,6 +151,7 @@ class Setpoint(Base):
     __table_args__ = (
         UniqueConstraint("coach_id", "tick", name="uq_setpoint_coach_tick"),
         Index("ix_setpoints_created_at", "created_at"),
+        Index("ix_setpoints_model_tick", "model_id", "tick"),  # a model's health
     )
     id: Mapped[int] = mapped_column(BigKey, primary_key=True, autoincrement=True)
     coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"))

@@ -132,7 +132,11 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
         "mode": row.mode if row else None,
         "status": status,
         "reason": setpoint.reason if setpoint else None,
-        "t_rule_c": setpoint.t_rule_c if setpoint else (row.t_rule_c if row else None),
+        # the setpoint's T_rule, else the newest row's (a tick before any row has none)
+        "t_rule_c": next(
+            (v for v in (setpoint and setpoint.t_rule_c, row and row.t_rule_c) if v is not None),
+            None,
+        ),
         "t_ref_c": setpoint.t_ref_c if setpoint else None,
         "comfort_band_k": COMFORT_BAND_K,
         "setpoint_band_k": U_BAND_K,
@@ -202,9 +206,18 @@ def time_range(
 ) -> tuple[datetime, datetime]:
     """[start, end], by default the last 24 h of the coach's clock."""
     clock = fleet_clock(session, coach) or pd.Timestamp.now(tz="UTC").to_pydatetime()
+    return checked_range(end or clock, start, timedelta(hours=24))
+
+
+def checked_range(
+    end: datetime, start: datetime | None, default: timedelta
+) -> tuple[datetime, datetime]:
+    """[start, end] in UTC, ``start`` by default ``default`` before ``end``;
+    :class:`RequestError` unless it lies in :data:`EARLIEST` … :data:`LATEST`, is not empty and
+    spans at most 31 days."""
     try:
-        end = (end or clock).astimezone(UTC)
-        start = (start or end - timedelta(hours=24)).astimezone(UTC)
+        end = end.astimezone(UTC)
+        start = (start or end - default).astimezone(UTC)
     except OverflowError:
         raise RequestError(f"start and end must lie in {EARLIEST:%Y} … {LATEST:%Y}") from None
     if start < EARLIEST or end > LATEST:
@@ -367,22 +380,47 @@ def _series(session: Session, coach: Coach, grid: pd.DatetimeIndex, start, end) 
     )
 
 
+def counted_range(
+    start: datetime, end: datetime, earliest: datetime | None, window_min: float
+) -> tuple[pd.Timestamp, int]:
+    """The first window's start and the number of whole windows a pair comparison over
+    (start, end] counts: from the first window boundary after ``start`` — moved up to the
+    pair's ``earliest`` row's minute when its data begins later — up to ``end``.
+
+    Parameters
+    ----------
+    start, end : datetime
+        The range asked for (timezone-aware).
+    earliest : datetime or None
+        The pair's first telemetry row (None: none).
+    window_min : float
+        Window length. [min]
+
+    Returns
+    -------
+    (pandas.Timestamp, int)
+        The first window's start (a whole number of windows since 1970, UTC) and how many
+        whole windows follow it up to ``end`` (0 if none fits).
+    """
+    if earliest is not None and earliest - timedelta(minutes=1) > start:
+        start = earliest - timedelta(minutes=1)  # nothing to compare before the pair's data
+    window = pd.Timedelta(minutes=window_min)
+    first = pd.Timestamp(start).ceil(window)
+    return first, max(0, int((pd.Timestamp(end) - first) // window))
+
+
 def comparison(
     session: Session, train: Train, start: datetime, end: datetime, window_min: float = 30.0
 ) -> dict:
     """30-minute savings and the summary of the train's pair over (start, end]."""
     act, deact = pair_of(train)
-    window = pd.Timedelta(minutes=window_min)
     # each coach's first row on its own: one index probe each (a min over both coaches at once
     # reads every index entry of both)
     firsts = [
         session.scalar(select(func.min(Telemetry.time)).where(Telemetry.coach_id == c.id))
         for c in (act, deact)
     ]
-    earliest = min((t for t in firsts if t is not None), default=None)
-    if earliest is not None and earliest - timedelta(minutes=1) > start:
-        start = earliest - timedelta(minutes=1)  # nothing to compare before the pair's data
-    first = pd.Timestamp(start).ceil(window)
+    first, _ = counted_range(start, end, min((t for t in firsts if t), default=None), window_min)
     grid = pd.date_range(first + pd.Timedelta(minutes=1), pd.Timestamp(end), freq="1min")
     if len(grid) < 2:
         raise RequestError("the range is shorter than two minutes")

@@ -217,10 +217,14 @@ def from_wire(row: dict) -> dict:
     }
 
 
-def rows_from_simulation(sim, k0: int, k1: int, coach_ids: list[str]) -> dict[str, list[dict]]:
+def rows_from_simulation(
+    sim, k0: int, k1: int, coach_ids: list[str], disconnected: np.ndarray | None = None
+) -> dict[str, list[dict]]:
     """Telemetry rows of a :class:`~trainclimate.sim.simulator.FleetSimulator`'s steps [k0, k1),
     one per coach and minute (the minute up to the row's time), as a logger would report them:
-    the sensors' mean, the applied T_ref and T_rule, the weather, occupancy, speed and power."""
+    the sensors' mean, the applied T_ref and T_rule, the weather, occupancy, speed and power,
+    and whether the link was up: ``connected`` is false for a coach's minute with a step where
+    ``disconnected`` ((steps, coaches) bool on the simulator's grid; default none) is true."""
     from trainclimate.sim.rule import MODE_NAMES, MODE_REGULAR
 
     r, env = sim.result(), sim.env
@@ -231,6 +235,9 @@ def rows_from_simulation(sim, k0: int, k1: int, coach_ids: list[str]) -> dict[st
         stamp = (env.time[a] + pd.Timedelta(seconds=(b - a) * sim.dt_s)).to_pydatetime()
         sl = slice(a, b)
         y = r.t_room_meas_c[sl].mean(axis=0)
+        # the minute's power only: the total over all steps so far would grow with the day
+        power_kw = sum(v[sl] for v in r.power_w.values()).mean(axis=0) / 1e3
+        up = np.ones(len(coach_ids), bool) if disconnected is None else ~disconnected[sl].any(0)
         for c, cid in enumerate(coach_ids):
             modes = env.mode[sl, c]
             mode = "regular" if np.all(modes == MODE_REGULAR) else MODE_NAMES[int(modes[-1])]
@@ -248,9 +255,9 @@ def rows_from_simulation(sim, k0: int, k1: int, coach_ids: list[str]) -> dict[st
                     "q_gs_w_m2": float(env.q_side_w_m2[sl, c].mean()),
                     "occupancy_pct": float(env.occupancy_pct[sl, c].mean()),
                     "speed_kmh": float(env.speed_kmh[sl, c].mean()),
-                    "power_kw": float(r.total_power_w[sl, c].mean() / 1e3),
+                    "power_kw": float(power_kw[c]),
                     "mode": mode,
-                    "connected": True,
+                    "connected": bool(up[c]),
                 }
             )
     return out

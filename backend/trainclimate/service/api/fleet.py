@@ -1,0 +1,37 @@
+"""The fleet at a glance: savings, comfort, coaches by status and what needs attention
+(:mod:`trainclimate.service.store.fleet_summary`)."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request
+from pydantic import AwareDatetime
+
+from trainclimate.service.api import schemas
+from trainclimate.service.api.coaches import current_view
+from trainclimate.service.api.deps import AUTH, DB, Viewer
+from trainclimate.service.store import fleet_summary, queries
+
+router = APIRouter()
+
+
+@router.get("/fleet/summary", response_model=schemas.FleetSummary, tags=["fleet"], responses=AUTH)
+def get_fleet_summary(
+    request: Request,
+    s: DB,
+    _: Viewer,
+    hours: Annotated[float, Query(gt=0, le=31 * 24, description="the window, h")] = 24.0,
+    end: Annotated[
+        AwareDatetime | None, Query(description="default: each train's fleet clock")
+    ] = None,
+) -> dict:
+    """Fleet savings and comfort over the last ``hours`` (30-minute windows excluded as in the
+    pair comparison), per train; the coaches by status; the coaches stale, in fallback,
+    overridden or outside the comfort band for more than 30 min."""
+    if end is not None:
+        queries.checked_range(end, None, timedelta(hours=hours))  # the API's bounds
+    live = queries.live_clock(s)
+    views = [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
+    return fleet_summary.summary(s, views, hours, end)

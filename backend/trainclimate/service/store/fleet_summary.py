@@ -1,0 +1,502 @@
+"""The fleet at a glance: every train's activated-vs-deactivated savings and comfort over the last
+hours, pooled into the fleet's, the coaches by status, and the coaches that need attention.
+
+A train's numbers are those of its pair comparison (:func:`.queries.comparison`, i.e.
+:func:`trainclimate.analysis.savings.compare` on the stored 1-minute telemetry) over the same
+range: the same 30-minute windows (aligned to the clock, the first one after the pair's data or
+the range starts), the same windows excluded (a minute missing for either coach, a coach not
+connected, without its power or overridden), violation and discomfort over the same minutes (both
+coaches in regular mode, nothing affected). Here they are summed in the database, per train and
+window, in one statement over every train — the 24-h fleet view reads a few sums per window
+instead of 2 880 rows per train — and combined by the same
+:class:`~trainclimate.analysis.savings.PairTotals`; the fleet's figures pool its trains' (energy
+over energy, discomfort over hours counted).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from datetime import datetime, timedelta
+
+import numpy as np
+import pandas as pd
+from sqlalchemy import (
+    Integer,
+    and_,
+    case,
+    false,
+    func,
+    literal,
+    not_,
+    or_,
+    select,
+    text,
+    true,
+    union_all,
+)
+from sqlalchemy.ext.compiler import compiles
+from sqlalchemy.orm import Session, selectinload
+from sqlalchemy.sql.expression import ColumnElement, FunctionElement
+
+from trainclimate.analysis.savings import PairTotals
+from trainclimate.service.store import queries
+from trainclimate.service.store.models import (
+    Coach,
+    FleetClock,
+    Override,
+    Telemetry,
+    Train,
+    UTCDateTime,
+)
+
+#: A coach whose decks have been outside the comfort band this long, without a break, needs
+#: attention. [min]
+VIOLATION_ATTENTION_MIN = 30.0
+#: How far back a coach's comfort is read for the attention list. [min]
+VIOLATION_LOOKBACK_MIN = 120.0
+DECKS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
+ID, TIME = Telemetry.coach_id.type, UTCDateTime()
+
+
+class EpochSeconds(FunctionElement):
+    """A timestamp column as whole seconds since 1970-01-01 UTC (an integer, so that dividing it
+    by an integer floors on either database)."""
+
+    type = Integer()
+    inherit_cache = True
+
+
+@compiles(EpochSeconds)  # PostgreSQL, and any other SQL standard database
+def _epoch_pg(element, compiler, **kw):
+    # date_part gives a double precision (EXTRACT a numeric: slower to compute)
+    return f"CAST(FLOOR(date_part('epoch', {compiler.process(element.clauses, **kw)})) AS BIGINT)"
+
+
+@compiles(EpochSeconds, "sqlite")
+def _epoch_sqlite(element, compiler, **kw):
+    return f"CAST(strftime('%s', {compiler.process(element.clauses, **kw)}) AS INTEGER)"
+
+
+class OnMinute(FunctionElement):
+    """Whether a timestamp column falls on a whole minute (the comparison's 1-minute grid)."""
+
+    inherit_cache = True
+
+
+@compiles(OnMinute)  # PostgreSQL, and any other SQL standard database
+def _on_minute_pg(element, compiler, **kw):
+    col = compiler.process(element.clauses, **kw)
+    return f"(date_trunc('minute', {col}) = {col})"
+
+
+@compiles(OnMinute, "sqlite")
+def _on_minute_sqlite(element, compiler, **kw):
+    return f"(strftime('%f', {compiler.process(element.clauses, **kw)}) = '00.000')"
+
+
+def _violation(row, t_max_k: float) -> list[ColumnElement]:
+    """Per deck, max(0, |T_room − T_rule| − T_max) of telemetry row ``row`` (paper, Eq. (4)). [K]"""
+    out = []
+    for deck in DECKS:
+        excess = func.abs(row.c[deck] - row.c.t_rule_c) - t_max_k
+        out.append(case((excess > 0, excess), else_=0.0))
+    return out
+
+
+def _literal_table(name: str, columns: dict, rows: list[tuple]):
+    """A small table ``name`` of literal ``rows`` with ``columns`` (name → SQL type), as a CTE
+    of a UNION ALL of SELECTs (both databases take it)."""
+    return union_all(
+        *(
+            select(
+                *(literal(v, t).label(n) for v, (n, t) in zip(row, columns.items(), strict=True))
+            )
+            for row in rows
+        )
+    ).cte(name)
+
+
+def window_sums(
+    session: Session,
+    pairs: list[tuple[str, str, datetime, datetime]],
+    window_min: float = 30.0,
+    t_max_k: float = queries.COMFORT_BAND_K,
+) -> dict[str, dict[int, np.ndarray]]:
+    """Per pair and window, the sums a pair comparison is made of, read in one statement.
+
+    Parameters
+    ----------
+    pairs : list of (activated id, deactivated id, lo, hi)
+        The pairs, each counted over the telemetry rows stamped in (lo, hi].
+    window_min : float, default 30.0
+        Window length. [min]
+    t_max_k : float
+        Comfort half-band T_max. [K]
+
+    Returns
+    -------
+    dict
+        Activated coach id → window index (the window's start in window lengths since 1970) →
+        an array of :data:`SUMS`: the minutes both coaches have a row on the minute grid, those
+        affected (either coach not connected, without power, or overridden), the energy of
+        each coach [kWh], the minutes counted for comfort (nothing affected, both in regular
+        mode), and the discomfort per deck of the activated and the deactivated coach over
+        those [K·h].
+    """
+    if not pairs:
+        return {}
+    p = _literal_table("pairs", {"act": ID, "deact": ID, "lo": TIME, "hi": TIME}, pairs)
+    a, b = Telemetry.__table__.alias("a"), Telemetry.__table__.alias("b")
+    ids = {c for pair in pairs for c in pair[:2]}
+    overrides = session.execute(
+        select(Override.coach_id, Override.starts_at, Override.ends_at, Override.cancelled_at)
+        .where(Override.coach_id.in_(ids))
+        .where(
+            Override.starts_at < max(x[3] for x in pairs),
+            Override.ends_at > min(x[2] for x in pairs),
+        )
+    ).all()
+    overridden = or_(
+        false(),
+        *(
+            and_(
+                or_(p.c.act == cid, p.c.deact == cid),
+                a.c.time > starts,
+                a.c.time <= (cancelled or ends),
+            )
+            for cid, starts, ends, cancelled in overrides
+        ),
+    )
+    affected = or_(
+        not_(a.c.connected),
+        not_(b.c.connected),
+        a.c.power_kw.is_(None),
+        b.c.power_kw.is_(None),
+        overridden,
+    )
+    # a row stamped t is the minute starting t − 1 min: its window is ⌊(t − 60 s) / window⌋
+    window = ((EpochSeconds(a.c.time) - 60) // round(window_min * 60)).label("w")
+    pair_rows = a.join(
+        b,
+        and_(
+            b.c.coach_id == p.c.deact,
+            b.c.time == a.c.time,
+            b.c.time > p.c.lo,  # b's range too: each side is one range scan of the index
+            b.c.time <= p.c.hi,
+        ),
+    )
+    in_range = and_(a.c.coach_id == p.c.act, a.c.time > p.c.lo, a.c.time <= p.c.hi)
+    # the pair's minutes, each value computed once (OFFSET 0 keeps PostgreSQL from inlining the
+    # subquery into the sums, which would compute them again in every one)
+    minutes = (
+        select(
+            p.c.act,
+            window,
+            # rows off the minute grid do not count (the comparison reads the grid's minutes)
+            OnMinute(a.c.time).label("grid"),
+            affected.label("bad"),
+            and_(a.c.mode == "regular", b.c.mode == "regular").label("band"),
+            func.coalesce(a.c.power_kw, 0.0).label("pa"),
+            func.coalesce(b.c.power_kw, 0.0).label("pb"),
+            *(v.label(f"va{i}") for i, v in enumerate(_violation(a, t_max_k))),
+            *(v.label(f"vb{i}") for i, v in enumerate(_violation(b, t_max_k))),
+        )
+        .select_from(pair_rows)
+        .where(in_range)
+        .offset(0)
+    )
+    postgresql = session.bind.dialect.name == "postgresql"
+    if postgresql:
+        # pair by pair (LATERAL): PostgreSQL hashes one coach's rows and probes the other's,
+        # where over all pairs at once it probes the index once per row (3× slower, measured)
+        minutes = minutes.correlate(p)
+    m = minutes.subquery("m")
+    counted = and_(m.c.grid, not_(m.c.bad), m.c.band)
+    kwh = 1.0 / 60.0  # a 1-minute row's mean power in kW → kWh
+    sums = [
+        func.sum(case((m.c.grid, 1), else_=0)),
+        func.sum(case((and_(m.c.grid, m.c.bad), 1), else_=0)),
+        func.sum(case((m.c.grid, m.c.pa), else_=0.0)) * kwh,
+        func.sum(case((m.c.grid, m.c.pb), else_=0.0)) * kwh,
+        func.sum(case((counted, 1), else_=0)),
+        *(func.sum(case((counted, m.c[f"va{i}"]), else_=0.0)) / 60.0 for i in range(3)),
+        *(func.sum(case((counted, m.c[f"vb{i}"]), else_=0.0)) / 60.0 for i in range(3)),
+    ]
+    if postgresql:
+        # without JIT compilation, which the plan's cost asks for and which took longer than
+        # the query itself (300 ms against 100 ms, measured)
+        session.execute(text("SET LOCAL jit = off"))
+        per_pair = select(m.c.w, *sums).group_by(m.c.w).lateral("per_pair")
+        query = select(p.c.act, *per_pair.c).select_from(p).join(per_pair, true())
+    else:
+        query = select(m.c.act, m.c.w, *sums).group_by(m.c.act, m.c.w)
+    rows = session.execute(query).all()
+    out: dict[str, dict[int, np.ndarray]] = {}
+    for act, w, *values in rows:
+        out.setdefault(act, {})[int(w)] = np.array([v or 0.0 for v in values], float)
+    return out
+
+
+#: What :func:`window_sums` returns per window, in order.
+SUMS = (
+    "minutes",
+    "affected_minutes",
+    "energy_activated_kwh",
+    "energy_deactivated_kwh",
+    "counted_minutes",
+    *(f"discomfort_{d}_kh" for d in ("up", "mid", "low")),
+    *(f"baseline_discomfort_{d}_kh" for d in ("up", "mid", "low")),
+)
+
+
+def pair_windows(
+    sums: dict[int, np.ndarray], first: pd.Timestamp, n_windows: int, window_min: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A pair's ``n_windows`` windows from ``first``, from its :func:`window_sums`: a window is
+    included when both coaches have every minute of it and none is affected.
+
+    Parameters
+    ----------
+    sums : dict
+        Window index → sums (:data:`SUMS`), as :func:`window_sums` gives them for the pair.
+    first : pandas.Timestamp
+        The first window's start.
+    n_windows : int
+        How many windows are counted.
+    window_min : float
+        Window length. [min]
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray, numpy.ndarray)
+        The windows' indices (n,) (starts in window lengths since 1970), their sums
+        (n, len(SUMS)) — zeros where the pair has no row — and whether each is included (n,).
+    """
+    w0 = int(first.timestamp() // (window_min * 60))
+    index = np.arange(w0, w0 + n_windows)
+    grid = np.array([sums.get(w, np.zeros(len(SUMS))) for w in index]).reshape(-1, len(SUMS))
+    minutes, affected = grid[:, 0], grid[:, 1]
+    return index, grid, (minutes == round(window_min)) & (affected == 0)
+
+
+def pair_totals(grid: np.ndarray, included: np.ndarray, window_min: float) -> PairTotals:
+    """A pair's totals from its :func:`pair_windows`' sums and included windows."""
+    e_act, e_deact, counted = grid[:, 2], grid[:, 3], grid[:, 4]
+    return PairTotals(
+        energy_activated_kwh=float(e_act[included].sum()),
+        energy_deactivated_kwh=float(e_deact[included].sum()),
+        windows=len(grid),
+        excluded_windows=int(len(grid) - included.sum()),
+        window_min=window_min,
+        counted_hours=float(counted.sum() / 60.0),
+        discomfort_kh=grid[:, 5:8].sum(axis=0),
+        baseline_discomfort_kh=grid[:, 8:11].sum(axis=0),
+    )
+
+
+def _totals_dict(t: PairTotals) -> dict:
+    return {
+        "savings_pct": t.savings_pct,
+        "energy_activated_kwh": t.energy_activated_kwh,
+        "energy_deactivated_kwh": t.energy_deactivated_kwh,
+        "avg_hourly_violation_activated_k": t.avg_hourly_violation_k,
+        "avg_hourly_violation_deactivated_k": t.baseline_violation_k,
+        "excluded_minutes": t.excluded_minutes,
+        "counted_hours": t.counted_hours,
+    }
+
+
+def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
+    """Each coach's first and newest telemetry time, in one statement of index probes."""
+    if not coaches:
+        return {}
+    cols = []
+    for c in coaches:
+        for agg in (func.min, func.max):
+            cols.append(
+                select(agg(Telemetry.time)).where(Telemetry.coach_id == c.id).scalar_subquery()
+            )
+    row = session.execute(select(*cols)).one()
+    return {c.id: (row[2 * i], row[2 * i + 1]) for i, c in enumerate(coaches)}
+
+
+def summary(
+    session: Session,
+    views: list[dict],
+    hours: float,
+    end: datetime | None = None,
+    window_min: float = 30.0,
+) -> dict:
+    """The fleet at a glance: savings and comfort of every train over the ``hours`` up to
+    ``end`` (default: each train's fleet clock — the demo's simulated time, the live fleet's
+    newest telemetry) and the fleet's, pooled; the coaches by status and those that need
+    attention now, from their ``views`` (as the fleet list shows them,
+    :func:`.queries.coach_view`). Trains without both an activated and a deactivated coach are
+    left out.
+
+    Returns
+    -------
+    dict
+        ``hours``, ``window_min``, the fleet's ``savings_pct`` [%], ``energy_activated_kwh`` and
+        ``energy_deactivated_kwh`` [kWh], ``avg_hourly_violation_activated_k`` and
+        ``avg_hourly_violation_deactivated_k`` [K], ``excluded_minutes`` [min],
+        ``counted_hours`` [h]; ``trains``: per train ``id``, ``name``, ``activated``,
+        ``deactivated``, ``start``, ``end`` and the same figures; ``windows``: per window
+        (oldest first) its ``start``, the energies of the trains that count it
+        (``energy_activated_kwh``, ``energy_deactivated_kwh``, kWh: they add up to the fleet's)
+        and how many ``trains`` do; ``coaches_by_status`` (:func:`coaches_by_status`) and
+        ``attention`` (:func:`attention`).
+    """
+    trains = session.scalars(select(Train).options(selectinload(Train.coaches)).order_by(Train.id))
+    paired = []
+    for t in trains:
+        on = [c for c in t.coaches if c.ddpc_active]
+        off = [c for c in t.coaches if not c.ddpc_active]
+        if on and off:
+            paired.append((t, on[0], off[0]))
+    times = _coach_times(session, [c for _, act, deact in paired for c in (act, deact)])
+    clocks = {c.name: c.time for c in session.scalars(select(FleetClock))}
+    ranges, pairs = [], []
+    for t, act, deact in paired:
+        stop = end or clocks.get(act.fleet) or times[act.id][1]
+        if stop is None:
+            continue  # no data and no clock: nothing to count
+        firsts = [times[c.id][0] for c in (act, deact)]
+        earliest = min((f for f in firsts if f is not None), default=None)
+        start = stop - timedelta(hours=hours)
+        first, n = queries.counted_range(start, stop, earliest, window_min)
+        ranges.append((t, act, deact, first, n, stop))
+        hi = first + pd.Timedelta(minutes=window_min * n)
+        pairs.append((act.id, deact.id, first.to_pydatetime(), hi.to_pydatetime()))
+    sums = window_sums(session, pairs, window_min)
+    fleet = PairTotals.empty(window_min)
+    out_trains, windows = [], {}
+    for t, act, deact, first, n, stop in ranges:
+        index, grid, included = pair_windows(sums.get(act.id, {}), first, n, window_min)
+        totals = pair_totals(grid, included, window_min)
+        fleet = fleet + totals
+        for w, e_act, e_deact in zip(index[included], *grid[included, 2:4].T, strict=True):
+            pooled = windows.setdefault(int(w), [0.0, 0.0, 0])
+            pooled[0], pooled[1], pooled[2] = pooled[0] + e_act, pooled[1] + e_deact, pooled[2] + 1
+        out_trains.append(
+            {
+                "id": t.id,
+                "name": t.name,
+                "activated": act.id,
+                "deactivated": deact.id,
+                "start": first.to_pydatetime(),
+                "end": stop,
+                **_totals_dict(totals),
+            }
+        )
+    clocks_now = {v["id"]: v["clock"] for v in views if v["clock"] is not None}
+    return {
+        "hours": hours,
+        "window_min": window_min,
+        **_totals_dict(fleet),
+        "trains": out_trains,
+        "windows": [
+            {
+                "start": pd.Timestamp(w * window_min * 60, unit="s", tz="UTC").to_pydatetime(),
+                "energy_activated_kwh": e_act,
+                "energy_deactivated_kwh": e_deact,
+                "trains": n,
+            }
+            for w, (e_act, e_deact, n) in sorted(windows.items())
+        ],
+        "coaches_by_status": coaches_by_status(views),
+        "attention": attention(views, comfort_violations(session, clocks_now)),
+    }
+
+
+def comfort_violations(
+    session: Session, ends: dict[str, datetime], t_max_k: float = queries.COMFORT_BAND_K
+) -> dict[str, float]:
+    """How long each coach's decks have been outside the comfort band without a break, up to
+    its newest row, over the :data:`VIOLATION_LOOKBACK_MIN` before ``ends[coach]``.
+
+    A row is within comfort when every deck is within T_rule ± T_max or the coach is not in
+    regular mode (the band applies in regular mode only).
+
+    Parameters
+    ----------
+    ends : dict
+        Coach id → the end of its lookback (its fleet clock).
+
+    Returns
+    -------
+    dict
+        Coach id → minutes from its last row within comfort to its newest row (the whole
+        lookback when no row within it was); coaches whose newest row is within comfort, or
+        without rows in the lookback, are left out. [min]
+    """
+    if not ends:
+        return {}
+    lookback = timedelta(minutes=VIOLATION_LOOKBACK_MIN)
+    c = _literal_table(
+        "lookback", {"id": ID, "lo": TIME}, [(cid, t - lookback) for cid, t in ends.items()]
+    )
+    row = Telemetry.__table__.alias("r")
+    outside = or_(*(v > 0 for v in _violation(row, t_max_k)))
+    ok = or_(row.c.mode != "regular", not_(outside))
+    found = session.execute(
+        select(row.c.coach_id, func.max(row.c.time), func.max(case((ok, row.c.time))), c.c.lo)
+        .select_from(c)
+        .join(row, and_(row.c.coach_id == c.c.id, row.c.time > c.c.lo))
+        .group_by(row.c.coach_id, c.c.lo)
+    ).all()
+    out = {}
+    for cid, newest, last_ok, lo in found:
+        if last_ok != newest:
+            out[cid] = ((newest - (last_ok or lo)).total_seconds()) / 60.0
+    return out
+
+
+def attention(views: list[dict], violating_min: dict[str, float]) -> list[dict]:
+    """The coaches that need an operator's attention, from their views (as the fleet list shows
+    them) and :func:`comfort_violations`: stale (no telemetry), in fallback (with the reason),
+    overridden, or outside the comfort band for longer than :data:`VIOLATION_ATTENTION_MIN`.
+
+    Returns
+    -------
+    list of dict
+        One entry per coach and concern: ``coach_id``, ``train_id``, ``kind`` (``stale``,
+        ``fallback``, ``override``, ``comfort``), ``status``, ``reason`` (the setpoint's reason
+        code, or None) and ``detail`` in words; stale first, then fallback, override, comfort.
+    """
+    out = []
+    for v in views:
+        base = {
+            "coach_id": v["id"],
+            "train_id": v["train_id"],
+            "status": v["status"],
+            "reason": v["reason"],
+        }
+        if v["status"] == "stale":
+            out.append({**base, "kind": "stale", "detail": "no telemetry in time"})
+        elif v["status"] == "fallback":
+            out.append(
+                {**base, "kind": "fallback", "detail": f"rule-based setpoint: {v['reason']}"}
+            )
+        elif v["status"] == "override":
+            # the newest tick issued an override's T_ref; it may have been cancelled since
+            until = v["override_until"]
+            when = f" until {until:%Y-%m-%d %H:%M} UTC" if until is not None else ""
+            out.append({**base, "kind": "override", "detail": f"operator's setpoint{when}"})
+        minutes = violating_min.get(v["id"], 0.0)
+        if minutes > VIOLATION_ATTENTION_MIN:
+            more = "more than " if minutes >= VIOLATION_LOOKBACK_MIN else ""
+            out.append(
+                {
+                    **base,
+                    "kind": "comfort",
+                    "detail": f"outside the comfort band for {more}{minutes:.0f} min",
+                }
+            )
+    order = {"stale": 0, "fallback": 1, "override": 2, "comfort": 3}
+    return sorted(out, key=lambda e: (order[e["kind"]], e["coach_id"]))
+
+
+def coaches_by_status(views: list[dict]) -> dict[str, int]:
+    """Status → how many coaches have it (as the fleet list shows them)."""
+    return dict(sorted(Counter(v["status"] for v in views).items()))

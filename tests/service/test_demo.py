@@ -1,0 +1,142 @@
+"""The demo fleet driven directly (no server, SQLite): its trains and their pairing, and the
+afternoon of its first day, 12:30–15:00 local (30 periods, ≈ 4 s): D9-A's daily connection loss
+(14:00–14:40) leaves it on T_rule while the DDPC setpoints issued for it do not arrive, and on D8's
+mild day heating and cooling alternate. A simulator state stored by a fleet of another size (by
+the three-train demo of earlier versions) starts the coaches afresh instead of failing every
+period.
+"""
+
+from __future__ import annotations
+
+import logging
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from sqlalchemy import func, select
+
+from trainclimate.service.adapters import demo
+from trainclimate.service.app import register_model_file
+from trainclimate.service.scheduler import Scheduler
+from trainclimate.service.settings import Settings
+from trainclimate.service.store.db import Database, migrate
+from trainclimate.service.store.models import Coach, FleetClock, Setpoint, Telemetry, Train
+from trainclimate.service.store.telemetry import load_frame
+from trainclimate.sim import hvac, scenarios
+from trainclimate.sim.simulator import FleetSimulator
+
+TRAINS = {t.id: t for t in demo.TRAINS}
+PERIOD = timedelta(minutes=5)
+
+
+def local(clock: str) -> datetime:
+    """Local ``"HH:MM"`` on the demo's first day, in UTC."""
+    day = demo.START_LOCAL.split()[0]
+    return pd.Timestamp(f"{day} {clock}", tz=demo.LOCAL_TZ).tz_convert("UTC").to_pydatetime()
+
+
+def demo_fleet(home: Path, model_file: Path) -> demo.DemoFleet:
+    """The demo fleet registered on a fresh SQLite database with the small model."""
+    url = f"sqlite:///{home / 'trainclimate.db'}"
+    settings = Settings(database_url=url, predictor_path=model_file)
+    migrate(url)
+    db = Database(url)
+    with db.transaction() as session:
+        register_model_file(session, settings)
+        demo.register(session)
+    return demo.DemoFleet(db, Scheduler(db, settings), speedup=300)
+
+
+@pytest.fixture(scope="module")
+def afternoon(tmp_path_factory, model_file):
+    """The fleet run from 12:30 to 15:00 local: the activated coaches' layer has its hour of
+    lead-in by 13:30 and issues DDPC setpoints from then on."""
+    fleet = demo_fleet(tmp_path_factory.mktemp("demo"), model_file)
+    with fleet.db.transaction() as session:
+        session.get(FleetClock, demo.FLEET).time = local("12:30")
+    while fleet.advance() < local("15:00"):
+        pass
+    yield fleet
+    fleet.db.dispose()
+
+
+def test_at_least_ten_trains_of_an_activated_and_a_deactivated_coach(afternoon):
+    with afternoon.db.transaction() as session:
+        trains = dict(session.execute(select(Train.id, Train.name)).all())
+        coaches = session.scalars(select(Coach).where(Coach.fleet == demo.FLEET)).all()
+    assert len(trains) >= 10 and len(coaches) == 2 * len(trains) >= 20
+    pairing = {(c.id, c.train_id, c.ddpc_active) for c in coaches}
+    assert pairing == {(f"{t}-{side}", t, side == "A") for t in trains for side in "AB"}
+    assert sorted(demo.coach_ids()) == sorted(c.id for c in coaches)
+    assert len(set(trains.values())) == len(trains)  # each name says where its train is
+    assert trains["D1"] == "parked outdoors in Zug (like Experiment 4)"
+
+
+def test_a_lost_connection_leaves_the_coach_on_t_rule_and_its_twin_connected(afternoon):
+    assert TRAINS["D9"].connection_loss == ("14:00", "14:40")
+    start, end = (local(clock) for clock in TRAINS["D9"].connection_loss)
+    with afternoon.db.transaction() as session:
+        a, b = (
+            load_frame(session, cid, local("12:30"), local("15:00")) for cid in ("D9-A", "D9-B")
+        )
+        issued = {
+            tick: (t_ref, t_rule)
+            for tick, t_ref, t_rule in session.execute(
+                select(Setpoint.tick, Setpoint.t_ref_c, Setpoint.t_rule_c).where(
+                    Setpoint.coach_id == "D9-A", Setpoint.source == "ddpc"
+                )
+            )
+        }
+        disconnected = session.scalar(select(func.count()).where(Telemetry.connected.is_(False)))
+    lost = (a.index > start) & (a.index <= end)  # a row covers the minute up to its time
+    assert lost.sum() == 40 and disconnected == 40  # no other coach, no other minute
+    assert not a["connected"][lost].astype(bool).any()
+    assert a["connected"][~lost].astype(bool).all() and b["connected"].astype(bool).all()
+    # the layer's setpoints for the loss were issued, away from T_rule, but never applied
+    during = a[lost]
+    assert (during["t_ref_c"] == during["t_rule_c"]).all()
+    ticks = [t for t in sorted(issued) if start <= t < end]
+    assert ticks == [start + i * PERIOD for i in range(8)]
+    assert all(issued[t][0] < issued[t][1] for t in ticks)
+    # before it (the layer active from 13:30) and after it the coach follows them
+    for window in ((a.index > local("13:35")) & (a.index <= start), a.index > end):
+        assert (a["t_ref_c"][window] < a["t_rule_c"][window]).all()
+
+
+def test_on_the_mild_day_heating_and_cooling_alternate(afternoon):
+    sim = afternoon.sim
+    run = slice(int(np.searchsorted(sim.env.time, pd.Timestamp(local("12:30")))), sim.k)
+    result = sim.result()
+    heating = result.power_w["heater"][run] + result.power_w["floor_wall"][run]
+    cooling = result.power_w["compressor"][run]
+    for cid in ("D8-A", "D8-B"):
+        c = afternoon.ids.index(cid)
+        assert (result.hvac_state[run, c] == hvac.MIXED).any(), cid
+        assert (heating[:, c] > 0).any() and (cooling[:, c] > 0).any(), cid
+        # a deck's unit switches between heating and cooling, back and forth
+        sign = np.sign(result.q_hvac_w[run, c, 1])
+        assert (np.diff(sign[sign != 0]) != 0).sum() >= 10, cid
+    # on the cold day the other parked trains only heat
+    for cid in ("D1-A", "D1-B", "D3-A", "D7-A"):
+        c = afternoon.ids.index(cid)
+        assert (heating[:, c] > 0).any() and (cooling[:, c] == 0).all(), cid
+
+
+def test_a_state_stored_by_a_fleet_of_another_size_starts_the_coaches_afresh(
+    tmp_path, model_file, caplog
+):
+    fleet = demo_fleet(tmp_path, model_file)
+    env, params = scenarios.build(scenarios.get("parked-heating-nov"), n_coaches=6, hours=1.0)
+    with fleet.db.transaction() as session:
+        session.get(FleetClock, demo.FLEET).state = FleetSimulator(params, env).snapshot()
+    with caplog.at_level(logging.WARNING, logger=demo.__name__):
+        t1 = fleet.advance()
+    n = len(demo.coach_ids())
+    assert f"the stored demo state is of 6 coaches, the fleet has {n}" in caplog.text
+    with fleet.db.transaction() as session:
+        assert len(session.get(FleetClock, demo.FLEET).state["T"]) == n
+        reported = session.scalars(select(Telemetry.coach_id).where(Telemetry.time == t1)).all()
+    assert sorted(reported) == sorted(demo.coach_ids())
+    fleet.db.dispose()
