@@ -35,6 +35,7 @@ def test_the_service_benchmark_runs_at_a_small_scale():
     assert c["large"]["windows_per_reply"] in (47, 48)
     assert c["summary"]["large"]["trains_per_reply"] == 2 and c["summary"]["large"]["requests"] == 3
     assert c["summary"]["small"]["trains_per_reply"] == 1
+    assert c["summary"]["new_range"]["large"]["requests"] == 3
     assert d["target"]["summary_p95_ms"] == 150.0
     assert c["copy"]["rows"] == c["large"]["rows_stored"] and c["copy"]["rows_per_s"] > 0
     # the timed tick reached every coach: the activated ones past their lead-in solve

@@ -49,8 +49,9 @@ class Settings(BaseSettings):
     API's requests (anyio's limit), as many requests admitted at once, and the database pool
     sized to them (:mod:`trainclimate.service.store.db`); a request beyond them waits up to
     ``overload_wait_s`` seconds for its turn, else answers 503; ``read_cache_size`` the answers
-    kept, a view per coach and a comparison per train and range (least recently used go first;
-    :mod:`trainclimate.service.store.cache`; at least the fleet's coaches; 0: none);
+    kept, a view per coach, a comparison per train and range, the fleet summary's sums per train
+    and range (least recently used go first; :mod:`trainclimate.service.store.cache`; at least
+    the fleet's coaches and trains; 0: none);
     ``mqtt_url`` (``--mqtt``) a broker to take
     telemetry from and publish setpoints to, with its ``mqtt_username``, ``mqtt_password``
     (env ``TRAINCLIMATE_MQTT_PASSWORD``), ``mqtt_ca_file``, topic ``mqtt_prefix`` and the

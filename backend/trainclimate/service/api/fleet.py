@@ -34,4 +34,4 @@ def get_fleet_summary(
         queries.checked_range(end, None, timedelta(hours=hours))  # the API's bounds
     live = queries.live_clock(s)
     views = [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
-    return fleet_summary.summary(s, views, hours, end)
+    return fleet_summary.summary(s, views, hours, end, cache=request.app.state.read_cache)

@@ -1,5 +1,5 @@
-"""An in-process cache of the expensive reads: each coach's view (the fleet list is made of them)
-and the pair comparisons.
+"""An in-process cache of the expensive reads: each coach's view (the fleet list is made of them),
+the pair comparisons, and the fleet summary's sums per train.
 
 An answer is kept under its request's key (a coach; a train, range and window length) together
 with the state of everything it is computed from, read from the database at the start of each
@@ -76,3 +76,25 @@ class ReadCache:
                 self._answers.popitem(last=False)
         mine.set_result(answer)
         return answer
+
+    def lookup(self, key: Hashable, state: Hashable) -> Any | None:
+        """The answer kept under ``key`` if it was computed in ``state``, else None (counted as
+        a hit or a miss). For callers that compute many answers at once and :meth:`put` them."""
+        with self._lock:
+            kept = self._answers.get(key)
+            if kept is not None and kept[0] == state:
+                self._answers.move_to_end(key)
+                self.hits += 1
+                return kept[1]
+            self.misses += 1
+            return None
+
+    def put(self, key: Hashable, state: Hashable, answer: Any) -> None:
+        """Keep ``answer`` under ``key``, computed in ``state`` (nothing with ``size`` 0)."""
+        if self.size == 0:
+            return
+        with self._lock:
+            self._answers[key] = (state, answer)
+            self._answers.move_to_end(key)
+            if len(self._answers) > self.size:
+                self._answers.popitem(last=False)

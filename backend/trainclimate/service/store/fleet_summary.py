@@ -40,6 +40,7 @@ from sqlalchemy.sql.expression import ColumnElement, FunctionElement
 
 from trainclimate.analysis.savings import PairTotals
 from trainclimate.service.store import queries
+from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.models import (
     Coach,
     FleetClock,
@@ -116,11 +117,34 @@ def _literal_table(name: str, columns: dict, rows: list[tuple]):
     ).cte(name)
 
 
+def overrides_over(session: Session, pairs: list[tuple[str, str, datetime, datetime]]) -> list:
+    """The overrides of the pairs' coaches that overlap the union of their ranges: rows of
+    (id, coach_id, starts_at, ends_at, cancelled_at), by id."""
+    if not pairs:
+        return []
+    return session.execute(
+        select(
+            Override.id,
+            Override.coach_id,
+            Override.starts_at,
+            Override.ends_at,
+            Override.cancelled_at,
+        )
+        .where(Override.coach_id.in_({c for pair in pairs for c in pair[:2]}))
+        .where(
+            Override.starts_at < max(x[3] for x in pairs),
+            Override.ends_at > min(x[2] for x in pairs),
+        )
+        .order_by(Override.id)
+    ).all()
+
+
 def window_sums(
     session: Session,
     pairs: list[tuple[str, str, datetime, datetime]],
     window_min: float = 30.0,
     t_max_k: float = queries.COMFORT_BAND_K,
+    overrides: list | None = None,
 ) -> dict[str, dict[int, np.ndarray]]:
     """Per pair and window, the sums a pair comparison is made of, read in one statement.
 
@@ -132,6 +156,8 @@ def window_sums(
         Window length. [min]
     t_max_k : float
         Comfort half-band T_max. [K]
+    overrides : list, optional
+        :func:`overrides_over` the pairs (read here if not given).
 
     Returns
     -------
@@ -146,16 +172,9 @@ def window_sums(
     if not pairs:
         return {}
     p = _literal_table("pairs", {"act": ID, "deact": ID, "lo": TIME, "hi": TIME}, pairs)
+    if overrides is None:
+        overrides = overrides_over(session, pairs)
     a, b = Telemetry.__table__.alias("a"), Telemetry.__table__.alias("b")
-    ids = {c for pair in pairs for c in pair[:2]}
-    overrides = session.execute(
-        select(Override.coach_id, Override.starts_at, Override.ends_at, Override.cancelled_at)
-        .where(Override.coach_id.in_(ids))
-        .where(
-            Override.starts_at < max(x[3] for x in pairs),
-            Override.ends_at > min(x[2] for x in pairs),
-        )
-    ).all()
     overridden = or_(
         false(),
         *(
@@ -164,7 +183,7 @@ def window_sums(
                 a.c.time > starts,
                 a.c.time <= (cancelled or ends),
             )
-            for cid, starts, ends, cancelled in overrides
+            for _, cid, starts, ends, cancelled in overrides
         ),
     )
     affected = or_(
@@ -307,17 +326,74 @@ def _totals_dict(t: PairTotals) -> dict:
 
 
 def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
-    """Each coach's first and newest telemetry time, in one statement of index probes."""
+    """Each coach's first and newest telemetry time: two index probes per coach, in one
+    statement (one plan for all coaches)."""
     if not coaches:
         return {}
-    cols = []
-    for c in coaches:
-        for agg in (func.min, func.max):
-            cols.append(
-                select(agg(Telemetry.time)).where(Telemetry.coach_id == c.id).scalar_subquery()
-            )
-    row = session.execute(select(*cols)).one()
-    return {c.id: (row[2 * i], row[2 * i + 1]) for i, c in enumerate(coaches)}
+    of_coach = Telemetry.coach_id == Coach.id
+    first = select(func.min(Telemetry.time)).where(of_coach).scalar_subquery()
+    newest = select(func.max(Telemetry.time)).where(of_coach).scalar_subquery()
+    rows = session.execute(
+        select(Coach.id, first, newest).where(Coach.id.in_([c.id for c in coaches]))
+    )
+    return {cid: (t0, t1) for cid, t0, t1 in rows}
+
+
+def _pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
+    """What each pair's :func:`window_sums` over its range (lo, hi] are computed from: each
+    coach's number of rows in the range (telemetry is only ever inserted: a new row in the range
+    changes its count; rows after it, the current window's, do not) and the overrides of either
+    coach overlapping it, as they are (a cancellation changes them). One statement of index-only
+    counts."""
+    if not pairs:
+        return []
+    p = _literal_table("pairs", {"act": ID, "deact": ID, "lo": TIME, "hi": TIME}, pairs)
+
+    def rows_of(coach):
+        return (
+            select(func.count())
+            .select_from(Telemetry)
+            .where(Telemetry.coach_id == coach, Telemetry.time > p.c.lo, Telemetry.time <= p.c.hi)
+            .scalar_subquery()
+        )
+
+    counts = dict(
+        ((a, d), (n_a, n_d))
+        for a, d, n_a, n_d in session.execute(
+            select(p.c.act, p.c.deact, rows_of(p.c.act), rows_of(p.c.deact))
+        )
+    )
+    states = []
+    for act, deact, lo, hi in pairs:
+        mine = tuple(
+            tuple(o) for o in overrides if o[1] in (act, deact) and o[2] < hi and o[3] > lo
+        )
+        states.append((*counts[act, deact], mine))
+    return states
+
+
+def _cached_window_sums(
+    session: Session, pairs: list, window_min: float, cache: ReadCache | None
+) -> dict[str, dict[int, np.ndarray]]:
+    """:func:`window_sums` of ``pairs``, those whose state (:func:`_pair_states`) is unchanged
+    since they were computed taken from ``cache``, the others computed together and kept."""
+    overrides = overrides_over(session, pairs)
+    if cache is None:
+        return window_sums(session, pairs, window_min, overrides=overrides)
+    keys = [("fleet-summary", *pair, window_min) for pair in pairs]
+    states = _pair_states(session, pairs, overrides)
+    sums, missing = {}, []
+    for pair, key, state in zip(pairs, keys, states, strict=True):
+        kept = cache.lookup(key, state)
+        if kept is None:
+            missing.append((pair, key, state))
+        else:
+            sums[pair[0]] = kept
+    computed = window_sums(session, [m[0] for m in missing], window_min, overrides=overrides)
+    for pair, key, state in missing:
+        sums[pair[0]] = computed.get(pair[0], {})
+        cache.put(key, state, sums[pair[0]])
+    return sums
 
 
 def summary(
@@ -326,13 +402,17 @@ def summary(
     hours: float,
     end: datetime | None = None,
     window_min: float = 30.0,
+    cache: ReadCache | None = None,
 ) -> dict:
     """The fleet at a glance: savings and comfort of every train over the ``hours`` up to
     ``end`` (default: each train's fleet clock — the demo's simulated time, the live fleet's
     newest telemetry) and the fleet's, pooled; the coaches by status and those that need
     attention now, from their ``views`` (as the fleet list shows them,
     :func:`.queries.coach_view`). Trains without both an activated and a deactivated coach are
-    left out.
+    left out. With ``cache``, each pair's window sums are kept there while its rows in the range
+    and its overrides are unchanged: the range ends at the last whole window, so rows arriving
+    in the current one leave it unchanged, and the dashboard's refreshes read a few index-only
+    counts instead of every row.
 
     Returns
     -------
@@ -368,7 +448,7 @@ def summary(
         ranges.append((t, act, deact, first, n, stop))
         hi = first + pd.Timedelta(minutes=window_min * n)
         pairs.append((act.id, deact.id, first.to_pydatetime(), hi.to_pydatetime()))
-    sums = window_sums(session, pairs, window_min)
+    sums = _cached_window_sums(session, pairs, window_min, cache)
     fleet = PairTotals.empty(window_min)
     out_trains, windows = [], {}
     for t, act, deact, first, n, stop in ranges:
