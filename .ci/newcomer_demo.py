@@ -2,10 +2,12 @@
 
 ``make demo`` with ``HOME`` pointing at a directory that does not exist yet and no
 ``TRAINCLIMATE_*`` variable set; it must print its URL and an operator token within 15 s of the
-install finishing (make echoes the serve command when the install is done), the token must read
-the fleet, and an activated coach must get its first DDPC setpoint within 5 min. Then the demo is
-stopped with Ctrl-C. Exit 1 with the demo's output on any failure. Standard library only: this
-runs before anything is installed.
+install finishing (make echoes the serve command when the install is done), the URL opened in
+Chromium with nothing typed must show the fleet overview with its charts within a minute, the
+token must read the fleet, and an activated coach must get its first DDPC setpoint within 5 min.
+Then the demo is stopped with Ctrl-C. Exit 1 with the demo's output on any failure. Standard
+library only: this runs before anything is installed (the browser is driven by the Playwright
+that ``make demo`` installs into ``.venv``).
 """
 
 from __future__ import annotations
@@ -26,6 +28,25 @@ ROOT = Path(__file__).resolve().parents[1]
 URL_WITHIN_S = 15.0
 DDPC_WITHIN_S = 300.0
 INSTALL_WITHIN_S = 900.0
+OVERVIEW_WITHIN_S = 60.0
+CHROMIUM = Path("/usr/bin/chromium")
+#: Opens the printed URL (argv[1]) and waits for the overview's charts to have data.
+OPEN_OVERVIEW = """
+import sys
+from playwright.sync_api import sync_playwright
+with sync_playwright() as p:
+    args = ["--no-sandbox", "--disable-gpu"]
+    b = p.chromium.launch(executable_path="/usr/bin/chromium", args=args)
+    page = b.new_page()
+    page.goto(sys.argv[1])
+    page.wait_for_function(
+        "() => ['#energy-figure', '#savings-figure']"
+        ".every((s) => (document.querySelector(s) || {}).data)",
+        timeout=float(sys.argv[2]) * 1000,
+    )
+    assert "token" not in page.url, page.url
+    b.close()
+"""
 
 
 def fail(message: str, log: list[str]) -> None:
@@ -88,6 +109,29 @@ def main() -> None:
         url_s = seen["token"] - installed
         base, token = seen["url_text"].split("#")[0].rstrip("/"), seen["token_text"]
         print(f"newcomer: URL and token {url_s:.1f} s after the install", file=sys.stderr)
+        if CHROMIUM.exists():
+            opened = subprocess.run(
+                [
+                    ROOT / ".venv/bin/python",
+                    "-c",
+                    OPEN_OVERVIEW,
+                    seen["url_text"],
+                    str(OVERVIEW_WITHIN_S),
+                ],
+                capture_output=True,
+                text=True,
+            )
+            if opened.returncode != 0:
+                fail(f"the printed URL did not show the overview's charts: {opened.stderr}", log)
+            overview_s = time.monotonic() - installed
+            print(
+                f"newcomer: overview with its charts {overview_s:.1f} s after the install",
+                file=sys.stderr,
+            )
+        else:
+            print(
+                f"newcomer: no Chromium at {CHROMIUM}: the overview is not opened", file=sys.stderr
+            )
         coaches = get(f"{base}/api/v1/coaches", token)
         active = [c["id"] for c in coaches if c["ddpc_active"]]
         if not active:
