@@ -13,20 +13,22 @@ service's stored telemetry):
 Each campaign's export differs (:data:`FORMATS`): Winter/Spring 2022 files are semicolon-separated
 with decimal commas, German column names and local Zurich time without offset; Summer 2023 files
 are comma-separated ISO 8601 UTC with English names and the speed in m/s. :func:`read_source`
-recognises a file's campaign and source from its header, so files can be read in any layout.
+recognises a file's campaign and source from its header's column names, so files can be read in
+any layout, and reads them as real exports come (encodings, separators, quotes, column order).
 
 Files are named ``<campaign>/<source>/<train>_<coach>_<YYYY-MM-DD>.csv`` (:func:`log_path`).
 """
 
 from __future__ import annotations
 
+import codecs
 import csv
-import io
 import re
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import charset_normalizer
 import numpy as np
 import pandas as pd
 
@@ -126,7 +128,9 @@ SUMMER_FORMAT = ExportFormat(
 
 FORMATS = {f.name: f for f in (WINTER_FORMAT, SUMMER_FORMAT)}
 
-_NAME = re.compile(r"^(?P<train>[^_]+)_(?P<coach>[^_]+)_(?P<day>\d{4}-\d{2}-\d{2})\.csv$")
+_NAME = re.compile(
+    r"^(?P<train>[^_]+)_(?P<coach>[^_]+)_(?P<day>\d{4}-\d{2}-\d{2})\.csv$", re.IGNORECASE
+)
 
 
 def log_path(root: Path, campaign: str, source: str, train: str, coach: str, day: str) -> Path:
@@ -174,31 +178,96 @@ def write_export(frame: pd.DataFrame, path: Path, fmt: ExportFormat) -> None:
 
 
 # --- reading ---------------------------------------------------------------------------------
+#: The field separators an export may use (a spreadsheet's CSV export follows its locale).
+DELIMITERS = (";", ",", "\t")
+#: What a file that is not UTF-8 is read as: the Windows and ISO code pages of Western Europe.
+LEGACY_ENCODINGS = ("cp1252", "latin_1")
+
+
 @dataclass
 class SourceTable:
-    """A raw file read into its canonical table, with what reading had to drop."""
+    """A raw file read into its canonical table, with what reading had to drop and how the file
+    was written: ``encoding``, ``delimiter``, the ``extra_columns`` it has besides the source's
+    (ignored) and ``rows_read`` (its non-blank lines after the header)."""
 
     source: str
     campaign: str
     frame: pd.DataFrame
     dropped: Counter = field(default_factory=Counter)
+    encoding: str = "utf-8"
+    delimiter: str = ","
+    extra_columns: tuple[str, ...] = ()
+    rows_read: int = 0
 
 
-def _detect(header_line: str) -> tuple[ExportFormat, str]:
-    for fmt in FORMATS.values():
-        names = tuple(h.strip() for h in header_line.rstrip("\r\n").split(fmt.sep))
-        for source in SOURCES:
-            if names == fmt.header[source]:
-                return fmt, source
-    raise FormatError(f"unrecognised header {header_line.strip()[:80]!r}")
+def decode(data: bytes) -> tuple[str, str]:
+    """A file's text and its encoding: UTF-8 (with or without a byte-order mark), else what
+    charset-normalizer finds among :data:`LEGACY_ENCODINGS` (Excel on a Swiss or German Windows
+    writes Windows-1252). Raises :class:`FormatError` for bytes that are none of them."""
+    if data.startswith(codecs.BOM_UTF8):
+        return data[len(codecs.BOM_UTF8) :].decode("utf-8"), "utf-8-sig"
+    try:
+        return data.decode("utf-8"), "utf-8"
+    except UnicodeDecodeError:
+        pass
+    best = charset_normalizer.from_bytes(data, cp_isolation=list(LEGACY_ENCODINGS)).best()
+    if best is None:
+        raise FormatError("not text: neither UTF-8 nor Windows-1252")
+    return str(best), best.encoding
+
+
+def _fields(line: str, delimiter: str) -> list[str]:
+    """One line's fields, quotes honoured within the line (a stray quote cannot swallow the
+    lines after it) and surrounding blanks stripped."""
+    return [f.strip() for f in next(csv.reader([line], delimiter=delimiter))]
+
+
+@dataclass(frozen=True)
+class _Layout:
+    fmt: ExportFormat
+    source: str
+    delimiter: str
+    names: tuple[str, ...]  # the header's column names, a trailing empty one dropped
+
+    def position(self, col: str) -> int:
+        """Where canonical column ``col`` is in the file."""
+        return self.names.index(self.fmt.columns[self.source][col])
+
+    @property
+    def extra(self) -> tuple[str, ...]:
+        return tuple(n for n in self.names if n not in self.fmt.header[self.source])
+
+
+def _detect(header_line: str) -> _Layout:
+    """The format, source and delimiter whose column names the header holds, in any order, with
+    any other columns besides (a trailing separator's empty name dropped)."""
+    for delimiter in DELIMITERS:
+        names = _fields(header_line, delimiter)
+        while names and names[-1] == "":
+            names.pop()
+        if len(set(names)) != len(names):
+            continue
+        for fmt in FORMATS.values():
+            for source in SOURCES:
+                if set(fmt.header[source]) <= set(names):
+                    return _Layout(fmt, source, delimiter, tuple(names))
+    raise FormatError(f"unrecognised header {header_line.strip()!r}")
 
 
 def _parse_times(text: pd.Series, fmt: ExportFormat) -> pd.DatetimeIndex:
-    """Export times → UTC; unparseable, non-existent (DST gap) or ambiguous local times → NaT."""
+    """Export times → UTC, with or without seconds; unparseable, non-existent (DST gap) or
+    ambiguous local times → NaT."""
     if fmt.timezone == "UTC" and fmt.time_format.startswith("%Y-%m-%dT"):
         # ISO 8601 in UTC: pandas' ISO parser is an order of magnitude faster than strptime
         return pd.DatetimeIndex(pd.to_datetime(text, format="ISO8601", errors="coerce", utc=True))
-    index = pd.DatetimeIndex(pd.to_datetime(text, format=fmt.time_format, errors="coerce"))
+    index = pd.to_datetime(text, format=fmt.time_format, errors="coerce")
+    if index.isna().any():  # a spreadsheet saves times without their seconds
+        minutes = fmt.time_format.replace(":%S", "")
+        other = pd.to_datetime(text, format=minutes, errors="coerce")
+        # (in the unit a time with seconds is read in, whichever way each was written)
+        unit = pd.to_datetime(pd.Series(["2000-01-01 00:00:00"])).dt.unit
+        index = index.astype(f"datetime64[{unit}]").fillna(other.astype(f"datetime64[{unit}]"))
+    index = pd.DatetimeIndex(index)
     if fmt.timezone == "UTC":
         return index.tz_localize("UTC")
     return index.tz_localize(fmt.timezone, nonexistent="NaT", ambiguous="NaT").tz_convert("UTC")
@@ -207,37 +276,39 @@ def _parse_times(text: pd.Series, fmt: ExportFormat) -> pd.DatetimeIndex:
 def read_source(path: str | Path) -> SourceTable:
     """Read one raw log file of either campaign into its canonical table.
 
+    The file may be written as real exports are (see ``docs/data.md``): UTF-8 with or without a
+    byte-order mark or Windows-1252 (:func:`decode`), fields separated by semicolons, commas or
+    tabs and quoted or not, a trailing separator, the source's columns by name in any order with
+    others besides (ignored, and named in ``extra_columns``), numbers with a decimal point or
+    comma, times with or without seconds.
+
     Rows that cannot be parsed — the wrong number of fields, an unreadable time or number, an
     unknown mode label — are dropped and counted as ``unparseable``; empty fields become NaN for
-    the pipeline to judge. Raises :class:`FormatError` (or OSError / UnicodeDecodeError) for a
-    file that is not a fleet log at all.
+    the pipeline to judge. Raises :class:`FormatError` (or OSError) for a file that is not a
+    fleet log at all.
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
+    text, encoding = decode(path.read_bytes())
     # the non-blank lines as the CSV parser splits them (\n, \r\n or \r)
     lines = [line for line in re.split(r"\r\n?|\n", text) if line.strip()]
     if not lines:
         raise FormatError("empty file")
-    fmt, source = _detect(lines[0])
-    # A row with the wrong number of fields is unparseable. (The parser pads a short row with
-    # empty fields, indistinguishable from empty values, so rows are counted here; and quotes mean
-    # nothing in these exports: a stray one must not swallow the lines after it.)
-    good = [line for line in lines[1:] if line.count(fmt.sep) == len(fmt.header[source]) - 1]
-    dropped = Counter(unparseable=len(lines) - 1 - len(good))
-    raw = pd.read_csv(
-        io.StringIO("\n".join([lines[0], *good])),
-        sep=fmt.sep,
-        dtype=str,
-        keep_default_na=False,
-        quoting=csv.QUOTE_NONE,
-        engine="c",
-    )
+    layout = _detect(lines[0])
+    fmt, source, width = layout.fmt, layout.source, len(layout.names)
+    rows = []
+    for line in lines[1:]:
+        fields = _fields(line, layout.delimiter)
+        while len(fields) > width and fields[-1] == "":  # a trailing separator
+            fields.pop()
+        if len(fields) == width:
+            rows.append(fields)
+    dropped = Counter(unparseable=len(lines) - 1 - len(rows))
+    raw = pd.DataFrame(rows, columns=list(layout.names), dtype=object)
 
-    cols = fmt.columns[source]
     out: dict[str, object] = {}
     ok = np.ones(len(raw), dtype=bool)
     for col in CANONICAL[source]:
-        values = raw[cols[col]].str.strip()
+        values = raw.iloc[:, layout.position(col)].astype(str)
         if col in TIME_COLUMNS[source]:
             times = _parse_times(values, fmt)
             ok &= ~times.isna()
@@ -250,11 +321,20 @@ def read_source(path: str | Path) -> SourceTable:
         elif col in TEXT_COLUMNS[source]:
             out[col] = values.to_numpy(dtype=object)
         else:
-            if fmt.decimal != ".":
-                values = values.str.replace(fmt.decimal, ".", regex=False)
+            # a comma in a number field is a decimal comma, whatever the campaign
+            values = values.str.replace(",", ".", regex=False)
             num = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
             ok &= ~(np.isnan(num) & (values != "").to_numpy())
             out[col] = num / fmt.speed_factor if col == "speed_kmh" else num
-    frame = pd.DataFrame(out).loc[ok]
+    frame = pd.DataFrame(out, index=raw.index).loc[ok]
     dropped["unparseable"] += int((~ok).sum())
-    return SourceTable(source, fmt.name, frame.reset_index(drop=True), +dropped)
+    return SourceTable(
+        source,
+        fmt.name,
+        frame.reset_index(drop=True),
+        +dropped,
+        encoding=encoding,
+        delimiter=layout.delimiter,
+        extra_columns=layout.extra,
+        rows_read=len(lines) - 1,
+    )

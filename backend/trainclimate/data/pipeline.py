@@ -352,7 +352,9 @@ def process_coach_day(
         for name, frame in sources.items()
     }
     fused = fuse(cleaned["hvac"], cleaned.get("weather"), cleaned.get("trips"), settings, counts)
-    fused = fused[(fused["time"] >= start) & (fused["time"] < end)]
+    inside = (fused["time"] >= start) & (fused["time"] < end)
+    counts.dropped["outside_day_window"] += int((~inside).sum())
+    fused = fused[inside]
     if not len(fused):
         return out, counts
     pieces = segment(aggregate(fused, start, end), settings, counts)
@@ -378,7 +380,11 @@ class DatasetSummary:
     coach_days: int
     raw_rows: int
     #: the Parquet file of each sampling time, relative to the output directory
-    files: dict[str, str]
+    outputs: dict[str, str]
+    #: per raw file (relative to the raw directory): ``source``, ``campaign``, ``encoding``,
+    #: ``delimiter``, ``rows_read``, ``rows_kept`` (by the reader), ``dropped`` (reason → rows),
+    #: ``extra_columns``; or ``error`` for a file not read, ``ignored`` for one not used
+    files: list[dict]
 
     def to_dict(self) -> dict:
         """JSON-ready, as ``dataset.json`` holds it."""
@@ -404,7 +410,7 @@ def discover(raw: Path) -> tuple[dict[tuple[str, str, str, str], list[Path]], li
     are returned as warnings."""
     groups: dict[tuple[str, str, str, str], list[Path]] = defaultdict(list)
     skipped = []
-    for path in sorted(raw.rglob("*.csv")):
+    for path in sorted(p for p in raw.rglob("*") if p.suffix.lower() == ".csv" and p.is_file()):
         parsed = parse_log_name(path)
         if parsed is None or len(path.relative_to(raw).parts) < 3:
             skipped.append(str(path))
@@ -438,8 +444,13 @@ def build_dataset(
     writable_dir(out, "the dataset", hint="choose another output directory")
     expected = {str(Path(p).resolve()) for p in expected_unreadable}
     groups, skipped = discover(raw)
+    files: list[dict] = []
     for path in skipped:
         log.warning("skipped %s: not named <campaign>/<source>/<train>_<coach>_<day>.csv", path)
+        where = str(Path(path).relative_to(raw))
+        files.append(
+            {"path": where, "error": "not named <campaign>/<source>/<train>_<coach>_<day>.csv"}
+        )
     if not groups:
         raise PipelineError(f"no raw log files under {raw}")
     total = Counts()
@@ -450,18 +461,35 @@ def build_dataset(
     paths = {s: out / f"trajectories_{s}min.parquet" for s in settings.sampling_min}
     writers = {s: TrajectoryWriter(p) for s, p in paths.items()}
     try:
-        for (campaign_dir, train, coach, day), files in groups.items():
+        for (campaign_dir, train, coach, day), paths_of_day in groups.items():
             sources: dict[str, pd.DataFrame | None] = {"hvac": None, "weather": None, "trips": None}
             campaign = campaign_dir
-            for path in files:
+            for path in paths_of_day:
+                where = str(path.relative_to(raw))
                 try:
                     table = read_source(path)
-                except (FormatError, OSError, UnicodeDecodeError, ValueError) as exc:
+                except (FormatError, OSError, ValueError) as exc:
                     unreadable.append(str(path))
+                    files.append({"path": where, "error": str(exc).splitlines()[0]})
                     if str(path.resolve()) not in expected:
                         log.warning("unreadable raw file %s: %s", path, str(exc).splitlines()[0])
                     continue
+                report = {
+                    "path": where,
+                    "source": table.source,
+                    "campaign": table.campaign,
+                    "encoding": table.encoding,
+                    "delimiter": table.delimiter,
+                    "rows_read": table.rows_read,
+                    "rows_kept": len(table.frame),
+                    "dropped": dict(sorted(table.dropped.items())),
+                    "extra_columns": list(table.extra_columns),
+                }
+                files.append(report)
+                if table.extra_columns:
+                    log.info("%s: columns ignored: %s", path, ", ".join(table.extra_columns))
                 if sources.get(table.source) is not None:
+                    report["ignored"] = f"a second {table.source} file for the coach-day"
                     log.warning(
                         "ignored %s: a second %s file for the coach-day", path, table.source
                     )
@@ -515,7 +543,8 @@ def build_dataset(
         unreadable_as_generated=as_generated,
         coach_days=len(groups),
         raw_rows=raw_rows,
-        files={f"{s}min": p.name for s, p in paths.items()},
+        outputs={f"{s}min": p.name for s, p in paths.items()},
+        files=files,
     )
     (out / "dataset.json").write_text(
         json.dumps({**summary.to_dict(), "settings": asdict(settings)}, indent=2) + "\n"

@@ -1,0 +1,105 @@
+"""Real exports of the same logs: each way a spreadsheet or a logger's export tool writes a file
+reads back to exactly the table of the plain export, and the file's report says how it was
+written."""
+
+import pandas as pd
+import pytest
+
+from trainclimate.data.formats import read_source
+from trainclimate.data.pipeline import discover
+
+WINTER_HVAC = [
+    ["Zeit", "Betriebsart", "T_Soll", "T_Raum_OG", "T_Raum_MG", "T_Raum_UG", "Geschwindigkeit_kmh"],
+    ["22.02.2022 05:13:00", "Normal", "22,00", "21,40", "21,50", "21,60", "0,00"],
+    ["22.02.2022 05:14:00", "Schlummer", "22,50", "20,10", "20,20", "20,30", "12,50"],
+    ["22.02.2022 05:15:00", "Normal", "23,00", "21,00", "21,00", "21,00", "80,25"],
+]
+WINTER_TRIPS = [
+    ["Zug", "Abfahrt", "Ankunft", "Von", "Nach", "Belegung_Prozent"],
+    ["124", "22.02.2022 06:01:00", "22.02.2022 06:40:00", "Zürich HB", "Pfäffikon SZ", "35,50"],
+    ["124", "22.02.2022 07:02:00", "22.02.2022 07:41:00", "Pfäffikon SZ", "Zürich HB", "61,00"],
+]
+SUMMER_HVAC = [
+    ["timestamp", "hvac_mode", "t_setpoint", "t_room_upper", "t_room_middle", "t_room_lower",
+     "speed_mps"],
+    ["2023-07-04T05:13:00Z", "REGULAR", "24.00", "24.10", "24.20", "24.30", "10.00"],
+    ["2023-07-04T05:14:00Z", "SLUMBER", "24.50", "24.60", "24.70", "24.80", "0.00"],
+]  # fmt: skip
+
+
+def text(rows: list[list[str]], sep: str = ";", line: str = "\n") -> str:
+    return "".join(sep.join(r) + line for r in rows)
+
+
+def plain(tmp_path, rows, sep=";") -> pd.DataFrame:
+    path = tmp_path / "plain.csv"
+    path.write_text(text(rows, sep), encoding="utf-8")
+    table = read_source(path)
+    assert not table.dropped and len(table.frame) == len(rows) - 1
+    return table.frame
+
+
+def read(tmp_path, data: bytes):
+    path = tmp_path / "variant.csv"
+    path.write_bytes(data)
+    return read_source(path)
+
+
+def same(table, expected: pd.DataFrame) -> None:
+    assert not table.dropped
+    pd.testing.assert_frame_equal(table.frame, expected)
+
+
+def test_a_utf8_byte_order_mark_and_windows_line_ends(tmp_path):
+    table = read(tmp_path, b"\xef\xbb\xbf" + text(WINTER_HVAC, line="\r\n").encode("utf-8"))
+    same(table, plain(tmp_path, WINTER_HVAC))
+    assert (table.encoding, table.delimiter, table.rows_read) == ("utf-8-sig", ";", 3)
+
+
+def test_windows_1252_station_names(tmp_path):
+    table = read(tmp_path, text(WINTER_TRIPS).encode("cp1252"))
+    same(table, plain(tmp_path, WINTER_TRIPS))
+    assert table.encoding in ("cp1252", "latin_1")
+    assert list(table.frame["origin"]) == ["Zürich HB", "Pfäffikon SZ"]
+
+
+def test_quoted_fields_and_a_trailing_separator(tmp_path):
+    quoted = "".join(";".join(f'"{v}"' for v in r) + ";\n" for r in WINTER_HVAC)
+    same(read(tmp_path, quoted.encode()), plain(tmp_path, WINTER_HVAC))
+
+
+def test_times_without_seconds(tmp_path):
+    rows = [WINTER_HVAC[0]] + [[r[0][:-3], *r[1:]] for r in WINTER_HVAC[1:]]
+    same(read(tmp_path, text(rows).encode()), plain(tmp_path, WINTER_HVAC))
+
+
+def test_columns_in_another_order_with_others_besides(tmp_path):
+    order = [6, 0, 3, 1, 5, 2, 4]
+    rows = [
+        [r[i] for i in order] + [extra]
+        for r, extra in zip(WINTER_HVAC, ["Fahrer", "A", "B", "C"], strict=True)
+    ]
+    table = read(tmp_path, text(rows).encode())
+    same(table, plain(tmp_path, WINTER_HVAC))
+    assert table.extra_columns == ("Fahrer",)
+
+
+@pytest.mark.parametrize(
+    ("sep", "decimal"),
+    [(";", ","), ("\t", "."), ("\t", ",")],
+    ids=["semicolon", "tab", "tab-comma"],
+)
+def test_the_summer_export_resaved_with_another_separator_or_decimal_comma(tmp_path, sep, decimal):
+    rows = [SUMMER_HVAC[0]] + [[c.replace(".", decimal) for c in r] for r in SUMMER_HVAC[1:]]
+    table = read(tmp_path, text(rows, sep).encode())
+    same(table, plain(tmp_path, SUMMER_HVAC, sep=","))
+    assert table.delimiter == sep
+
+
+def test_file_extensions_in_any_case_are_found(tmp_path):
+    for name in ("124_124A_2022-02-22.CSV", "124_124B_2022-02-22.Csv", "124_124C_2022-02-22.txt"):
+        path = tmp_path / "winter-spring" / "hvac" / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text(WINTER_HVAC), encoding="utf-8")
+    groups, skipped = discover(tmp_path)
+    assert sorted(k[2] for k in groups) == ["124A", "124B"] and skipped == []
