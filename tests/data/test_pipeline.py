@@ -145,7 +145,7 @@ def test_fault_codes_and_impossible_values_are_out_of_range():
     assert len(cleaned) == 56
 
     weather = weather_log()
-    weather.loc[2, "ghi_w_m2"] = -5.0
+    weather.loc[2, "ghi_w_m2"] = -5.5  # beyond a night offset (OFFSET_TOLERANCE)
     weather.loc[3, "latitude_deg"] = 95.0
     trips = trips_log(("06:00", "06:30", 20.0), ("07:00", "06:50", 30.0), ("07:10", "07:40", 400.0))
     counts = Counts()

@@ -103,3 +103,40 @@ def test_file_extensions_in_any_case_are_found(tmp_path):
         path.write_text(text(WINTER_HVAC), encoding="utf-8")
     groups, skipped = discover(tmp_path)
     assert sorted(k[2] for k in groups) == ["124A", "124B"] and skipped == []
+
+
+def test_small_sensor_offsets_are_read_as_zero_and_counted():
+    from trainclimate.data.pipeline import Counts, PipelineSettings, clean
+
+    times = pd.date_range("2022-02-22 04:00", periods=5, freq="1min", tz="UTC")
+    hvac = pd.DataFrame(
+        {
+            "time": times,
+            "mode": ["regular"] * 5,
+            "t_ref_c": 22.0,
+            "t_room_up_c": 21.0,
+            "t_room_mid_c": 21.0,
+            "t_room_low_c": 21.0,
+            # standing still: −0.1 and −0.5 km/h are offsets, −0.6 is out of range
+            "speed_kmh": [0.0, -0.1, -0.5, -0.6, 12.0],
+        }
+    )
+    counts = Counts()
+    out = clean(hvac, "hvac", counts, PipelineSettings())
+    assert list(out["speed_kmh"]) == [0.0, 0.0, 0.0, 12.0]
+    assert counts.repaired["clipped_offset"] == 2 and counts.dropped["out_of_range"] == 1
+    weather = pd.DataFrame(
+        {
+            "time": times,
+            "latitude_deg": 47.4,
+            "longitude_deg": 8.5,
+            "t_amb_c": 1.0,
+            "ghi_w_m2": [-1.5, -5.0, -5.1, 0.0, 3.0],  # a pyranometer's night offset
+            "solar_elevation_deg": -20.0,
+            "solar_azimuth_deg": 10.0,
+        }
+    )
+    counts = Counts()
+    out = clean(weather, "weather", counts, PipelineSettings())
+    assert list(out["ghi_w_m2"]) == [0.0, 0.0, 0.0, 3.0]
+    assert counts.repaired["clipped_offset"] == 2 and counts.dropped["out_of_range"] == 1

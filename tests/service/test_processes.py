@@ -238,7 +238,9 @@ def test_gateway_keeps_telemetry_while_the_server_is_down(db_url, servers, proc_
     """The gateway starts while nothing listens on the server's port; the server comes up, is
     killed (SIGKILL) after it stored some rows and restarted on the same port and database; in the
     end every minute of both coaches is stored, once."""
-    hours, minutes = 2.0, 120
+    # long enough (24 s of wall time at 600×) that the gateway still runs when the server is
+    # killed, also when its first attempts met a back-off of up to 16 s
+    hours, minutes = 4.0, 240
     server = servers(db_url)
     token = token_cli(db_url, "operator", proc_env)  # migrates the database: no server needed
     log = tmp_path / "gateway.log"

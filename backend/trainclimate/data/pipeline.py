@@ -71,6 +71,10 @@ RANGES = {
     "occupancy_pct": (0.0, 300.0),
 }
 SPIKE_COLUMNS = {"hvac": ("t_ref_c", *Y_NAMES), "weather": ("t_amb_c",), "trips": ()}
+#: Sensor offsets tolerated below a range's lower bound of 0 and read as 0 (counted as repaired
+#: ``clipped_offset``): a pyranometer's night offset (down to −5 W/m²) and a standing train's
+#: speed (down to −0.5 km/h). Beyond them a value is out of range.
+OFFSET_TOLERANCE = {"ghi_w_m2": 5.0, "speed_kmh": 0.5}
 
 
 class PipelineError(ValueError):
@@ -126,6 +130,13 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
     counts.dropped["missing_value"] += int(missing.sum())
     frame = frame.loc[~missing]
 
+    frame = frame.copy()
+    for col, tolerance in OFFSET_TOLERANCE.items():
+        if col in frame:
+            v = frame[col].to_numpy(dtype=float)
+            offset = (v < 0.0) & (v >= -tolerance)
+            counts.repaired["clipped_offset"] += int(offset.sum())
+            frame.loc[offset, col] = 0.0
     bad = np.zeros(len(frame), dtype=bool)
     for col in CANONICAL[source]:
         if col in RANGES:
