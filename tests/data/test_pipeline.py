@@ -1,6 +1,7 @@
 """The pipeline of Section III.A: each defect handled and counted, fusion by hand, segmentation,
 fidelity on a clean simulated day, and the dataset build's handling of bad files."""
 
+import json
 import logging
 
 import numpy as np
@@ -522,3 +523,41 @@ def test_files_corrupted_on_purpose_are_counted_in_one_line_others_still_warn(tm
     assert len(warnings) == 1 and str(users) in warnings[0] and "unreadable" in warnings[0]
     assert sorted(summary.unreadable_files) == sorted(map(str, (*generated, users)))
     assert summary.unreadable_as_generated == 2
+
+
+def test_a_failed_run_leaves_the_previous_output_whole(tmp_path):
+    raw, out = tmp_path / "raw", tmp_path / "out"
+    write_coach_day(raw, "44", "44A")
+    build_dataset(raw, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert sorted(before) == [
+        "dataset.json",
+        "trajectories_10min.parquet",
+        "trajectories_1min.parquet",
+        "trajectories_5min.parquet",
+    ]
+    # the same directory, now unusable: the run fails and nothing it wrote is left
+    for path in raw.rglob("*.csv"):
+        path.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    with pytest.raises(PipelineError, match="no usable trajectory"):
+        build_dataset(raw, out)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_every_raw_file_is_reported(tmp_path):
+    raw = tmp_path / "raw"
+    write_coach_day(raw, "44", "44A", with_defects)
+    broken = write_coach_day(raw, "66", "66A")
+    broken.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    summary = build_dataset(raw, tmp_path / "out")
+    files = {f["path"]: f for f in summary.files}
+    assert len(files) == 6
+    hvac = files["winter-spring/hvac/44_44A_2022-03-01.csv"]
+    assert (hvac["source"], hvac["encoding"], hvac["delimiter"]) == ("hvac", "utf-8", ";")
+    assert (hvac["rows_read"], hvac["rows_kept"], hvac["dropped"]) == (122, 121, {"unparseable": 1})
+    assert files["winter-spring/hvac/66_66A_2022-03-01.csv"]["error"].startswith("not text")
+    report = json.loads((tmp_path / "out" / "dataset.json").read_text())
+    assert (
+        report["files"] == summary.files
+        and report["outputs"]["1min"] == "trajectories_1min.parquet"
+    )

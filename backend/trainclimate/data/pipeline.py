@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from collections import Counter, defaultdict
 from collections.abc import Callable, Collection
 from dataclasses import asdict, dataclass, field
@@ -470,7 +471,11 @@ def build_dataset(
     stats: dict[tuple[str, int], list[int]] = defaultdict(lambda: [0, 0])
     campaigns_seen: list[str] = []
     paths = {s: out / f"trajectories_{s}min.parquet" for s in settings.sampling_min}
-    writers = {s: TrajectoryWriter(p) for s, p in paths.items()}
+    # written beside their targets and renamed into place at the end: a failed run leaves the
+    # previous output whole
+    partial = {s: _partial(p) for s, p in paths.items()}
+    writers = {s: TrajectoryWriter(p) for s, p in partial.items()}
+    done = False
     try:
         for (campaign_dir, train, coach, day), paths_of_day in groups.items():
             sources: dict[str, pd.DataFrame | None] = {"hvac": None, "weather": None, "trips": None}
@@ -523,14 +528,20 @@ def build_dataset(
                 stats[(campaign, step)][1] += sum(len(t) for t in trajectories)
             if progress:
                 progress(1)
+        for writer in writers.values():
+            writer.close()
+        if not any(n for n, _ in stats.values()):
+            raise PipelineError(
+                f"no usable trajectory in {raw}: {len(groups)} coach-day(s), "
+                f"{len(unreadable)} unreadable file(s), nothing in regular mode long enough"
+            )
+        done = True
     finally:
         for writer in writers.values():
             writer.close()
-    if not any(n for n, _ in stats.values()):
-        raise PipelineError(
-            f"no usable trajectory in {raw}: {len(groups)} coach-day(s), "
-            f"{len(unreadable)} unreadable file(s), nothing in regular mode long enough"
-        )
+        if not done:
+            for path in partial.values():
+                path.unlink(missing_ok=True)
     as_generated = sum(str(Path(p).resolve()) in expected for p in unreadable)
     if as_generated:
         log.info(
@@ -557,7 +568,16 @@ def build_dataset(
         outputs={f"{s}min": p.name for s, p in paths.items()},
         files=files,
     )
-    (out / "dataset.json").write_text(
+    report = _partial(out / "dataset.json")
+    report.write_text(
         json.dumps({**summary.to_dict(), "settings": asdict(settings)}, indent=2) + "\n"
     )
+    for s, path in paths.items():
+        os.replace(partial[s], path)
+    os.replace(report, out / "dataset.json")  # last: it describes the files now in place
     return summary
+
+
+def _partial(path: Path) -> Path:
+    """Where ``path`` is written before it is renamed into place (same directory, hidden)."""
+    return path.with_name(f".{path.name}.partial")
