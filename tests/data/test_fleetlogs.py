@@ -151,3 +151,29 @@ def test_the_generator_names_the_files_it_corrupted(tmp_path):
         except (UnicodeDecodeError, ValueError):
             unreadable.append(str(path))
     assert sorted(summary.corrupted) == unreadable
+
+
+def test_every_row_of_every_source_is_accounted_for_under_every_defect(tmp_path):
+    """read == kept + sum(dropped) per source, with each of the generator's defects made
+    frequent enough to occur in a small campaign, and files the pipeline cannot use besides."""
+    rates = fleetlogs.Defects(
+        duplicate_row=0.02,
+        out_of_order_block=1.0,
+        spike_value=0.005,
+        empty_value=0.005,
+        garbage_line=1.0,
+        unreadable_file=0.2,
+        missing_trip=0.2,
+    )
+    raw = tmp_path / "raw"
+    generated = fleetlogs.generate(raw, **{**SMALL, "max_coaches": 3}, defects=rates)
+    (raw / "winter-spring" / "hvac" / "notes.csv").write_text("a\nb\nc\n")  # not a log's name
+    summary = build_dataset(raw, tmp_path / "out", expected_unreadable=generated.corrupted)
+    assert summary.unreadable_files  # some files were made unreadable
+    for source, rows in summary.rows.items():
+        assert rows["read"] == rows["kept"] + sum(rows["dropped"].values()), (source, rows)
+    assert set(summary.rows) == {"hvac", "weather", "trips"}
+    reasons = {r for rows in summary.rows.values() for r in rows["dropped"]}
+    assert {"duplicate", "unparseable", "unrecognised_file"} <= reasons
+    # the file-level reasons are counted in rows, like those of single rows
+    assert summary.rows["hvac"]["dropped"]["unrecognised_file"] == 2

@@ -44,6 +44,7 @@ import pandas as pd
 from trainclimate.data.formats import (
     CANONICAL,
     FORMATS,
+    SOURCES,
     FormatError,
     parse_log_name,
     read_source,
@@ -97,15 +98,42 @@ class PipelineSettings:
 
 @dataclass
 class Counts:
-    """Rows (or minutes, where the reason says so) dropped and repaired, by reason."""
+    """Rows (or minutes, where the reason says so) dropped and repaired, by reason; and per
+    source (``hvac``, ``weather``, ``trips``; ``unknown`` for a file of no known source) the
+    rows ``read``, ``kept`` (fused into the minutes) and dropped by reason, so that
+    ``read == kept + sum(dropped)`` (:meth:`rows`)."""
 
     dropped: Counter = field(default_factory=Counter)
     repaired: Counter = field(default_factory=Counter)
+    read: Counter = field(default_factory=Counter)
+    kept: Counter = field(default_factory=Counter)
+    by_source: dict[str, Counter] = field(default_factory=lambda: defaultdict(Counter))
+
+    def drop(self, source: str, reason: str, n: int) -> None:
+        """``n`` rows of ``source`` dropped for ``reason``."""
+        self.dropped[reason] += n
+        self.by_source[source][reason] += n
 
     def update(self, other: Counts) -> None:
         """Add ``other``'s counts to these."""
         self.dropped.update(other.dropped)
         self.repaired.update(other.repaired)
+        self.read.update(other.read)
+        self.kept.update(other.kept)
+        for source, reasons in other.by_source.items():
+            self.by_source[source].update(reasons)
+
+    def rows(self) -> dict[str, dict]:
+        """Per source: ``read``, ``kept`` and ``dropped`` (reason → rows, those not zero)."""
+        sources = sorted({*self.read, *self.kept, *self.by_source})
+        return {
+            s: {
+                "read": int(self.read[s]),
+                "kept": int(self.kept[s]),
+                "dropped": {k: int(v) for k, v in sorted(self.by_source[s].items()) if v},
+            }
+            for s in sources
+        }
 
 
 def _seconds(times) -> np.ndarray:
@@ -123,12 +151,12 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
         counts.repaired["out_of_order"] += int(late.sum())
         frame = frame.iloc[np.argsort(t, kind="stable")].reset_index(drop=True)
     dup = frame.duplicated(subset=[key], keep="first")
-    counts.dropped["duplicate"] += int(dup.sum())
+    counts.drop(source, "duplicate", int(dup.sum()))
     frame = frame.loc[~dup]
 
     required = [c for c in CANONICAL[source] if c not in ("origin", "destination")]
     missing = frame[required].isna().any(axis=1)
-    counts.dropped["missing_value"] += int(missing.sum())
+    counts.drop(source, "missing_value", int(missing.sum()))
     frame = frame.loc[~missing]
 
     frame = frame.copy()
@@ -146,7 +174,7 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
             bad |= (v < lo) | (v > hi)
     if source == "trips":
         bad |= (frame["arrival"] <= frame["departure"]).to_numpy()
-    counts.dropped["out_of_range"] += int(bad.sum())
+    counts.drop(source, "out_of_range", int(bad.sum()))
     frame = frame.loc[~bad]
 
     if SPIKE_COLUMNS[source] and len(frame):
@@ -160,7 +188,7 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
         for col in SPIKE_COLUMNS[source]:
             median = indexed[col].rolling(window, center=True, min_periods=1).median()
             spike |= (np.abs(indexed[col] - median) > settings.spike_k).to_numpy()
-        counts.dropped["spike"] += int(spike.sum())
+        counts.drop(source, "spike", int(spike.sum()))
         frame = frame.loc[~spike]
     return frame.reset_index(drop=True)
 
@@ -243,7 +271,6 @@ def fuse(
         else:
             on_trip = np.zeros(n, dtype=bool)
         unknown = ~on_trip & (out["speed_kmh"].to_numpy() > 5.0)
-        counts.dropped["moving_without_trip_rows"] += int(unknown.sum())
         out["occupancy_pct"] = np.where(unknown, np.nan, occ)
     return out
 
@@ -358,14 +385,26 @@ def process_coach_day(
     out: dict[int, list[Trajectory]] = {s: [] for s in settings.sampling_min}
     hvac = sources.get("hvac")
     if hvac is None or not len(hvac):
+        for name, frame in sources.items():
+            if frame is not None and name != "hvac":
+                counts.drop(name, "no_hvac_log", len(frame))
         return out, counts
     cleaned = {
         name: None if frame is None else clean(frame, name, counts, settings)
         for name, frame in sources.items()
     }
+    for name in ("weather", "trips"):
+        if cleaned.get(name) is not None:
+            counts.kept[name] += len(cleaned[name])
     fused = fuse(cleaned["hvac"], cleaned.get("weather"), cleaned.get("trips"), settings, counts)
-    inside = (fused["time"] >= start) & (fused["time"] < end)
-    counts.dropped["outside_day_window"] += int((~inside).sum())
+    inside = ((fused["time"] >= start) & (fused["time"] < end)).to_numpy()
+    # a row without occupancy cannot be used: the train moves with no trip recorded, or there
+    # is no trips log for the coach-day at all
+    unknown = fused["occupancy_pct"].isna().to_numpy() & inside
+    why = "no_trips_log" if cleaned.get("trips") is None else "moving_without_trip_rows"
+    counts.drop("hvac", "outside_day_window", int((~inside).sum()))
+    counts.drop("hvac", why, int(unknown.sum()))
+    counts.kept["hvac"] += int((inside & ~unknown).sum())
     fused = fused[inside]
     if not len(fused):
         return out, counts
@@ -393,6 +432,8 @@ class DatasetSummary:
     raw_rows: int
     #: the Parquet file of each sampling time, relative to the output directory
     outputs: dict[str, str]
+    #: per source: rows ``read``, ``kept`` and ``dropped`` by reason (read == kept + dropped)
+    rows: dict[str, dict]
     #: per raw file (relative to the raw directory): ``source``, ``campaign``, ``encoding``,
     #: ``delimiter``, ``rows_read``, ``rows_kept`` (by the reader), ``dropped`` (reason → rows),
     #: ``extra_columns``; or ``error`` for a file not read, ``ignored`` for one not used
@@ -457,15 +498,16 @@ def build_dataset(
     expected = {str(Path(p).resolve()) for p in expected_unreadable}
     groups, skipped = discover(raw)
     files: list[dict] = []
+    total = Counts()
     for path in skipped:
         log.warning("skipped %s: not named <campaign>/<source>/<train>_<coach>_<day>.csv", path)
         where = str(Path(path).relative_to(raw))
         files.append(
             {"path": where, "error": "not named <campaign>/<source>/<train>_<coach>_<day>.csv"}
         )
+        _count_unread(total, Path(path), "unrecognised_file")
     if not groups:
         raise PipelineError(f"no raw log files under {raw}")
-    total = Counts()
     unreadable: list[str] = []
     raw_rows = 0
     stats: dict[tuple[str, int], list[int]] = defaultdict(lambda: [0, 0])
@@ -487,6 +529,7 @@ def build_dataset(
                 except (FormatError, OSError, ValueError) as exc:
                     unreadable.append(str(path))
                     files.append({"path": where, "error": str(exc).splitlines()[0]})
+                    _count_unread(total, path, "unreadable_file")
                     if str(path.resolve()) not in expected:
                         log.warning("unreadable raw file %s: %s", path, str(exc).splitlines()[0])
                     continue
@@ -504,15 +547,18 @@ def build_dataset(
                 files.append(report)
                 if table.extra_columns:
                     log.info("%s: columns ignored: %s", path, ", ".join(table.extra_columns))
+                total.read[table.source] += table.rows_read
                 if sources.get(table.source) is not None:
                     report["ignored"] = f"a second {table.source} file for the coach-day"
+                    total.drop(table.source, "second_file_for_coach_day", table.rows_read)
                     log.warning(
                         "ignored %s: a second %s file for the coach-day", path, table.source
                     )
                     continue
                 sources[table.source] = table.frame
                 campaign = table.campaign
-                total.dropped.update(table.dropped)
+                for reason, n in table.dropped.items():
+                    total.drop(table.source, reason, n)
                 raw_rows += len(table.frame) + sum(table.dropped.values())
             start, end = _coach_day_window(day)
             meta = {"campaign": campaign, "train": train, "coach": coach}
@@ -566,6 +612,7 @@ def build_dataset(
         coach_days=len(groups),
         raw_rows=raw_rows,
         outputs={f"{s}min": p.name for s, p in paths.items()},
+        rows=total.rows(),
         files=files,
     )
     report = _partial(out / "dataset.json")
@@ -576,6 +623,18 @@ def build_dataset(
         os.replace(partial[s], path)
     os.replace(report, out / "dataset.json")  # last: it describes the files now in place
     return summary
+
+
+def _count_unread(counts: Counts, path: Path, reason: str) -> None:
+    """A file not read: its non-blank lines after the first, as rows of the source its directory
+    names (``unknown`` if none), read and dropped for ``reason``."""
+    try:
+        lines = sum(1 for line in path.read_bytes().splitlines() if line.strip())
+    except OSError:
+        lines = 0
+    source = path.parent.name if path.parent.name in SOURCES else "unknown"
+    counts.read[source] += max(0, lines - 1)
+    counts.drop(source, reason, max(0, lines - 1))
 
 
 def _partial(path: Path) -> Path:
