@@ -90,3 +90,32 @@ def test_dataset_build_on_missing_empty_or_unusable_raw_exits_2(
 def test_dataset_build_rejects_zero_days(capsys, tmp_path):
     code, out, err = call(capsys, "dataset", "build", "--out", str(tmp_path), "--days", "0")
     assert code == 2 and out == "" and "--days and --coaches must be at least 1" in err
+
+
+def test_summer_times_without_their_z_need_timezone(capsys, tmp_path):
+    """A summer HVAC log re-saved without the times' Z: refused with the reason, read with
+    --timezone (which the output states), an unknown zone a usage error."""
+    raw = tmp_path / "raw"
+    log = raw / "summer" / "hvac" / "124_124B_2023-07-04.csv"
+    log.parent.mkdir(parents=True)
+    header = "timestamp,hvac_mode,t_setpoint,t_room_upper,t_room_middle,t_room_lower,speed_mps\n"
+    rows = [f"2023-07-04T05:{m:02d}:00,REGULAR,24.0,24.1,24.2,24.3,0.0\n" for m in range(60)]
+    log.write_text(header + "".join(rows), encoding="utf-8")
+    code, out, err = call(
+        capsys, "dataset", "build", "--raw", str(raw), "--out", str(tmp_path / "o")
+    )
+    assert code == 2 and out == ""
+    [line] = err.strip().splitlines()
+    assert "124_124B_2023-07-04.csv" in line and "without a time zone" in line
+    assert "--timezone" in line
+    code, out, err = call(
+        capsys, "dataset", "build", "--raw", str(raw), "--out", str(tmp_path / "o"),
+        "--timezone", "Mars/Olympus",
+    )  # fmt: skip
+    assert code == 2 and "unknown time zone 'Mars/Olympus'" in err
+    code, out, err = call(
+        capsys, "dataset", "build", "--raw", str(raw), "--out", str(tmp_path / "o"),
+        "--timezone", "Europe/Zurich", "--json",
+    )  # fmt: skip
+    # no weather and trips: nothing usable, but the times were read (not refused)
+    assert code == 2 and "no usable trajectory" in err and "time zone" not in err

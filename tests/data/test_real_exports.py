@@ -5,7 +5,7 @@ written."""
 import pandas as pd
 import pytest
 
-from trainclimate.data.formats import read_source
+from trainclimate.data.formats import TimezoneError, read_source
 from trainclimate.data.pipeline import discover
 
 WINTER_HVAC = [
@@ -140,3 +140,56 @@ def test_small_sensor_offsets_are_read_as_zero_and_counted():
     out = clean(weather, "weather", counts, PipelineSettings())
     assert list(out["ghi_w_m2"]) == [0.0, 0.0, 0.0, 3.0]
     assert counts.repaired["clipped_offset"] == 2 and counts.dropped["out_of_range"] == 1
+
+
+def test_the_hour_the_autumn_change_repeats_is_resolved_by_order(tmp_path):
+    rows = [WINTER_HVAC[0]] + [
+        [f"30.10.2022 {hm}:00", "Normal", "22,00", "21,40", "21,50", "21,60", "0,00"]
+        for hm in ("01:59", "02:00", "02:30", "02:59", "02:00", "02:30", "03:00")
+    ]
+    table = read(tmp_path, text(rows).encode())
+    assert not table.dropped
+    utc = pd.DatetimeIndex(table.frame["time"]).strftime("%H:%M").tolist()
+    # 02:00–02:59 CEST (00:00 UTC …), then 02:00–02:59 CET (01:00 UTC …), then 03:00 CET
+    assert utc == ["23:59", "00:00", "00:30", "00:59", "01:00", "01:30", "02:00"]
+
+
+def test_summer_times_without_their_zone_need_one(tmp_path):
+    rows = [SUMMER_HVAC[0]] + [[r[0].rstrip("Z"), *r[1:]] for r in SUMMER_HVAC[1:]]
+    path = tmp_path / "variant.csv"
+    path.write_text(text(rows, ","), encoding="utf-8")
+    with pytest.raises(TimezoneError, match=r"without a time zone .*--timezone"):
+        read_source(path)
+    expected = plain(tmp_path, SUMMER_HVAC, sep=",")
+    pd.testing.assert_frame_equal(read_source(path, timezone="UTC").frame, expected)
+    local = read_source(path, timezone="Europe/Zurich").frame
+    # written in Zurich summer time: two hours earlier in UTC
+    assert (expected["time"] - local["time"] == pd.Timedelta(hours=2)).all()
+
+
+def test_a_repeated_time_with_other_values_is_reported_and_the_first_kept(caplog):
+    import logging
+
+    from trainclimate.data.pipeline import Counts, PipelineSettings, clean
+
+    times = pd.to_datetime(
+        ["2022-02-22 04:00", "2022-02-22 04:01", "2022-02-22 04:01", "2022-02-22 04:01"], utc=True
+    )
+    hvac = pd.DataFrame(
+        {
+            "time": times,
+            "mode": "regular",
+            "t_ref_c": 22.0,
+            "t_room_up_c": [21.0, 21.5, 21.5, 25.0],  # an exact copy, then a conflicting one
+            "t_room_mid_c": 21.0,
+            "t_room_low_c": 21.0,
+            "speed_kmh": 0.0,
+        }
+    )
+    counts = Counts()
+    with caplog.at_level(logging.WARNING, logger="trainclimate.data.pipeline"):
+        out = clean(hvac, "hvac", counts, PipelineSettings())
+    assert list(out["t_room_up_c"]) == [21.0, 21.5]
+    assert counts.dropped["duplicate"] == 1 and counts.dropped["conflicting_duplicate"] == 1
+    [message] = [r.getMessage() for r in caplog.records]
+    assert "first in the file is kept" in message and "25.0" in message

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import zoneinfo
 from pathlib import Path
 
 from trainclimate.cli.common import (
@@ -21,6 +22,11 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
 
     if (args.days is not None and args.days < 1) or (args.coaches is not None and args.coaches < 1):
         raise UsageError("--days and --coaches must be at least 1")
+    if args.timezone is not None:
+        try:
+            zoneinfo.ZoneInfo(args.timezone)
+        except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+            raise UsageError(f"--timezone: unknown time zone {args.timezone!r}") from None
     out = out_dir(args.out, "the dataset")
     generated = None
     if args.raw:
@@ -50,6 +56,7 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
             out,
             progress=bar.update,
             expected_unreadable=generated.corrupted if generated else (),
+            timezone=args.timezone,
         )
     data = {**summary.to_dict(), "raw": str(raw), "out": str(out)}
     if generated is not None:
@@ -73,6 +80,8 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
             lines.append(f"corrupted files skipped, as generated: {d['unreadable_as_generated']}")
         if others:
             lines.append(f"unreadable files: {others} (see warnings)")
+        zone = d["timezone"] or "each campaign's (winter-spring: Europe/Zurich)"
+        lines.append(f"times without a zone read in: {zone}")
         lines.append(f"trajectories written under {d['out']}")
         return "\n".join(lines)
 
@@ -90,6 +99,12 @@ def register(sub) -> None:
     )
     p.add_argument("--out", required=True, help="output directory (trajectories, dataset.json)")
     p.add_argument("--raw", default=None, help="read raw logs from here instead of generating")
+    p.add_argument(
+        "--timezone",
+        default=None,
+        help="the zone of times written without one, e.g. Europe/Zurich (default: each "
+        "campaign's: winter-spring local Zurich time; summer files must carry their Z)",
+    )
     p.add_argument("--days", type=int, default=None, help="only the first N days per campaign")
     p.add_argument("--coaches", type=int, default=None, help="only the first N coaches")
     p.add_argument(

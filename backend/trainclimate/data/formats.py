@@ -254,12 +254,53 @@ def _detect(header_line: str) -> _Layout:
     raise FormatError(f"unrecognised header {header_line.strip()!r}")
 
 
-def _parse_times(text: pd.Series, fmt: ExportFormat) -> pd.DatetimeIndex:
-    """Export times → UTC, with or without seconds; unparseable, non-existent (DST gap) or
-    ambiguous local times → NaT."""
-    if fmt.timezone == "UTC" and fmt.time_format.startswith("%Y-%m-%dT"):
-        # ISO 8601 in UTC: pandas' ISO parser is an order of magnitude faster than strptime
-        return pd.DatetimeIndex(pd.to_datetime(text, format="ISO8601", errors="coerce", utc=True))
+#: An ISO 8601 time that carries its zone: ``Z`` or an offset.
+_ZONED = re.compile(r"(?:Z|[+-]\d{2}:?\d{2})$")
+
+
+class TimezoneError(FormatError):
+    """Times without a zone in a format whose times carry one, and no zone given."""
+
+
+def _localize(naive: pd.DatetimeIndex, zone: str) -> pd.DatetimeIndex:
+    """Wall times in ``zone`` → UTC. A wall time the autumn change repeats is resolved by order:
+    its first occurrence in the file is summer time, a later one winter time; one the spring
+    change skips → NaT."""
+    ambiguous = np.zeros(len(naive), dtype=bool)
+    try:
+        return naive.tz_localize(zone, nonexistent="NaT", ambiguous="raise").tz_convert("UTC")
+    except ValueError:  # a wall time the autumn change repeats
+        pass
+    seen: set = set()
+    for i, t in enumerate(naive):
+        if t is pd.NaT:
+            continue
+        ambiguous[i] = t not in seen  # the first time this wall time is read: summer time
+        seen.add(t)
+    return naive.tz_localize(zone, nonexistent="NaT", ambiguous=ambiguous).tz_convert("UTC")
+
+
+def _parse_times(text: pd.Series, fmt: ExportFormat, timezone: str | None) -> pd.DatetimeIndex:
+    """Export times → UTC, with or without seconds; unparseable times or ones the spring change
+    skips → NaT. Times without a zone are read in ``timezone``, else in the campaign's
+    documented zone when its export writes local times (winter-spring: Europe/Zurich), else
+    :class:`TimezoneError`."""
+    if fmt.time_format.startswith("%Y-%m-%dT"):
+        zoned = text.str.contains(_ZONED)
+        if zoned.all():
+            # ISO 8601 with zones: pandas' ISO parser is an order of magnitude faster than strptime
+            return pd.DatetimeIndex(
+                pd.to_datetime(text, format="ISO8601", errors="coerce", utc=True)
+            )
+        if timezone is None:
+            example = text[~zoned].iloc[0]
+            raise TimezoneError(
+                f"times without a time zone (e.g. {example!r}) in the {fmt.name} export, whose "
+                "times are UTC with a Z: give their zone (--timezone, e.g. Europe/Zurich or UTC)"
+            )
+        naive = pd.to_datetime(text.str.replace(_ZONED, "", regex=True), format="ISO8601",
+                               errors="coerce")  # fmt: skip
+        return _localize(pd.DatetimeIndex(naive), timezone)
     index = pd.to_datetime(text, format=fmt.time_format, errors="coerce")
     if index.isna().any():  # a spreadsheet saves times without their seconds
         minutes = fmt.time_format.replace(":%S", "")
@@ -268,19 +309,21 @@ def _parse_times(text: pd.Series, fmt: ExportFormat) -> pd.DatetimeIndex:
         unit = pd.to_datetime(pd.Series(["2000-01-01 00:00:00"])).dt.unit
         index = index.astype(f"datetime64[{unit}]").fillna(other.astype(f"datetime64[{unit}]"))
     index = pd.DatetimeIndex(index)
-    if fmt.timezone == "UTC":
-        return index.tz_localize("UTC")
-    return index.tz_localize(fmt.timezone, nonexistent="NaT", ambiguous="NaT").tz_convert("UTC")
+    zone = timezone or fmt.timezone
+    return index.tz_localize("UTC") if zone == "UTC" else _localize(index, zone)
 
 
-def read_source(path: str | Path) -> SourceTable:
+def read_source(path: str | Path, timezone: str | None = None) -> SourceTable:
     """Read one raw log file of either campaign into its canonical table.
 
     The file may be written as real exports are (see ``docs/data.md``): UTF-8 with or without a
     byte-order mark or Windows-1252 (:func:`decode`), fields separated by semicolons, commas or
     tabs and quoted or not, a trailing separator, the source's columns by name in any order with
     others besides (ignored, and named in ``extra_columns``), numbers with a decimal point or
-    comma, times with or without seconds.
+    comma, times with or without seconds. Times without a zone are read in ``timezone`` (an IANA
+    name), by default in the campaign's (winter-spring: Europe/Zurich local time); a summer file
+    whose times lack their ``Z`` needs ``timezone`` (:class:`TimezoneError` otherwise). The hour
+    the autumn change repeats is resolved by order (first summer, then winter time).
 
     Rows that cannot be parsed — the wrong number of fields, an unreadable time or number, an
     unknown mode label — are dropped and counted as ``unparseable``; empty fields become NaN for
@@ -310,7 +353,7 @@ def read_source(path: str | Path) -> SourceTable:
     for col in CANONICAL[source]:
         values = raw.iloc[:, layout.position(col)].astype(str)
         if col in TIME_COLUMNS[source]:
-            times = _parse_times(values, fmt)
+            times = _parse_times(values, fmt, timezone)
             ok &= ~times.isna()
             out[col] = times
         elif col == "mode":

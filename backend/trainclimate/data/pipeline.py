@@ -46,6 +46,7 @@ from trainclimate.data.formats import (
     FORMATS,
     SOURCES,
     FormatError,
+    TimezoneError,
     parse_log_name,
     read_source,
 )
@@ -151,7 +152,23 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
         counts.repaired["out_of_order"] += int(late.sum())
         frame = frame.iloc[np.argsort(t, kind="stable")].reset_index(drop=True)
     dup = frame.duplicated(subset=[key], keep="first")
-    counts.drop(source, "duplicate", int(dup.sum()))
+    # a repeated time with other values conflicts: the first row in the file is kept (the rule),
+    # and the first conflict is shown
+    conflict = dup & ~frame.duplicated(keep="first")
+    if conflict.any():
+        first = frame.loc[conflict].iloc[0]
+        kept = frame.loc[(frame[key] == first[key]) & ~dup].iloc[0]
+        log.warning(
+            "%s: %d row(s) repeat a time with other values; the first in the file is kept, "
+            "e.g. at %s kept %s, dropped %s",
+            source,
+            int(conflict.sum()),
+            first[key],
+            kept.drop(key).to_dict(),
+            first.drop(key).to_dict(),
+        )
+    counts.drop(source, "duplicate", int((dup & ~conflict).sum()))
+    counts.drop(source, "conflicting_duplicate", int(conflict.sum()))
     frame = frame.loc[~dup]
 
     required = [c for c in CANONICAL[source] if c not in ("origin", "destination")]
@@ -434,6 +451,8 @@ class DatasetSummary:
     outputs: dict[str, str]
     #: per source: rows ``read``, ``kept`` and ``dropped`` by reason (read == kept + dropped)
     rows: dict[str, dict]
+    #: the zone times without one were read in (None: each campaign's own)
+    timezone: str | None
     #: per raw file (relative to the raw directory): ``source``, ``campaign``, ``encoding``,
     #: ``delimiter``, ``rows_read``, ``rows_kept`` (by the reader), ``dropped`` (reason → rows),
     #: ``extra_columns``; or ``error`` for a file not read, ``ignored`` for one not used
@@ -480,6 +499,7 @@ def build_dataset(
     *,
     progress: Callable[[int], None] | None = None,
     expected_unreadable: Collection[str] = (),
+    timezone: str | None = None,
 ) -> DatasetSummary:
     """Run the pipeline over every raw file under ``raw``; write one Parquet file per sampling
     time (``trajectories_<S>min.parquet``) and ``dataset.json`` under ``out``.
@@ -488,7 +508,9 @@ def build_dataset(
     output byte-identical for the same input. Unreadable files are named in a warning and
     counted — except ``expected_unreadable``, the files the generator corrupted on purpose
     (:attr:`~trainclimate.data.fleetlogs.GenerationSummary.corrupted`), which are counted in one
-    line; :class:`PipelineError` if nothing usable was found.
+    line; :class:`PipelineError` if nothing usable was found, or for times without a zone where
+    the format has one and no ``timezone`` (an IANA name: the zone of times written without one;
+    default each campaign's, :func:`~trainclimate.data.formats.read_source`).
     """
     settings = settings or PipelineSettings()
     raw, out = Path(raw), Path(out)
@@ -525,7 +547,9 @@ def build_dataset(
             for path in paths_of_day:
                 where = str(path.relative_to(raw))
                 try:
-                    table = read_source(path)
+                    table = read_source(path, timezone)
+                except TimezoneError as exc:
+                    raise PipelineError(f"{where}: {exc}") from None
                 except (FormatError, OSError, ValueError) as exc:
                     unreadable.append(str(path))
                     files.append({"path": where, "error": str(exc).splitlines()[0]})
@@ -613,6 +637,7 @@ def build_dataset(
         raw_rows=raw_rows,
         outputs={f"{s}min": p.name for s, p in paths.items()},
         rows=total.rows(),
+        timezone=timezone,
         files=files,
     )
     report = _partial(out / "dataset.json")
