@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 import numpy as np
 import pandas as pd
@@ -13,6 +14,7 @@ from trainclimate.cli.common import (
     add_group,
     add_model_options,
     emit,
+    json_default,
     out_dir,
     out_file,
     predictor_from,
@@ -21,6 +23,7 @@ from trainclimate.cli.common import (
 from trainclimate.control.simulate import CONTROLLERS
 from trainclimate.sim.params import CoachParams, load_params
 from trainclimate.sim.scenarios import SCENARIOS
+from trainclimate.sim.simulator import SimulationError
 
 
 def cmd_scenarios(args: argparse.Namespace) -> None:
@@ -48,7 +51,8 @@ def cmd_coach_params(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, scenario: str, controller: str, record_flows: bool):
     """:func:`~trainclimate.control.simulate.run_simulation` with the command's inputs and a
-    progress bar."""
+    progress bar; a diverging simulation (:class:`SimulationError`) is a :class:`UsageError`
+    (exit 2, its one line), as its cause is the parameters or the weather given."""
     from trainclimate.control.simulate import run_simulation
     from trainclimate.sim import scenarios
     from trainclimate.sim.weather import load_weather_csv
@@ -62,18 +66,37 @@ def _run(args: argparse.Namespace, scenario: str, controller: str, record_flows:
             bar.total = total
             bar.update(done - bar.n)
 
-        return run_simulation(
-            scenario,
-            controller,
-            coaches=args.coaches,
-            hours=getattr(args, "hours", None),
-            weather=load_weather_csv(csv) if csv else None,
-            base_params=load_params(params) if params else None,
-            predictor=predictor_from(args) if controller == "ddpc" else None,
-            forecast=getattr(args, "forecast", "perfect"),
-            record_flows=record_flows,
-            progress=progress,
-        )
+        try:
+            return run_simulation(
+                scenario,
+                controller,
+                coaches=args.coaches,
+                hours=getattr(args, "hours", None),
+                weather=load_weather_csv(csv) if csv else None,
+                base_params=load_params(params) if params else None,
+                predictor=predictor_from(args) if controller == "ddpc" else None,
+                forecast=getattr(args, "forecast", "perfect"),
+                record_flows=record_flows,
+                progress=progress,
+            )
+        except SimulationError as exc:
+            raise UsageError(str(exc)) from exc
+
+
+def _check_finite(data: dict) -> None:
+    """Refuse KPIs that JSON cannot hold (NaN, ±inf) rather than print ``NaN``.
+
+    Raises
+    ------
+    UsageError
+        If a number in ``data`` is not finite (exit 2, one line).
+    """
+    try:
+        json.dumps(data, default=json_default, allow_nan=False)
+    except ValueError as exc:
+        raise UsageError(
+            f"the simulation's KPIs are not finite ({exc}); check the coach parameters and weather"
+        ) from exc
 
 
 def cmd_simulate(args: argparse.Namespace) -> None:
@@ -89,6 +112,7 @@ def cmd_simulate(args: argparse.Namespace) -> None:
     data = {"scenario": run.scenario.name, "controller": args.controller, **fleet_kpis(run.result)}
     if run.ticks is not None:
         data["controller_ticks"] = run.ticks
+    _check_finite(data)
     if out is not None:
         frames = []
         for c in range(len(data["coaches"])):

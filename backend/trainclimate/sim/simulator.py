@@ -31,6 +31,14 @@ SERIES_FIELDS = (
     "t_amb_c", "ghi_w_m2", "zenith_deg", "azimuth_deg", "heading_deg", "speed_kmh",
     "occupancy_pct", "door_open", "mode",
 )  # fmt: skip
+#: A temperature no coach reaches: a state beyond ± this means the integration diverged (caught
+#: well before it overflows to inf or NaN). [°C]
+RUNAWAY_C = 1000.0
+
+
+class SimulationError(RuntimeError):
+    """The simulation diverged: a temperature is NaN or beyond ±:data:`RUNAWAY_C`, or the
+    electrical power is not finite."""
 
 
 @dataclass
@@ -448,6 +456,9 @@ class FleetSimulator:
         ------
         IndexError
             If the simulation has reached the end of its environment.
+        SimulationError
+            If the step left a temperature NaN or beyond ±:data:`RUNAWAY_C`, or its power is not
+            finite (e.g. a heat capacity too small for its conductances: RK4 is unstable).
         """
         if self.k >= self.n_steps:
             raise IndexError("the simulation has reached the end of its environment")
@@ -496,6 +507,14 @@ class FleetSimulator:
         self._power["fans"][k] = power.fans_w
 
         self.T, flows = thermal.rk4_step(self.T, drv, p, self.inv_cap, self.dt_s)
+        diverged = ~np.all(np.abs(self.T) < RUNAWAY_C, axis=1) | ~np.isfinite(power.total_w)
+        if diverged.any():
+            raise SimulationError(
+                f"the simulation diverged in step {k} ({env.time[k]:%Y-%m-%d %H:%M} UTC), coach "
+                f"{int(np.argmax(diverged))}: a temperature is NaN or beyond ±{RUNAWAY_C:g} °C, "
+                "or the power is not finite; check the coach parameters (a heat capacity too "
+                f"small for its conductances makes the {self.dt_s:g} s step unstable)"
+            )
         if self._flows is not None:
             self._flows[k] = flows
         self.k += 1
