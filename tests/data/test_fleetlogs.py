@@ -1,6 +1,7 @@
 """The seeded raw-log generator and the dataset built from it: layout, accounting, determinism."""
 
 import dataclasses
+import re
 
 import pandas as pd
 import pytest
@@ -177,3 +178,32 @@ def test_every_row_of_every_source_is_accounted_for_under_every_defect(tmp_path)
     assert {"duplicate", "unparseable", "unrecognised_file"} <= reasons
     # the file-level reasons are counted in rows, like those of single rows
     assert summary.rows["hvac"]["dropped"]["unrecognised_file"] == 2
+
+
+def _as_a_spreadsheet_saves_it(path, out):
+    """The file re-saved as Excel on a Swiss Windows would: Windows-1252, CRLF, every field
+    quoted with a trailing separator, times without seconds, the columns reversed and one
+    added."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    rows = [line.split(";") for line in lines]
+    rows = [[*reversed(r), "Bemerkung" if i == 0 else ""] for i, r in enumerate(rows)]
+    rows = [[re.sub(r"^(\d\d\.\d\d\.\d{4} \d\d:\d\d):00$", r"\1", f) for f in r] for r in rows]
+    text = "".join(";".join(f'"{f}"' for f in r) + ";\r\n" for r in rows)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(text.encode("cp1252"))
+
+
+def test_a_campaign_re_saved_as_a_spreadsheet_gives_the_same_trajectories(raw, built, tmp_path):
+    root, _ = raw
+    copy = tmp_path / "raw"
+    for path in (root / "raw").rglob("*.csv"):
+        _as_a_spreadsheet_saves_it(path, copy / path.relative_to(root / "raw"))
+    again = build_dataset(copy, tmp_path / "out")
+    assert again.table == built.table and again.rows == built.rows
+    assert {f["encoding"] for f in again.files} <= {"cp1252", "latin_1", "utf-8"}
+    assert {tuple(f["extra_columns"]) for f in again.files} == {("Bemerkung",)}
+    for step in (1, 5, 10):
+        name = f"trajectories_{step}min.parquet"
+        mine, theirs = (read_trajectories(d / name) for d in (tmp_path / "out", root / "out"))
+        assert len(mine) == len(theirs) >= 1
+        assert all(t.frame().equals(u.frame()) for t, u in zip(mine, theirs, strict=True))
