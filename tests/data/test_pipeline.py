@@ -561,3 +561,24 @@ def test_every_raw_file_is_reported(tmp_path):
         report["files"] == summary.files
         and report["outputs"]["1min"] == "trajectories_1min.parquet"
     )
+
+
+def test_filling_a_short_gap_never_rewrites_a_reading_measured_in_it():
+    """A minute where only some signals are missing (here the speed, after one bad cell): the
+    fill takes the missing ones from the neighbours and leaves every measured one as it is."""
+    from trainclimate.data.pipeline import segment
+
+    times = pd.date_range("2022-03-01 06:00", periods=40, freq="1min", tz="UTC")
+    minutes = pd.DataFrame({name: 1.0 for name in SIGNALS}, index=times)
+    minutes["regular"] = 1.0
+    minutes["speed_kmh"] = 0.0  # standing still
+    minutes.iloc[10:12, minutes.columns.get_loc("speed_kmh")] = np.nan  # the bad cells
+    minutes.iloc[10:12, minutes.columns.get_loc("regular")] = np.nan  # no full minute
+    minutes.iloc[10, minutes.columns.get_loc(Y_NAMES[0])] = 7.0  # measured in the gap …
+    minutes.iloc[11, minutes.columns.get_loc(Y_NAMES[0])] = np.nan  # … and missing next to it
+    counts = Counts()
+    [piece] = segment(minutes, PipelineSettings(), counts)
+    assert counts.repaired["short_gap_minutes"] == 2
+    assert list(piece["speed_kmh"].iloc[9:13]) == [0.0, 0.0, 0.0, 0.0]
+    assert piece[Y_NAMES[0]].iloc[10] == 7.0  # kept, not interpolated to 1.0
+    assert piece[Y_NAMES[0]].iloc[11] == 1.0

@@ -337,10 +337,11 @@ def segment(
             and valid[a - 1]
             and valid[b]
         ):
+            # only the missing values: a signal measured in the gap keeps its reading
             for j in range(values.shape[1]):
-                col = values[:, j]
-                if not np.all(np.isfinite(col[a:b])):
-                    col[a:b] = np.interp(np.arange(a, b), [a - 1, b], [col[a - 1], col[b]])
+                missing = a + np.flatnonzero(~np.isfinite(values[a:b, j]))
+                ends = [values[a - 1, j], values[b, j]]
+                values[missing, j] = np.interp(missing, [a - 1, b], ends)
             valid[a:b] = True
             counts.repaired["short_gap_minutes"] += b - a
     filled = minutes.copy()
