@@ -48,11 +48,9 @@ class ReadCache:
         if self.size == 0:
             return compute()
         with self._lock:
-            kept = self._answers.get(key)
-            if kept is not None and kept[0] == state:
-                self._answers.move_to_end(key)
-                self.hits += 1
-                return kept[1]
+            found, answer = self._kept(key, state)
+            if found:
+                return answer
             pending = self._computing.get((key, state))
             if pending is None:
                 self.misses += 1
@@ -70,10 +68,7 @@ class ReadCache:
             raise
         with self._lock:
             del self._computing[key, state]
-            self._answers[key] = (state, answer)
-            self._answers.move_to_end(key)
-            if len(self._answers) > self.size:
-                self._answers.popitem(last=False)
+            self._keep(key, state, answer)
         mine.set_result(answer)
         return answer
 
@@ -81,20 +76,32 @@ class ReadCache:
         """The answer kept under ``key`` if it was computed in ``state``, else None (counted as
         a hit or a miss). For callers that compute many answers at once and :meth:`put` them."""
         with self._lock:
-            kept = self._answers.get(key)
-            if kept is not None and kept[0] == state:
-                self._answers.move_to_end(key)
-                self.hits += 1
-                return kept[1]
-            self.misses += 1
-            return None
+            found, answer = self._kept(key, state)
+            if not found:
+                self.misses += 1
+            return answer
 
     def put(self, key: Hashable, state: Hashable, answer: Any) -> None:
         """Keep ``answer`` under ``key``, computed in ``state`` (nothing with ``size`` 0)."""
         if self.size == 0:
             return
         with self._lock:
-            self._answers[key] = (state, answer)
-            self._answers.move_to_end(key)
-            if len(self._answers) > self.size:
-                self._answers.popitem(last=False)
+            self._keep(key, state, answer)
+
+    def _kept(self, key: Hashable, state: Hashable) -> tuple[bool, Any]:
+        """(True, the answer) if one computed in ``state`` is kept under ``key`` (a hit, now the
+        most recently used), else (False, None). Call with the lock held."""
+        kept = self._answers.get(key)
+        if kept is None or kept[0] != state:
+            return False, None
+        self._answers.move_to_end(key)
+        self.hits += 1
+        return True, kept[1]
+
+    def _keep(self, key: Hashable, state: Hashable, answer: Any) -> None:
+        """Keep ``answer`` under ``key``, dropping the least recently used beyond ``size``. Call
+        with the lock held."""
+        self._answers[key] = (state, answer)
+        self._answers.move_to_end(key)
+        if len(self._answers) > self.size:
+            self._answers.popitem(last=False)
