@@ -193,3 +193,18 @@ def test_a_repeated_time_with_other_values_is_reported_and_the_first_kept(caplog
     assert counts.dropped["duplicate"] == 1 and counts.dropped["conflicting_duplicate"] == 1
     [message] = [r.getMessage() for r in caplog.records]
     assert "first in the file is kept" in message and "25.0" in message
+
+
+def test_a_line_that_is_no_time_at_all_is_unparseable_not_a_missing_zone(tmp_path):
+    rows = [*SUMMER_HVAC, ["### logger restart ###", "", "", "", "", "", ""]]
+    path = tmp_path / "variant.csv"
+    path.write_text(text(rows, ","), encoding="utf-8")
+    table = read_source(path)
+    assert table.dropped == {"unparseable": 1} and len(table.frame) == 2
+    # with and without zones mixed, --timezone reads the ones without
+    rows = [SUMMER_HVAC[0], SUMMER_HVAC[1], [SUMMER_HVAC[2][0].rstrip("Z"), *SUMMER_HVAC[2][1:]]]
+    path.write_text(text(rows, ","), encoding="utf-8")
+    with pytest.raises(TimezoneError):
+        read_source(path)
+    expected = plain(tmp_path, SUMMER_HVAC, sep=",")
+    pd.testing.assert_frame_equal(read_source(path, timezone="UTC").frame, expected)

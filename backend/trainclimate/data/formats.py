@@ -256,6 +256,8 @@ def _detect(header_line: str) -> _Layout:
 
 #: An ISO 8601 time that carries its zone: ``Z`` or an offset.
 _ZONED = re.compile(r"(?:Z|[+-]\d{2}:?\d{2})$")
+#: The start of an ISO 8601 date and time.
+_ISO_TIME = re.compile(r"\d{4}-\d{2}-\d{2}[T ]\d{2}:\d{2}")
 
 
 class TimezoneError(FormatError):
@@ -286,21 +288,20 @@ def _parse_times(text: pd.Series, fmt: ExportFormat, timezone: str | None) -> pd
     documented zone when its export writes local times (winter-spring: Europe/Zurich), else
     :class:`TimezoneError`."""
     if fmt.time_format.startswith("%Y-%m-%dT"):
-        zoned = text.str.contains(_ZONED)
-        if zoned.all():
-            # ISO 8601 with zones: pandas' ISO parser is an order of magnitude faster than strptime
-            return pd.DatetimeIndex(
-                pd.to_datetime(text, format="ISO8601", errors="coerce", utc=True)
-            )
+        # ISO 8601: pandas' ISO parser is an order of magnitude faster than strptime
+        times = pd.to_datetime(text, format="ISO8601", errors="coerce", utc=True)
+        unzoned = text.str.match(_ISO_TIME) & ~text.str.contains(_ZONED)
+        if not unzoned.any():
+            return pd.DatetimeIndex(times)  # (text that is no time at all: NaT, unparseable)
         if timezone is None:
-            example = text[~zoned].iloc[0]
+            example = text[unzoned].iloc[0]
             raise TimezoneError(
                 f"times without a time zone (e.g. {example!r}) in the {fmt.name} export, whose "
                 "times are UTC with a Z: give their zone (--timezone, e.g. Europe/Zurich or UTC)"
             )
-        naive = pd.to_datetime(text.str.replace(_ZONED, "", regex=True), format="ISO8601",
-                               errors="coerce")  # fmt: skip
-        return _localize(pd.DatetimeIndex(naive), timezone)
+        naive = pd.to_datetime(text[unzoned], format="ISO8601", errors="coerce")
+        times[unzoned] = _localize(pd.DatetimeIndex(naive), timezone).as_unit(times.dt.unit)
+        return pd.DatetimeIndex(times)
     index = pd.to_datetime(text, format=fmt.time_format, errors="coerce")
     if index.isna().any():  # a spreadsheet saves times without their seconds
         minutes = fmt.time_format.replace(":%S", "")
