@@ -10,7 +10,8 @@ coaches in regular mode, nothing affected). Here they are summed in the database
 window, in one statement over every train — the 24-h fleet view reads a few sums per window
 instead of 2 880 rows per train — and combined by the same
 :class:`~trainclimate.analysis.savings.PairTotals`; the fleet's figures pool its trains' (energy
-over energy, discomfort over hours counted).
+over energy, discomfort over hours counted). Each train's sums are kept in the read cache while
+its rows in the counted range and its overrides are unchanged (:func:`_pair_states`).
 """
 
 from __future__ import annotations
