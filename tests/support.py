@@ -22,8 +22,9 @@ import numpy as np
 
 from trainclimate.predict import TransientPredictor
 from trainclimate.sim import scenarios
+from trainclimate.sim.environment import Environment
 from trainclimate.sim.rule import MODE_REGULAR
-from trainclimate.sim.simulator import Environment, FleetSimulator
+from trainclimate.sim.simulator import FleetSimulator
 
 RHO, HORIZON, SAMPLING_MIN = 12, 6, 5
 TICK_S = 300.0

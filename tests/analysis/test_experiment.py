@@ -27,9 +27,9 @@ from trainclimate.analysis.experiment import (
 )
 from trainclimate.cli import main
 from trainclimate.sim import scenarios
+from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import VARIED, CoachParams
 from trainclimate.sim.rule import MODE_REGULAR
-from trainclimate.sim.simulator import Environment
 
 DOCUMENTED_KEYS = (
     "savings_pct",

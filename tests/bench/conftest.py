@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from trainclimate.data import fleetlogs
-from trainclimate.data.pipeline import build_dataset
+from trainclimate.data.dataset import build_dataset
 
 #: The days of ``bench pipeline``'s generation here (at 1 day the first coaches are never long
 #: enough in regular mode: the pipeline finds no trajectory).

@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 
 from trainclimate.data import fleetlogs
+from trainclimate.data.dataset import build_dataset
 from trainclimate.data.formats import WINTER_FORMAT, read_source
-from trainclimate.data.pipeline import build_dataset
 from trainclimate.data.trajectory import read_trajectories
 
 CAMPAIGN = fleetlogs.WINTER_SPRING

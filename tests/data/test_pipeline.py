@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from trainclimate.data import fleetlogs
+from trainclimate.data.dataset import build_dataset
 from trainclimate.data.formats import CANONICAL, WINTER_FORMAT, log_path, to_export, write_export
 from trainclimate.data.pipeline import (
     SIGNALS,
@@ -16,7 +17,6 @@ from trainclimate.data.pipeline import (
     PipelineError,
     PipelineSettings,
     aggregate,
-    build_dataset,
     clean,
     fuse,
     process_coach_day,
@@ -470,7 +470,7 @@ def test_an_unreadable_file_is_named_in_a_warning_and_the_rest_still_processes(t
     broken.write_bytes(bytes(np.random.default_rng(7).integers(0, 256, 512, dtype=np.uint8)))
     stray = raw / "notes.csv"
     stray.write_text("not a log\n")
-    with caplog.at_level(logging.WARNING, logger="trainclimate.data.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="trainclimate.data.dataset"):
         summary = build_dataset(raw, tmp_path / "out")
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert any(str(broken) in w and "unreadable" in w for w in warnings)
@@ -515,7 +515,7 @@ def test_files_corrupted_on_purpose_are_counted_in_one_line_others_still_warn(tm
     users = write_coach_day(raw, "31", "31A")
     for path in (*generated, users):
         path.write_bytes(noise)
-    with caplog.at_level(logging.INFO, logger="trainclimate.data.pipeline"):
+    with caplog.at_level(logging.INFO, logger="trainclimate.data.dataset"):
         summary = build_dataset(raw, tmp_path / "out", expected_unreadable=generated)
     messages = [(r.levelno, r.getMessage()) for r in caplog.records]
     assert (logging.INFO, "2 corrupted files skipped, as generated") in messages

@@ -5,8 +5,8 @@ written."""
 import pandas as pd
 import pytest
 
+from trainclimate.data.dataset import discover
 from trainclimate.data.formats import TimezoneError, read_source
-from trainclimate.data.pipeline import discover
 
 WINTER_HVAC = [
     ["Zeit", "Betriebsart", "T_Soll", "T_Raum_OG", "T_Raum_MG", "T_Raum_UG", "Geschwindigkeit_kmh"],

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from trainclimate.data import fleetlogs
-from trainclimate.data.pipeline import build_dataset
+from trainclimate.data.dataset import build_dataset
 from trainclimate.predict.base import Z_SCALE
 
 #: 2 days of the first 4 coaches of both campaigns: coach 0 (124A/124B) is often parked, the

@@ -12,7 +12,8 @@ import pytest
 
 from cli_support import call
 from trainclimate.sim import scenarios, thermal
-from trainclimate.sim.params import PLAUSIBLE, VARIED, CoachParams, ParamsError
+from trainclimate.sim.params import VARIED, CoachParams, ParamsError
+from trainclimate.sim.plausible import PLAUSIBLE
 from trainclimate.sim.simulator import FleetSimulator, SimulationError
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "model.md"

@@ -7,9 +7,10 @@ import pytest
 
 from trainclimate.analysis.summary import coach_kpis
 from trainclimate.sim import scenarios
+from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
 from trainclimate.sim.rule import MODE_OFF, MODE_REGULAR
-from trainclimate.sim.simulator import Environment, FleetSimulator
+from trainclimate.sim.simulator import FleetSimulator
 
 
 def constant_env(hours, t_amb, ghi=0.0, zenith=120.0, mode=MODE_REGULAR, dt=10.0):

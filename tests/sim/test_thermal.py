@@ -6,9 +6,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from trainclimate.sim import hvac, thermal
+from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, stack
 from trainclimate.sim.rule import MODE_OFF, MODE_REGULAR
-from trainclimate.sim.simulator import Environment, FleetSimulator
+from trainclimate.sim.simulator import FleetSimulator
 
 P1 = stack([CoachParams()])
 FLOW = {name: j for j, name in enumerate(thermal.FLOW_NAMES)}

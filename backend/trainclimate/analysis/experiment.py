@@ -29,9 +29,10 @@ from trainclimate.control import OCPSettings
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick_summary
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
+from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import diversify
 from trainclimate.sim.rule import MODE_REGULAR
-from trainclimate.sim.simulator import Environment, FleetSimulator, SimulationResult
+from trainclimate.sim.simulator import FleetSimulator, SimulationResult
 
 #: The columns of a pair simulation.
 ACTIVATED, DEACTIVATED, EDGE = 0, 1, 2

@@ -24,7 +24,7 @@ from trainclimate.sim import scenarios, simulator  # noqa: F401  (loaded in ever
 def run_pipeline(raw: str, out: str) -> dict:
     """The pipeline on the raw logs under ``raw``, writing to ``out``: its time in s, the raw
     rows and coach-days read, and the process's peak memory in MB."""
-    from trainclimate.data.pipeline import build_dataset
+    from trainclimate.data.dataset import build_dataset
 
     t0 = time.perf_counter()
     summary = build_dataset(raw, out)

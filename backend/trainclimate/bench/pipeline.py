@@ -22,7 +22,7 @@ def run(days: int = 4, copies: tuple[int, int] = (2, 20)) -> dict:
 
     Generates ``days`` days of one winter (1-min HVAC) and one summer (2-s HVAC) coach, then
     links those files under new coach names ``copies[0]`` and ``copies[1]`` times and runs
-    :func:`~trainclimate.data.pipeline.build_dataset` on each in a fresh process, reading its
+    :func:`~trainclimate.data.dataset.build_dataset` on each in a fresh process, reading its
     peak resident memory. The baseline, in the same run, only parses the same CSV files with
     pandas (no cleaning, fusion, resampling or output): the pipeline's cost over bare I/O.
     Equal peak memory at both sizes is the bounded-memory property: the pipeline holds one

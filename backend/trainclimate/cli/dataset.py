@@ -18,7 +18,7 @@ from trainclimate.cli.common import (
 
 def cmd_dataset_build(args: argparse.Namespace) -> None:
     """``dataset build``: generate (or read ``--raw``) raw logs and run the pipeline; Table I."""
-    from trainclimate.data import fleetlogs, pipeline
+    from trainclimate.data import dataset, fleetlogs
 
     if (args.days is not None and args.days < 1) or (args.coaches is not None and args.coaches < 1):
         raise UsageError("--days and --coaches must be at least 1")
@@ -49,9 +49,9 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
                 max_coaches=args.coaches,
                 progress=bar.update,
             )
-    groups, _ = pipeline.discover(raw)
+    groups, _ = dataset.discover(raw)
     with progress_bar(len(groups), "pipeline", "coach-day") as bar:
-        summary = pipeline.build_dataset(
+        summary = dataset.build_dataset(
             raw,
             out,
             progress=bar.update,

@@ -57,7 +57,7 @@ def quick_dataset(progress: Progress | None = None) -> Path:
 
 
 def _dataset(name: str, max_days: int | None, progress: Progress | None) -> Path:
-    from trainclimate.data import fleetlogs, pipeline
+    from trainclimate.data import dataset, fleetlogs
 
     target = writable_dir(home(), "trainclimate's home") / name
     if (target / "dataset.json").exists():
@@ -82,7 +82,7 @@ def _dataset(name: str, max_days: int | None, progress: Progress | None) -> Path
     step("generate")(0)
     generated = fleetlogs.generate(tmp / "raw", max_days=max_days, progress=step("generate"))
     done[0] = 0
-    pipeline.build_dataset(
+    dataset.build_dataset(
         tmp / "raw", tmp, progress=step("pipeline"), expected_unreadable=generated.corrupted
     )
     shutil.rmtree(tmp / "raw")  # the trajectories are what is reused; raw logs are 0.3 GB

@@ -43,10 +43,11 @@ from trainclimate.data.formats import (
     to_export,
     write_export,
 )
+from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
 from trainclimate.sim.routes import LINES, haversine_m, service_day, stationary
 from trainclimate.sim.rule import MODE_NAMES, RuleCurve, mode_from_operation
-from trainclimate.sim.simulator import Environment, FleetSimulator
+from trainclimate.sim.simulator import FleetSimulator
 from trainclimate.sim.solar import solar_position
 from trainclimate.sim.weather import SITES, Weather, generate_weather
 

@@ -43,10 +43,11 @@ from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import Coach, FleetClock, Setpoint, Telemetry, Train
 from trainclimate.service.store.telemetry import rows_from_simulation
 from trainclimate.sim import scenarios
+from trainclimate.sim.environment import Environment
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.scenarios import Scenario, Service
 from trainclimate.sim.setpoint import apply_setpoint
-from trainclimate.sim.simulator import Environment, FleetSimulator
+from trainclimate.sim.simulator import FleetSimulator
 
 log = logging.getLogger(__name__)
 
