@@ -29,8 +29,9 @@ def test_dataset_build_prints_the_contract_keys_and_rebuilds_the_same_from_raw(c
         }
     for key in ("dropped_rows", "repaired_rows"):
         assert all(isinstance(v, int) and v >= 0 for v in data[key].values())
-    # a summer day at 2 s carries every per-row defect
-    assert {"duplicate", "missing_value", "out_of_range", "spike"} <= set(data["dropped_rows"])
+    # a summer day at 2 s carries every per-row and per-cell defect
+    assert "duplicate" in data["dropped_rows"]
+    assert {"missing", "out_of_range", "spike"} <= set(data["invalid_cells"])
     assert data["generated"] == {"files": 6, "rows": data["raw_rows"], "coach_days": 2}
     assert data["unreadable_files"] == [] and data["raw"] == str(out / "raw")
     assert json.loads((out / "dataset.json").read_text())["table"] == data["table"]

@@ -8,7 +8,8 @@ import pytest
 
 from trainclimate.data import fleetlogs
 from trainclimate.data.dataset import build_dataset
-from trainclimate.data.formats import WINTER_FORMAT, read_source
+from trainclimate.data.formats import WINTER_FORMAT
+from trainclimate.data.reader import read_source
 from trainclimate.data.trajectory import read_trajectories
 
 CAMPAIGN = fleetlogs.WINTER_SPRING
@@ -178,6 +179,9 @@ def test_every_row_of_every_source_is_accounted_for_under_every_defect(tmp_path)
     assert {"duplicate", "unparseable", "unrecognised_file"} <= reasons
     # the file-level reasons are counted in rows, like those of single rows
     assert summary.rows["hvac"]["dropped"]["unrecognised_file"] == 2
+    # bad cells are counted by column, their rows kept
+    assert {"missing", "out_of_range", "spike"} <= set(summary.invalid_cells)
+    assert {"missing", "spike"} <= set(summary.rows["hvac"]["invalid_cells"]["t_room_up_c"])
 
 
 def _as_a_spreadsheet_saves_it(path, out):

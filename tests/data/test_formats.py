@@ -11,10 +11,10 @@ from trainclimate.data.formats import (
     FormatError,
     log_path,
     parse_log_name,
-    read_source,
     to_export,
     write_export,
 )
+from trainclimate.data.reader import read_source
 
 WINTER_HVAC = "Zeit;Betriebsart;T_Soll;T_Raum_OG;T_Raum_MG;T_Raum_UG;Geschwindigkeit_kmh\n"
 SUMMER_HVAC = "timestamp,hvac_mode,t_setpoint,t_room_upper,t_room_middle,t_room_lower,speed_mps\n"
@@ -190,8 +190,8 @@ def test_garbage_lines_and_wrong_field_counts_are_unparseable(tmp_path):
         + good.format(1)
         + "22.02.2022 05:02:00;Normal;22,00\n"  # too few fields
         + "22.02.2022 05:03:00;Normal;22,00;21,40;21,50;21,60;0,00;7\n"  # too many
-        + "22.02.2022 05:04:00;Normal;22,00;21,4x;21,50;21,60;0,00\n"  # not a number
-        + "22.02.2022 05:05:00;Turbo;22,00;21,40;21,50;21,60;0,00\n"  # unknown mode
+        + "22.02.2022 05:04:00;Normal;22,00;21,4x;21,50;21,60;0,00\n"  # not a number: a cell
+        + "22.02.2022 05:05:00;Turbo;22,00;21,40;21,50;21,60;0,00\n"  # unknown mode: a cell
         + '"logger dump\n'  # a stray quote must not swallow the lines after it
         + '22.02.2022 05:06:00;Normal;"22,00;21,40;21,50;21,60;0,00\n'  # nor inside a row
         + good.format(6)
@@ -200,11 +200,16 @@ def test_garbage_lines_and_wrong_field_counts_are_unparseable(tmp_path):
         + good.format(8),
     )
     table = read_source(path)
-    assert table.dropped == {"unparseable": 8}
+    assert table.dropped == {"unparseable": 6}
+    assert table.cells == {("t_room_up_c", "unparseable"): 1, ("mode", "unparseable"): 1}
     assert_times_equal(
         table.frame["time"],
-        utc("2022-02-22 04:00", "2022-02-22 04:01", "2022-02-22 04:06", "2022-02-22 04:08"),
+        utc(*(f"2022-02-22 04:0{m}" for m in (0, 1, 4, 5, 6, 8))),
     )
+    # the bad cell invalidates its signal only; the row's other readings stay
+    row = table.frame.set_index("time").loc[utc("2022-02-22 04:04")[0]]
+    assert np.isnan(row["t_room_up_c"]) and (row["t_room_mid_c"], row["mode"]) == (21.5, "regular")
+    assert pd.isna(table.frame["mode"].iloc[3]) and table.frame["t_ref_c"].iloc[3] == 22.0
 
 
 def test_an_empty_field_is_read_as_missing_not_dropped(tmp_path):

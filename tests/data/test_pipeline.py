@@ -123,18 +123,25 @@ def test_duplicated_rows_are_dropped_and_counted():
     assert nonzero(counts.repaired) == {}
 
 
-def test_an_empty_field_drops_its_row_as_missing_value():
+def cells(counts, source):
+    return {k: v for k, v in counts.cells[source].items() if v}
+
+
+def test_an_empty_cell_invalidates_that_signal_and_a_row_with_none_left_is_dropped():
     log = hvac_log(60)
     log.loc[7, "t_room_mid_c"] = np.nan
     log.loc[9, "mode"] = None
     log.loc[11, "speed_kmh"] = np.nan
+    log.loc[13, ["mode", "t_ref_c", *Y_NAMES, "speed_kmh"]] = np.nan  # nothing but a time
     counts = Counts()
     cleaned = clean(log, "hvac", counts, SETTINGS)
-    assert nonzero(counts.dropped) == {"missing_value": 3}
-    assert len(cleaned) == 57 and not cleaned["time"].isin(log["time"][[7, 9, 11]]).any()
+    assert nonzero(counts.dropped) == {"no_valid_value": 1}
+    assert len(cleaned) == 59 and not cleaned["time"].isin(log["time"][[13]]).any()
+    # the other readings of rows 7, 9 and 11 are kept as they were
+    pd.testing.assert_frame_equal(cleaned, log.drop(index=13).reset_index(drop=True))
 
 
-def test_fault_codes_and_impossible_values_are_out_of_range():
+def test_fault_codes_and_impossible_values_invalidate_their_cells():
     log = hvac_log(60)
     log.loc[3, "t_room_up_c"] = 85.0
     log.loc[4, "t_room_low_c"] = -40.0
@@ -142,17 +149,28 @@ def test_fault_codes_and_impossible_values_are_out_of_range():
     log.loc[6, "speed_kmh"] = -1.0
     counts = Counts()
     cleaned = clean(log, "hvac", counts, SETTINGS)
-    assert nonzero(counts.dropped) == {"out_of_range": 4}
-    assert len(cleaned) == 56
+    assert nonzero(counts.dropped) == {}
+    assert cells(counts, "hvac") == {
+        (c, "out_of_range"): 1 for c in ("t_room_up_c", "t_room_low_c", "t_ref_c", "speed_kmh")
+    }
+    assert len(cleaned) == 60 and int(cleaned.isna().sum().sum()) == 4
+    assert cleaned.loc[3, "t_room_mid_c"] == log.loc[3, "t_room_mid_c"]
 
     weather = weather_log()
     weather.loc[2, "ghi_w_m2"] = -5.5  # beyond a night offset (OFFSET_TOLERANCE)
     weather.loc[3, "latitude_deg"] = 95.0
     trips = trips_log(("06:00", "06:30", 20.0), ("07:00", "06:50", 30.0), ("07:10", "07:40", 400.0))
     counts = Counts()
-    assert len(clean(weather, "weather", counts, SETTINGS)) == len(weather) - 2
-    assert len(clean(trips, "trips", counts, SETTINGS)) == 1
-    assert nonzero(counts.dropped) == {"out_of_range": 4}
+    assert len(clean(weather, "weather", counts, SETTINGS)) == len(weather)
+    cleaned_trips = clean(trips, "trips", counts, SETTINGS)
+    # a trip ending before it starts is no trip; an impossible occupancy is an unknown one
+    assert len(cleaned_trips) == 2 and np.isnan(cleaned_trips["occupancy_pct"].iloc[1])
+    assert nonzero(counts.dropped) == {"out_of_range": 1}
+    assert cells(counts, "weather") == {
+        ("ghi_w_m2", "out_of_range"): 1,
+        ("latitude_deg", "out_of_range"): 1,
+    }
+    assert cells(counts, "trips") == {("occupancy_pct", "out_of_range"): 1}
 
 
 def test_a_jump_in_one_sample_is_a_spike_but_a_genuine_setpoint_step_is_kept():
@@ -161,8 +179,11 @@ def test_a_jump_in_one_sample_is_a_spike_but_a_genuine_setpoint_step_is_kept():
     log.loc[12, "t_room_mid_c"] += 10.0  # a sensor spike
     counts = Counts()
     cleaned = clean(log, "hvac", counts, SETTINGS)
-    assert nonzero(counts.dropped) == {"spike": 1}
-    pd.testing.assert_frame_equal(cleaned, log.drop(index=12).reset_index(drop=True))
+    assert nonzero(counts.dropped) == {}
+    assert cells(counts, "hvac") == {("t_room_mid_c", "spike"): 1}
+    expected = log.copy()
+    expected.loc[12, "t_room_mid_c"] = np.nan
+    pd.testing.assert_frame_equal(cleaned, expected)
     assert (cleaned["t_ref_c"] == 24.0).sum() == 30
 
 
@@ -172,9 +193,9 @@ def test_spikes_in_the_ten_minute_winter_weather_are_found():
     weather.loc[20, "t_amb_c"] = -40.0  # the −40 fault code: a valid T_amb, but far off
     counts = Counts()
     cleaned = clean(weather, "weather", counts, SETTINGS)
-    assert nonzero(counts.dropped) == {"spike": 2}
-    assert len(cleaned) == len(weather) - 2
-    assert cleaned["t_amb_c"].between(2.0, 4.5).all()
+    assert cells(counts, "weather") == {("t_amb_c", "spike"): 2}
+    assert len(cleaned) == len(weather) and cleaned["t_amb_c"].isna().sum() == 2
+    assert cleaned["t_amb_c"].dropna().between(2.0, 4.5).all()
 
 
 def test_a_moving_train_without_a_trip_has_unknown_occupancy():
@@ -243,6 +264,21 @@ def test_no_sun_no_solar_gain_and_no_weather_across_a_long_gap():
     )
 
 
+def test_each_weather_signal_is_interpolated_from_its_own_valid_samples():
+    start = minute("11:00")
+    hvac = hvac_log(30, start=start)
+    weather = weather_log(start=start, hours=0.5, step_min=10, ghi_w_m2=100.0,
+                          solar_elevation_deg=30.0)  # fmt: skip
+    weather.loc[1, "t_amb_c"] = np.nan  # an invalid T_amb at 11:10
+    weather.loc[2, "latitude_deg"] = np.nan  # no position at 11:20
+    fused = fuse(hvac, weather, trips_log(), SETTINGS).set_index("time")
+    # T_amb across its missing sample, from 11:00 and 11:20; the irradiance untouched
+    assert fused.loc[minute("11:10"), "t_amb_c"] == pytest.approx(2.1)
+    assert fused["t_amb_c"].notna().all() and fused["q_gt_w_m2"].notna().all()
+    np.testing.assert_allclose(fused["q_gt_w_m2"], 50.0, rtol=1e-12)  # |100 cos 60°|
+    assert fused["q_gs_w_m2"].notna().all()  # the heading from the other positions
+
+
 # --- 2. aggregate ----------------------------------------------------------------------------
 def fused_samples(n, step_s=20):
     """A fused table of ``n`` samples ``step_s`` apart; every signal equals its sample index."""
@@ -269,6 +305,18 @@ def test_a_minute_is_regular_only_if_every_sample_is():
     fused.loc[8, "mode"] = "off"  # 06:02:40
     minutes = aggregate(fused, T0, T0 + pd.Timedelta("4min"))
     np.testing.assert_array_equal(minutes["regular"], [1.0, 0.0, 0.0, np.nan])
+
+
+def test_a_missing_value_is_left_out_of_the_minute_not_counted_as_zero():
+    fused = fused_samples(9)
+    fused.loc[4, ["t_ref_c", "speed_kmh", "t_room_up_c"]] = np.nan  # 06:01:20
+    fused.loc[7, "mode"] = np.nan  # 06:02:20: a mode label that could not be read
+    minutes = aggregate(fused, T0, T0 + pd.Timedelta("3min"))
+    assert minutes["t_ref_c"].tolist() == [1.0, 4.0, 7.0]  # (3 + 5) / 2, not (3 + 0 + 5) / 3
+    assert minutes["speed_kmh"].tolist() == [1.0, 4.0, 7.0]
+    assert minutes["t_room_up_c"].tolist()[:3] == [0.0, 2.0, 5.5]  # (t − 1, t]: 3, (4), 5
+    # a minute with a sample of unknown mode is not known to be regular
+    np.testing.assert_array_equal(minutes["regular"], [1.0, 1.0, np.nan])
 
 
 # --- 3. segment: gaps and modes --------------------------------------------------------------
@@ -437,8 +485,8 @@ def write_coach_day(raw, train, coach, hvac_rows=None):
 
 def with_defects(rows):
     rows = [list(r) for r in rows]
-    rows[10][3] = "85,00"  # fault code → out_of_range
-    rows[20][4] = ""  # empty field → missing_value
+    rows[10][3] = "85,00"  # fault code → an out_of_range cell
+    rows[20][4] = ""  # empty field → a missing cell
     rows[30][5] = str(float(rows[30][5].replace(",", ".")) + 10).replace(".", ",")  # spike
     rows = [*rows[:40], rows[40], *rows[40:]]  # duplicate
     rows = [*rows[:50], *rows[55:70], *rows[50:55], *rows[70:]]  # 5 rows out of order
@@ -448,19 +496,49 @@ def with_defects(rows):
 def test_every_defect_in_a_raw_directory_is_counted_by_reason(tmp_path):
     write_coach_day(tmp_path / "raw", "44", "44A", with_defects)
     summary = build_dataset(tmp_path / "raw", tmp_path / "out")
-    assert nonzero(summary.dropped_rows) == {
-        "duplicate": 1,
-        "missing_value": 1,
-        "out_of_range": 1,
-        "spike": 1,
-        "unparseable": 1,
+    assert nonzero(summary.dropped_rows) == {"duplicate": 1, "unparseable": 1}
+    assert summary.invalid_cells == {"missing": 1, "out_of_range": 1, "spike": 1}
+    assert summary.rows["hvac"]["invalid_cells"] == {
+        "t_room_up_c": {"out_of_range": 1},
+        "t_room_mid_c": {"missing": 1},
+        "t_room_low_c": {"spike": 1},
     }
-    # the three rows dropped leave one-minute holes, interpolated
+    # the three invalid cells leave one-minute holes in their signal, interpolated
     assert nonzero(summary.repaired_rows) == {"out_of_order": 5, "short_gap_minutes": 3}
     assert summary.raw_rows == 122 + len(weather_log())  # with the garbage line and the copy
     [trajectory] = read_trajectories(tmp_path / "out" / "trajectories_1min.parquet")
     assert (trajectory.time[0], len(trajectory)) == (minute("06:00"), 120)
     np.testing.assert_allclose(trajectory.y, hvac_log(120)[list(Y_NAMES)], atol=1e-9)
+
+
+def bad_cells(rows):
+    rows = [list(r) for r in rows]
+    rows[15][6] = "0,0x"  # a speed that cannot be read
+    rows[25][1] = "Turbo"  # a mode label that is none of the format's
+    rows[35][2] = "85,00"  # a setpoint fault code
+    rows[45][4] = ""  # no middle-deck reading
+    return rows
+
+
+def test_a_bad_cell_invalidates_its_signal_and_changes_no_other_reading(tmp_path):
+    write_coach_day(tmp_path / "clean", "44", "44A")
+    write_coach_day(tmp_path / "bad", "44", "44A", bad_cells)
+    build_dataset(tmp_path / "clean", tmp_path / "out-clean")
+    summary = build_dataset(tmp_path / "bad", tmp_path / "out-bad")
+    assert summary.dropped_rows == {} and summary.rows["hvac"]["kept"] == 120
+    assert summary.rows["hvac"]["invalid_cells"] == {
+        "speed_kmh": {"unparseable": 1},
+        "mode": {"unparseable": 1},
+        "t_ref_c": {"out_of_range": 1},
+        "t_room_mid_c": {"missing": 1},
+    }
+    [expected] = read_trajectories(tmp_path / "out-clean" / "trajectories_1min.parquet")
+    [got] = read_trajectories(tmp_path / "out-bad" / "trajectories_1min.parquet")
+    # every minute kept; each hole filled in its own signal only, from its neighbours
+    assert (got.time == expected.time).all() and len(got) == 120
+    for name in ("y", "u", "d"):
+        np.testing.assert_allclose(getattr(got, name), getattr(expected, name), atol=1e-9)
+    assert summary.repaired_rows["short_gap_minutes"] == 4
 
 
 def test_an_unreadable_file_is_named_in_a_warning_and_the_rest_still_processes(tmp_path, caplog):

@@ -2,11 +2,12 @@
 reads back to exactly the table of the plain export, and the file's report says how it was
 written."""
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from trainclimate.data.dataset import discover
-from trainclimate.data.formats import TimezoneError, read_source
+from trainclimate.data.reader import TimezoneError, read_source
 
 WINTER_HVAC = [
     ["Zeit", "Betriebsart", "T_Soll", "T_Raum_OG", "T_Raum_MG", "T_Raum_UG", "Geschwindigkeit_kmh"],
@@ -123,8 +124,9 @@ def test_small_sensor_offsets_are_read_as_zero_and_counted():
     )
     counts = Counts()
     out = clean(hvac, "hvac", counts, PipelineSettings())
-    assert list(out["speed_kmh"]) == [0.0, 0.0, 0.0, 12.0]
-    assert counts.repaired["clipped_offset"] == 2 and counts.dropped["out_of_range"] == 1
+    np.testing.assert_array_equal(out["speed_kmh"], [0.0, 0.0, 0.0, np.nan, 12.0])
+    assert counts.repaired["clipped_offset"] == 2
+    assert counts.cells["hvac"] == {("speed_kmh", "out_of_range"): 1}
     weather = pd.DataFrame(
         {
             "time": times,
@@ -138,8 +140,10 @@ def test_small_sensor_offsets_are_read_as_zero_and_counted():
     )
     counts = Counts()
     out = clean(weather, "weather", counts, PipelineSettings())
-    assert list(out["ghi_w_m2"]) == [0.0, 0.0, 0.0, 3.0]
-    assert counts.repaired["clipped_offset"] == 2 and counts.dropped["out_of_range"] == 1
+    np.testing.assert_array_equal(out["ghi_w_m2"], [0.0, 0.0, np.nan, 0.0, 3.0])
+    assert counts.repaired["clipped_offset"] == 2
+    assert counts.cells["weather"] == {("ghi_w_m2", "out_of_range"): 1}
+    assert list(out["t_amb_c"]) == [1.0] * 5  # the row's other readings stay
 
 
 def test_the_hour_the_autumn_change_repeats_is_resolved_by_order(tmp_path):
@@ -208,3 +212,40 @@ def test_a_line_that_is_no_time_at_all_is_unparseable_not_a_missing_zone(tmp_pat
         read_source(path)
     expected = plain(tmp_path, SUMMER_HVAC, sep=",")
     pd.testing.assert_frame_equal(read_source(path, timezone="UTC").frame, expected)
+
+
+def test_a_file_read_in_small_blocks_gives_the_same_table(tmp_path, monkeypatch):
+    """Blocks split lines, a CRLF pair, a Windows-1252 character and the repeated autumn hour
+    anywhere: the table is the one read in one piece."""
+    from trainclimate.data import reader
+
+    rows = [WINTER_HVAC[0]] + [
+        [f"30.10.2022 {hm}", "Normal", "22,00", f"21,{i:02d}", "21,50", "21,60", "0,00", note]
+        for i, (hm, note) in enumerate(
+            [(f"{h:02d}:{m:02d}", "") for h in (1, 2) for m in range(0, 60, 5)]
+            + [(f"02:{m:02d}", "Türe offen" if m == 30 else "") for m in range(0, 60, 5)]
+            + [(f"03:{m:02d}", "") for m in range(0, 60, 5)]
+        )
+    ]
+    rows[0] = [*rows[0], "Bemerkung"]
+    data = b"\r\n".join(";".join(r).encode("cp1252") for r in rows) + b"\r\n"
+    path = tmp_path / "variant.csv"
+    path.write_bytes(data)
+    whole = read_source(path)
+    assert whole.encoding == "cp1252" and whole.rows_read == 48 and not whole.dropped
+    for block in (1, 7, 64, 333):
+        monkeypatch.setattr(reader, "BLOCK_BYTES", block)
+        table = read_source(path)
+        pd.testing.assert_frame_equal(table.frame, whole.frame)
+        assert (table.rows_read, table.encoding, table.dropped) == (48, "cp1252", {})
+    utc = pd.DatetimeIndex(whole.frame["time"])
+    assert utc.is_monotonic_increasing and utc.is_unique  # the repeated hour by order
+
+
+def test_rows_outside_the_window_are_counted_not_kept(tmp_path):
+    path = tmp_path / "variant.csv"
+    path.write_text(text(WINTER_HVAC), encoding="utf-8")
+    window = (pd.Timestamp("2022-02-22 04:15", tz="UTC"), pd.Timestamp("2022-02-22 05", tz="UTC"))
+    table = read_source(path, windows={"hvac": window, "trips": (window[0], window[0])})
+    assert table.dropped == {"outside_day_window": 2} and len(table.frame) == 1
+    assert table.frame["time"].iloc[0] == window[0]

@@ -38,7 +38,9 @@ def cmd_bench(args: argparse.Namespace) -> None:
             raise UsageError("--coaches must be ≥ 1 and --days positive")
         report(args, simulator.run(coaches, args.days, args.loop_coaches), simulator.text)
     elif args.target == "pipeline":
-        report(args, pipeline.run(), pipeline.text)
+        if args.file_mb <= 0:
+            raise UsageError("--file-mb must be positive")
+        report(args, pipeline.run(big_file_mb=args.file_mb), pipeline.text)
     elif args.target == "predictor":
         try:
             scales = tuple(int(x) for x in args.scales.split(","))
@@ -90,6 +92,12 @@ def register(sub) -> None:
         choices=("simulator", "pipeline", "predictor", "controller", "service", "load", "replicas"),
     )
     p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
+    p.add_argument(
+        "--file-mb",
+        type=float,
+        default=2048,
+        help="pipeline: the size of the one big export read, in MB (default 2048)",
+    )
     p.add_argument("--data", default=None, help="predictor: dataset directory")
     p.add_argument(
         "--db",

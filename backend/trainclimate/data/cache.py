@@ -26,7 +26,7 @@ from trainclimate.paths import home, writable_dir
 log = logging.getLogger(__name__)
 
 #: Bump when generated data or the pipeline's output would change.
-DATASET_VERSION = "fleet-1"
+DATASET_VERSION = "fleet-2"
 #: Days of each campaign in the quick dataset.
 QUICK_DAYS = 4
 

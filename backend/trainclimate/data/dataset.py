@@ -15,15 +15,15 @@ from pathlib import Path
 
 import pandas as pd
 
-from trainclimate.data.formats import (
-    FORMATS,
-    SOURCES,
-    FormatError,
-    TimezoneError,
-    parse_log_name,
-    read_source,
+from trainclimate.data.formats import FORMATS, SOURCES, FormatError, parse_log_name
+from trainclimate.data.pipeline import (
+    Counts,
+    PipelineError,
+    PipelineSettings,
+    by_column,
+    process_coach_day,
 )
-from trainclimate.data.pipeline import Counts, PipelineError, PipelineSettings, process_coach_day
+from trainclimate.data.reader import TimezoneError, read_source
 from trainclimate.data.trajectory import TrajectoryWriter
 from trainclimate.paths import writable_dir
 
@@ -37,6 +37,8 @@ class DatasetSummary:
     table: list[dict]
     dropped_rows: dict[str, int]
     repaired_rows: dict[str, int]
+    #: cells invalidated (made NaN; their rows kept), by reason, over every source and column
+    invalid_cells: dict[str, int]
     unreadable_files: list[str]
     #: how many of ``unreadable_files`` were corrupted on purpose by the generator
     unreadable_as_generated: int
@@ -44,13 +46,15 @@ class DatasetSummary:
     raw_rows: int
     #: the Parquet file of each sampling time, relative to the output directory
     outputs: dict[str, str]
-    #: per source: rows ``read``, ``kept`` and ``dropped`` by reason (read == kept + dropped)
+    #: per source: rows ``read``, ``kept`` and ``dropped`` by reason (read == kept + dropped),
+    #: and ``invalid_cells`` by column and reason
     rows: dict[str, dict]
     #: the zone times without one were read in (None: each campaign's own)
     timezone: str | None
     #: per raw file (relative to the raw directory): ``source``, ``campaign``, ``encoding``,
     #: ``delimiter``, ``rows_read``, ``rows_kept`` (by the reader), ``dropped`` (reason → rows),
-    #: ``extra_columns``; or ``error`` for a file not read, ``ignored`` for one not used
+    #: ``invalid_cells`` (column → reason → cells), ``extra_columns``; or ``error`` for a file
+    #: not read, ``ignored`` for one not used
     files: list[dict]
 
     def to_dict(self) -> dict:
@@ -64,6 +68,15 @@ def _coach_day_window(day: str) -> tuple[pd.Timestamp, pd.Timestamp]:
     nxt = pd.Timestamp(day) + pd.Timedelta(days=1)
     end = pd.Timestamp(f"{nxt:%Y-%m-%d} 03:00", tz="Europe/Zurich")
     return start.tz_convert("UTC"), end.tz_convert("UTC")
+
+
+def _source_windows(day: str, settings: PipelineSettings) -> dict[str, tuple]:
+    """Per source, the times of the rows the coach-day ``day`` uses: its window, widened for
+    the weather by the longest gap interpolated across (the window's edges are interpolated
+    from readings just outside it)."""
+    start, end = _coach_day_window(day)
+    margin = pd.Timedelta(minutes=settings.max_weather_gap_min)
+    return {"hvac": (start, end), "weather": (start - margin, end + margin), "trips": (start, end)}
 
 
 def _campaign_order(name: str) -> tuple[int, str]:
@@ -105,7 +118,7 @@ def build_dataset(
     (:attr:`~trainclimate.data.fleetlogs.GenerationSummary.corrupted`), which are counted in one
     line; :class:`PipelineError` if nothing usable was found, or for times without a zone where
     the format has one and no ``timezone`` (an IANA name: the zone of times written without one;
-    default each campaign's, :func:`~trainclimate.data.formats.read_source`).
+    default each campaign's, :func:`~trainclimate.data.reader.read_source`).
     """
     settings = settings or PipelineSettings()
     raw, out = Path(raw), Path(out)
@@ -139,10 +152,11 @@ def build_dataset(
         for (campaign_dir, train, coach, day), paths_of_day in groups.items():
             sources: dict[str, pd.DataFrame | None] = {"hvac": None, "weather": None, "trips": None}
             campaign = campaign_dir
+            windows = _source_windows(day, settings)
             for path in paths_of_day:
                 where = str(path.relative_to(raw))
                 try:
-                    table = read_source(path, timezone)
+                    table = read_source(path, timezone, windows)
                 except TimezoneError as exc:
                     raise PipelineError(f"{where}: {exc}") from None
                 except (FormatError, OSError, ValueError) as exc:
@@ -161,6 +175,7 @@ def build_dataset(
                     "rows_read": table.rows_read,
                     "rows_kept": len(table.frame),
                     "dropped": dict(sorted(table.dropped.items())),
+                    "invalid_cells": by_column(table.cells),
                     "extra_columns": list(table.extra_columns),
                 }
                 files.append(report)
@@ -178,7 +193,9 @@ def build_dataset(
                 campaign = table.campaign
                 for reason, n in table.dropped.items():
                     total.drop(table.source, reason, n)
-                raw_rows += len(table.frame) + sum(table.dropped.values())
+                for (column, reason), n in table.cells.items():
+                    total.invalidate(table.source, column, reason, n)
+                raw_rows += table.rows_read
             start, end = _coach_day_window(day)
             meta = {"campaign": campaign, "train": train, "coach": coach}
             result, counts = process_coach_day(
@@ -224,8 +241,9 @@ def build_dataset(
     ]
     summary = DatasetSummary(
         table=table,
-        dropped_rows={k: int(v) for k, v in sorted(total.dropped.items())},
-        repaired_rows={k: int(v) for k, v in sorted(total.repaired.items())},
+        dropped_rows={k: int(v) for k, v in sorted(total.dropped.items()) if v},
+        repaired_rows={k: int(v) for k, v in sorted(total.repaired.items()) if v},
+        invalid_cells=total.invalid_cells(),
         unreadable_files=unreadable,
         unreadable_as_generated=as_generated,
         coach_days=len(groups),

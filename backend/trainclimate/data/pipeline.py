@@ -3,22 +3,28 @@
 For each coach and day (bounded memory, whatever the fleet's size):
 
 0. **Clean** each source's canonical table (:func:`clean`): sort rows back into time order
-   (repaired ``out_of_order``), drop duplicated times (``duplicate``), rows with an empty
-   required field (``missing_value``), physically impossible values (``out_of_range``) and sensor
-   spikes — readings more than ``spike_k`` from the rolling median of their
-   ``spike_window_min`` neighbourhood, widened to five samples for slow logs (``spike``).
-1. **Fuse** the three sources into one table at the HVAC's timestamps (:func:`fuse`): the weather
-   is interpolated in time (never across a gap longer than ``max_weather_gap_min``), the heading θ
-   comes from the train's successive positions, the solar projections are
-   ``Q_Gt = |G cos z|`` and ``Q_Gs = |G sin z sin(β − θ)|`` with z the solar *zenith* angle
-   (90° − the logged elevation; see docs/model.md), and the occupancy P is the trip's. A moving
-   train with no trip recorded has an unknown occupancy.
-2. **Aggregate** to 1 min (:func:`aggregate`): y is the mean of the samples measured in the
-   minute up to t, u and d the means over the minute from t; a minute is in regular mode only
-   if every sample in it is.
+   (repaired ``out_of_order``) and drop duplicated times (``duplicate``; a repeated time with
+   other values is a ``conflicting_duplicate``, the first row in the file kept). A faulty *cell*
+   invalidates that signal, not the row: it becomes NaN and is counted by column, as
+   ``out_of_range`` (physically impossible) or ``spike`` (more than ``spike_k`` from the rolling
+   median of its ``spike_window_min`` neighbourhood, widened to five samples for slow logs);
+   small sensor offsets below zero are clipped (repaired ``clipped_offset``). A row left with no
+   valid signal at all is dropped (``no_valid_value``), as is a trip that ends before it starts
+   (``out_of_range``).
+1. **Fuse** the three sources into one table at the HVAC's timestamps (:func:`fuse`): each
+   weather signal is interpolated in time from its own valid samples (never across a gap longer
+   than ``max_weather_gap_min``), the heading θ comes from the train's successive positions, the
+   solar projections are ``Q_Gt = |G cos z|`` and ``Q_Gs = |G sin z sin(β − θ)|`` with z the
+   solar *zenith* angle (90° − the logged elevation; see docs/model.md), and the occupancy P is
+   the trip's. A moving train with no trip recorded has an unknown occupancy.
+2. **Aggregate** to 1 min (:func:`aggregate`): y is the mean of the valid samples measured in the
+   minute up to t, u and d the means of the valid samples over the minute from t (a missing
+   value is left out, never counted as zero); a minute is in regular mode only if every sample
+   in it is known to be.
 3. **Segment and filter** (:func:`segment`): interior gaps of at most ``max_fill_min`` minutes
-   between regular-mode minutes are interpolated (repaired ``short_gap``); every other missing
-   or non-regular minute ends a trajectory; trajectories shorter than ``min_minutes`` are dropped.
+   between regular-mode minutes are interpolated — only the values missing there; a reading in
+   the gap is kept (repaired ``short_gap``); every other incomplete or non-regular minute ends a
+   trajectory; trajectories shorter than ``min_minutes`` are dropped.
 4. **Down-sample** to 5 and 10 min (:func:`downsample`), blocks aligned to the clock: y at the
    block's start, u and d the block's means (the convention of
    :mod:`trainclimate.data.trajectory`); trajectories with fewer than ``min_points`` samples are
@@ -37,9 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from trainclimate.data.formats import (
-    CANONICAL,
-)
+from trainclimate.data.formats import CANONICAL, TEXT_COLUMNS, TIME_COLUMNS
 from trainclimate.data.trajectory import D_NAMES, U_NAMES, Y_NAMES, Trajectory
 from trainclimate.sim.routes import heading_from_positions
 from trainclimate.sim.solar import roof_irradiance, side_irradiance
@@ -91,18 +95,25 @@ class Counts:
     """Rows (or minutes, where the reason says so) dropped and repaired, by reason; and per
     source (``hvac``, ``weather``, ``trips``; ``unknown`` for a file of no known source) the
     rows ``read``, ``kept`` (fused into the minutes) and dropped by reason, so that
-    ``read == kept + sum(dropped)`` (:meth:`rows`)."""
+    ``read == kept + sum(dropped)`` (:meth:`rows`), and the cells of kept rows invalidated, by
+    column and reason (``cells``)."""
 
     dropped: Counter = field(default_factory=Counter)
     repaired: Counter = field(default_factory=Counter)
     read: Counter = field(default_factory=Counter)
     kept: Counter = field(default_factory=Counter)
     by_source: dict[str, Counter] = field(default_factory=lambda: defaultdict(Counter))
+    cells: dict[str, Counter] = field(default_factory=lambda: defaultdict(Counter))
 
     def drop(self, source: str, reason: str, n: int) -> None:
         """``n`` rows of ``source`` dropped for ``reason``."""
         self.dropped[reason] += n
         self.by_source[source][reason] += n
+
+    def invalidate(self, source: str, column: str, reason: str, n: int) -> None:
+        """``n`` cells of ``source``'s ``column`` invalidated (made NaN) for ``reason``."""
+        if n:
+            self.cells[source][(column, reason)] += n
 
     def update(self, other: Counts) -> None:
         """Add ``other``'s counts to these."""
@@ -112,18 +123,39 @@ class Counts:
         self.kept.update(other.kept)
         for source, reasons in other.by_source.items():
             self.by_source[source].update(reasons)
+        for source, cells in other.cells.items():
+            self.cells[source].update(cells)
+
+    def invalid_cells(self) -> dict[str, int]:
+        """Cells invalidated, by reason, over every source and column."""
+        total: Counter = Counter()
+        for cells in self.cells.values():
+            for (_, reason), n in cells.items():
+                total[reason] += n
+        return {k: int(v) for k, v in sorted(total.items()) if v}
 
     def rows(self) -> dict[str, dict]:
-        """Per source: ``read``, ``kept`` and ``dropped`` (reason → rows, those not zero)."""
+        """Per source: ``read``, ``kept`` and ``dropped`` (reason → rows, those not zero), and
+        ``invalid_cells`` (column → reason → cells)."""
         sources = sorted({*self.read, *self.kept, *self.by_source})
         return {
             s: {
                 "read": int(self.read[s]),
                 "kept": int(self.kept[s]),
                 "dropped": {k: int(v) for k, v in sorted(self.by_source[s].items()) if v},
+                "invalid_cells": by_column(self.cells[s]),
             }
             for s in sources
         }
+
+
+def by_column(cells: Counter) -> dict[str, dict[str, int]]:
+    """Cell counts keyed by (column, reason) as column → reason → count, zeros left out."""
+    out: dict[str, dict[str, int]] = defaultdict(dict)
+    for (column, reason), n in sorted(cells.items()):
+        if n:
+            out[column][reason] = int(n)
+    return dict(out)
 
 
 def _seconds(times) -> np.ndarray:
@@ -132,7 +164,11 @@ def _seconds(times) -> np.ndarray:
 
 # --- 0. clean ----------------------------------------------------------------------------------
 def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSettings):
-    """One source's canonical table, sorted, de-duplicated and rid of faulty rows (see module)."""
+    """One source's canonical table, sorted, de-duplicated, its faulty cells NaN (see module).
+
+    Cells already NaN (empty or unreadable in the file: counted by the reader) are not counted
+    again.
+    """
     key = "departure" if source == "trips" else "time"
     frame = frame.reset_index(drop=True)
     t = _seconds(frame[key]) if len(frame) else np.array([])
@@ -160,11 +196,6 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
     counts.drop(source, "conflicting_duplicate", int(conflict.sum()))
     frame = frame.loc[~dup]
 
-    required = [c for c in CANONICAL[source] if c not in ("origin", "destination")]
-    missing = frame[required].isna().any(axis=1)
-    counts.drop(source, "missing_value", int(missing.sum()))
-    frame = frame.loc[~missing]
-
     frame = frame.copy()
     for col, tolerance in OFFSET_TOLERANCE.items():
         if col in frame:
@@ -172,20 +203,20 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
             offset = (v < 0.0) & (v >= -tolerance)
             counts.repaired["clipped_offset"] += int(offset.sum())
             frame.loc[offset, col] = 0.0
-    bad = np.zeros(len(frame), dtype=bool)
     for col in CANONICAL[source]:
         if col in RANGES:
             lo, hi = RANGES[col]
             v = frame[col].to_numpy(dtype=float)
-            bad |= (v < lo) | (v > hi)
+            bad = (v < lo) | (v > hi)
+            counts.invalidate(source, col, "out_of_range", int(bad.sum()))
+            frame.loc[bad, col] = np.nan
     if source == "trips":
-        bad |= (frame["arrival"] <= frame["departure"]).to_numpy()
-    counts.drop(source, "out_of_range", int(bad.sum()))
-    frame = frame.loc[~bad]
+        backwards = (frame["arrival"] <= frame["departure"]).to_numpy()
+        counts.drop(source, "out_of_range", int(backwards.sum()))
+        frame = frame.loc[~backwards]
 
     if SPIKE_COLUMNS[source] and len(frame):
         indexed = frame.set_index(key)
-        spike = np.zeros(len(frame), dtype=bool)
         # at least two samples either side: the winter weather comes every 10 min, and a 5-min
         # window would hold each reading alone, so no spike could ever be found there
         ts = _seconds(indexed.index)
@@ -193,9 +224,19 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
         window = pd.Timedelta(seconds=max(settings.spike_window_min * 60.0, 5.0 * period))
         for col in SPIKE_COLUMNS[source]:
             median = indexed[col].rolling(window, center=True, min_periods=1).median()
-            spike |= (np.abs(indexed[col] - median) > settings.spike_k).to_numpy()
-        counts.drop(source, "spike", int(spike.sum()))
-        frame = frame.loc[~spike]
+            spike = (np.abs(indexed[col] - median) > settings.spike_k).to_numpy()
+            counts.invalidate(source, col, "spike", int(spike.sum()))
+            frame.loc[spike, col] = np.nan
+
+    signals = [
+        c for c in CANONICAL[source] if c not in (*TIME_COLUMNS[source], *TEXT_COLUMNS[source])
+    ]
+    if source == "hvac":
+        signals.append("mode")
+    if source != "trips":  # a trip's times are data: its train is on it, occupancy known or not
+        empty = frame[signals].isna().all(axis=1).to_numpy()
+        counts.drop(source, "no_valid_value", int(empty.sum()))
+        frame = frame.loc[~empty]
     return frame.reset_index(drop=True)
 
 
@@ -223,7 +264,8 @@ def fuse(
     settings: PipelineSettings,
     counts: Counts | None = None,
 ) -> pd.DataFrame:
-    """Step 1: one table at the HVAC's times with ``mode``, u, y and d (see the module).
+    """Step 1: one table at the HVAC's times with ``mode``, u, y and d (see the module), and
+    ``untracked``: the train moves with no trip recorded, or there is no trips log at all.
 
     ``weather`` or ``trips`` None (file missing or unreadable) leave the signals they give NaN;
     an empty ``trips`` table means no trip that day (occupancy 0 while standing).
@@ -238,35 +280,47 @@ def fuse(
     if weather is not None and len(weather) >= 2:
         ws = _seconds(weather["time"])
         period = float(np.median(np.diff(ws)))
-        interp = {
-            col: _interpolate(ts, ws, values, settings.max_weather_gap_min * 60.0, period)
-            for col, values in (
-                ("t_amb_c", weather["t_amb_c"].to_numpy(float)),
-                ("ghi_w_m2", weather["ghi_w_m2"].to_numpy(float)),
-                ("elevation", weather["solar_elevation_deg"].to_numpy(float)),
-                ("azimuth", np.unwrap(weather["solar_azimuth_deg"].to_numpy(float), period=360)),
-            )
-        }
-        heading = heading_from_positions(weather["latitude_deg"], weather["longitude_deg"])
-        # the heading of the weather interval [w_i, w_i+1) a time falls in: its direction of travel
-        idx = np.clip(np.searchsorted(ws, ts, side="right") - 1, 0, len(ws) - 1)
-        theta = np.where(np.isnan(interp["t_amb_c"]), np.nan, heading[idx])
-        zenith = 90.0 - interp["elevation"]
-        out["t_amb_c"] = interp["t_amb_c"]
-        out["q_gt_w_m2"] = roof_irradiance(interp["ghi_w_m2"], zenith)
-        out["q_gs_w_m2"] = side_irradiance(
-            interp["ghi_w_m2"], zenith, np.mod(interp["azimuth"], 360.0), theta
-        )
-        for col in ("q_gt_w_m2", "q_gs_w_m2"):
-            out.loc[np.isnan(interp["ghi_w_m2"]) | np.isnan(zenith), col] = np.nan
+        max_gap = settings.max_weather_gap_min * 60.0
+
+        def interp(values: np.ndarray) -> np.ndarray:
+            ok = np.isfinite(values)  # each signal from its own valid samples
+            if ok.sum() < 2:
+                return np.full(n, np.nan)
+            return _interpolate(ts, ws[ok], values[ok], max_gap, period)
+
+        azimuth = weather["solar_azimuth_deg"].to_numpy(float).copy()
+        valid_az = np.isfinite(azimuth)
+        azimuth[valid_az] = np.unwrap(azimuth[valid_az], period=360)
+        ghi = interp(weather["ghi_w_m2"].to_numpy(float))
+        zenith = 90.0 - interp(weather["solar_elevation_deg"].to_numpy(float))
+        lat = weather["latitude_deg"].to_numpy(float)
+        lon = weather["longitude_deg"].to_numpy(float)
+        placed = np.isfinite(lat) & np.isfinite(lon)
+        theta = np.full(n, np.nan)
+        if placed.sum() >= 2:
+            wp = ws[placed]
+            heading = heading_from_positions(lat[placed], lon[placed])
+            # the heading of the interval between positions a time falls in: its direction
+            idx = np.clip(np.searchsorted(wp, ts, side="right") - 1, 0, len(wp) - 1)
+            known = np.isfinite(_interpolate(ts, wp, np.zeros(len(wp)), max_gap, period))
+            theta = np.where(known, heading[idx], np.nan)
+        out["t_amb_c"] = interp(weather["t_amb_c"].to_numpy(float))
+        out["q_gt_w_m2"] = roof_irradiance(ghi, zenith)
+        out["q_gs_w_m2"] = side_irradiance(ghi, zenith, np.mod(interp(azimuth), 360.0), theta)
+        unknown = np.isnan(ghi) | np.isnan(zenith)
+        out.loc[unknown, "q_gt_w_m2"] = np.nan
+        out.loc[unknown | np.isnan(theta) | np.isnan(out["q_gs_w_m2"]), "q_gs_w_m2"] = np.nan
     else:
         for col in ("t_amb_c", "q_gt_w_m2", "q_gs_w_m2"):
             out[col] = np.nan
 
+    speed = out["speed_kmh"].to_numpy()
     if trips is None:
         out["occupancy_pct"] = np.nan
+        out["untracked"] = True
     else:
         occ = np.zeros(n)
+        on_trip = np.zeros(n, dtype=bool)
         if len(trips):
             dep, arr = _seconds(trips["departure"]), _seconds(trips["arrival"])
             j = np.searchsorted(dep, ts, side="right") - 1
@@ -274,10 +328,9 @@ def fuse(
             occ = np.where(
                 on_trip, trips["occupancy_pct"].to_numpy(float)[np.clip(j, 0, None)], 0.0
             )
-        else:
-            on_trip = np.zeros(n, dtype=bool)
-        unknown = ~on_trip & (out["speed_kmh"].to_numpy() > 5.0)
-        out["occupancy_pct"] = np.where(unknown, np.nan, occ)
+        # off a trip, a standing train is empty; one moving, or of unknown speed, is unknown
+        out["occupancy_pct"] = np.where(~on_trip & ~(speed <= 5.0), np.nan, occ)
+        out["untracked"] = ~on_trip & (speed > 5.0)
     return out
 
 
@@ -289,14 +342,19 @@ def aggregate(fused: pd.DataFrame, start: pd.Timestamp, end: pd.Timestamp) -> pd
     (t − 1 min, t] — and the means of u and d over [t, t + 1 min), so y(t) never overlaps the
     interval of u(t) and d(t) (the convention of :mod:`trainclimate.data.trajectory`). Column
     ``regular`` is 1 for minutes [t, t + 1 min) entirely in regular mode, 0 otherwise, NaN
-    without data.
+    without data or with a sample of unknown mode. Missing values are left out of the means.
     """
-    frame = fused.drop(columns="mode").set_index("time")
-    frame["regular"] = (fused["mode"].to_numpy() == "regular").astype(float)
+    frame = fused.drop(columns=["mode", "untracked"], errors="ignore").set_index("time")
+    mode = fused["mode"].to_numpy(dtype=object)
+    frame["regular"] = np.where(pd.isna(mode), np.nan, mode == "regular").astype(float)
     grid = pd.date_range(start, end, freq="1min", inclusive="left")
     acting = [c for c in frame.columns if c not in Y_NAMES]
-    means = frame[acting].groupby(frame.index.floor("1min")).mean()
-    means["regular"] = np.floor(means["regular"])  # all samples regular → 1
+    minute = frame.index.floor("1min")
+    means = frame[acting].groupby(minute).mean()  # (NaN left out, never counted as zero)
+    # all samples regular → 1; one of unknown mode → NaN
+    means["regular"] = np.floor(means["regular"])
+    unknown = frame["regular"].isna().groupby(minute).any()
+    means.loc[unknown.to_numpy(), "regular"] = np.nan
     measured = frame[list(Y_NAMES)].groupby(frame.index.ceil("1min")).mean()
     return means.reindex(grid).join(measured.reindex(grid))[[*SIGNALS, "regular"]]
 
@@ -405,14 +463,14 @@ def process_coach_day(
             counts.kept[name] += len(cleaned[name])
     fused = fuse(cleaned["hvac"], cleaned.get("weather"), cleaned.get("trips"), settings, counts)
     inside = ((fused["time"] >= start) & (fused["time"] < end)).to_numpy()
-    # a row without occupancy cannot be used: the train moves with no trip recorded, or there
-    # is no trips log for the coach-day at all
-    unknown = fused["occupancy_pct"].isna().to_numpy() & inside
+    # a row of a train moving with no trip recorded, or of a coach-day with no trips log at all,
+    # cannot be used: its occupancy is unknown
+    untracked = fused["untracked"].to_numpy(dtype=bool) & inside
     why = "no_trips_log" if cleaned.get("trips") is None else "moving_without_trip_rows"
     counts.drop("hvac", "outside_day_window", int((~inside).sum()))
-    counts.drop("hvac", why, int(unknown.sum()))
-    counts.kept["hvac"] += int((inside & ~unknown).sum())
-    fused = fused[inside]
+    counts.drop("hvac", why, int(untracked.sum()))
+    counts.kept["hvac"] += int((inside & ~untracked).sum())
+    fused = fused[inside & ~untracked]
     if not len(fused):
         return out, counts
     pieces = segment(aggregate(fused, start, end), settings, counts)
