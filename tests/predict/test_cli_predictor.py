@@ -137,7 +137,7 @@ def test_too_little_data_exits_2_with_the_predictor_data_error(capsys, small_dat
         "trainclimate: error: too little data for transient with ρ = 30, T = 30: "
         "the fit needs at least 540 windows of 60 consecutive samples"
     )
-    assert "; got 29 from 2 of 27 trajectories (800 samples)" in line
+    assert "; got 29 from 2 of 27 trajectories (798 samples)" in line
 
 
 def test_no_validation_window_exits_2(capsys, tmp_path):
