@@ -120,3 +120,18 @@ def test_summer_times_without_their_z_need_timezone(capsys, tmp_path):
     )  # fmt: skip
     # no weather and trips: nothing usable, but the times were read (not refused)
     assert code == 2 and "no usable trajectory" in err and "time zone" not in err
+
+
+def test_coach_params_for_the_generator_are_checked_first(capsys, tmp_path):
+    bad = tmp_path / "params.json"
+    bad.write_text(json.dumps({"c_room_j_k": [90.0, 60.0, 105.0]}))  # kJ/K, not J/K
+    code, out, err = call(
+        capsys, "dataset", "build", "--out", str(tmp_path / "o"), "--coach-params", str(bad)
+    )
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+    assert "c_room_j_k" in err and "J/K" in err
+    code, out, err = call(
+        capsys, "dataset", "build", "--out", str(tmp_path / "o"), "--raw", str(tmp_path),
+        "--coach-params", str(bad),
+    )  # fmt: skip
+    assert code == 2 and "not with --raw" in err

@@ -3,12 +3,13 @@
 import dataclasses
 import re
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from trainclimate.data import fleetlogs
 from trainclimate.data.dataset import build_dataset
-from trainclimate.data.formats import WINTER_FORMAT
+from trainclimate.data.formats import CANONICAL, WINTER_FORMAT
 from trainclimate.data.reader import read_source
 from trainclimate.data.trajectory import read_trajectories
 
@@ -72,7 +73,7 @@ def test_generation_writes_one_file_per_source_coach_and_day(raw):
     for source in ("hvac", "trips", "weather"):
         path = root / "raw" / "winter-spring" / source / "44_44A_2022-02-22.csv"
         first = path.read_text(encoding="utf-8").splitlines()[0]
-        assert first == ";".join(WINTER_FORMAT.header[source])
+        assert first == ";".join(WINTER_FORMAT.columns[source][c] for c in CANONICAL[source])
     total = sum(len(data_lines(p)) for p in (root / "raw").rglob("*.csv"))
     assert summary.rows == total
     # the parked coach makes no trip; the HVAC logs a sample a minute, the weather every 10 min
@@ -211,3 +212,50 @@ def test_a_campaign_re_saved_as_a_spreadsheet_gives_the_same_trajectories(raw, b
         mine, theirs = (read_trajectories(d / name) for d in (tmp_path / "out", root / "out"))
         assert len(mine) == len(theirs) >= 1
         assert all(t.frame().equals(u.frame()) for t, u in zip(mine, theirs, strict=True))
+
+
+def test_the_power_meter_reads_the_mean_over_each_interval():
+    grid = np.arange(0.0, 60.0, 10.0)  # a power held over 10-s steps
+    power_w = np.array([1000.0, 2000.0, 3000.0, 4000.0, 5000.0, 6000.0])
+    # 1-min readings from 0 s, 2-s readings inside a step, a reading straddling two steps
+    kw = fleetlogs._metered_kw(np.array([0.0, 12.0, 25.0]), grid, power_w, 60.0)
+    np.testing.assert_allclose(kw[0], 3.5)
+    kw = fleetlogs._metered_kw(np.array([12.0, 25.0, 28.0]), grid, power_w, 4.0)
+    np.testing.assert_allclose(kw, [2.0, 3.0, 3.5])
+
+
+def test_the_hvac_log_meters_power_and_the_trajectories_carry_it(raw, built):
+    root, _ = raw
+    for path in (root / "raw").rglob("hvac/*.csv"):
+        if path.stat().st_size > 1000:  # (not a corrupted one)
+            assert "P_Klima_kW" in path.read_text(encoding="utf-8").splitlines()[0]
+    one = read_trajectories(root / "out" / "trajectories_1min.parquet")
+    five = read_trajectories(root / "out" / "trajectories_5min.parquet")
+    p = np.concatenate([t.p_kw for t in one])
+    assert np.isfinite(p).mean() > 0.95 and np.nanmin(p) >= 0.0 and 1.0 < np.nanmean(p) < 30.0
+    # 5-min power: the mean of its five minutes
+    t1, t5 = one[0], next(t for t in five if t.time[0] >= one[0].time[0])
+    i = t1.time.get_indexer(t5.time[:3])
+    expected = [t1.p_kw[k : k + 5].mean() for k in i]
+    np.testing.assert_allclose(t5.p_kw[:3], expected, rtol=1e-12)
+    # the power is carried, not required: Table I is that of logs without a meter
+    assert built.rows["hvac"]["invalid_cells"].get("p_hvac_kw", {}).get("missing", 0) >= 0
+
+
+def test_given_coach_parameters_are_every_generated_coachs(tmp_path):
+    """A fan drawing 1 kW more shows in the metered power whenever the unit runs."""
+    from trainclimate.sim.params import CoachParams
+
+    clean = fleetlogs.Defects.none()
+    base, more = CoachParams(), CoachParams(fan_supply_w=CoachParams().fan_supply_w + 1000.0)
+    days = dict(campaigns=(CAMPAIGN,), max_days=1, max_coaches=2, defects=clean)
+    fleetlogs.generate(tmp_path / "a", coach_params=base, **days)
+    fleetlogs.generate(tmp_path / "b", coach_params=more, **days)
+    diffs = []
+    for a in sorted((tmp_path / "a").rglob("hvac/*.csv")):  # (one coach in the depot, HVAC off)
+        b = tmp_path / "b" / a.relative_to(tmp_path / "a")
+        pa_, pb = (read_source(p).frame for p in (a, b))
+        running = (pa_["mode"] == "regular").to_numpy()
+        diffs.append((pb["p_hvac_kw"] - pa_["p_hvac_kw"]).to_numpy()[running])
+    diff = np.concatenate(diffs)
+    assert len(diff) > 600 and abs(np.median(diff) - 1.0) < 0.05

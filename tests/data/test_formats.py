@@ -60,6 +60,8 @@ def test_winter_decimal_commas_and_local_time_across_the_dst_change_read_as_utc(
     np.testing.assert_array_equal(frame["t_ref_c"], [22.0, 22.5, 22.5, 23.0])
     np.testing.assert_array_equal(frame["t_room_up_c"], [21.4, 20.1, -1.25, 21.0])
     np.testing.assert_array_equal(frame["speed_kmh"], [0.0, 12.5, 0.0, 80.25])
+    # a coach that does not meter its HVAC power: the optional column is NaN, not an error
+    assert frame["p_hvac_kw"].isna().all() and table.extra_columns == ()
 
 
 def test_a_local_time_that_does_not_exist_is_unparseable(tmp_path):
@@ -107,6 +109,7 @@ def canonical(source):
                 "t_room_mid_c": [21.5, 21.6, 21.7, 21.8, 21.9],
                 "t_room_low_c": [20.1, 20.2, 20.3, 20.4, 20.5],
                 "speed_kmh": [0.0, 36.0, 72.0, 126.0, 3.6],  # whole m/s, exact in summer
+                "p_hvac_kw": [3.25, 14.8, 1.1, 0.0, 22.05],
             }
         )
     if source == "weather":
@@ -140,7 +143,7 @@ def test_export_write_read_round_trips_the_canonical_table(tmp_path, fmt, source
     path = tmp_path / "log.csv"
     write_export(to_export(frame, source, fmt), path, fmt)
     first_line = path.read_text(encoding="utf-8").splitlines()[0]
-    assert first_line == fmt.sep.join(fmt.header[source])
+    assert first_line == fmt.sep.join(fmt.columns[source][c] for c in CANONICAL[source])
     table = read_source(path)
     assert (table.source, table.campaign) == (source, fmt.name)
     assert not table.dropped

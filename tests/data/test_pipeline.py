@@ -660,3 +660,17 @@ def test_filling_a_short_gap_never_rewrites_a_reading_measured_in_it():
     assert list(piece["speed_kmh"].iloc[9:13]) == [0.0, 0.0, 0.0, 0.0]
     assert piece[Y_NAMES[0]].iloc[10] == 7.0  # kept, not interpolated to 1.0
     assert piece[Y_NAMES[0]].iloc[11] == 1.0
+
+
+def test_the_metered_power_is_carried_but_its_gaps_split_nothing():
+    log = hvac_log(120)
+    log["p_hvac_kw"] = 4.0 + 0.01 * np.arange(120)
+    log.loc[30:44, "p_hvac_kw"] = np.nan  # the meter drops out for 15 min
+    trajectories, _ = run(log)
+    [one] = trajectories[1]
+    assert len(one) == 120  # the same trajectory as without a meter
+    np.testing.assert_allclose(one.p_kw[:30], 4.0 + 0.01 * np.arange(30))
+    assert np.isnan(one.p_kw[30:45]).all()
+    [five] = trajectories[5]
+    np.testing.assert_allclose(five.p_kw[:6], [4.02 + 0.05 * k for k in range(6)])
+    assert np.isnan(five.p_kw[6:9]).all()  # a block with a minute missing has no mean

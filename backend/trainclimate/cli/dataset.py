@@ -19,6 +19,7 @@ from trainclimate.cli.common import (
 def cmd_dataset_build(args: argparse.Namespace) -> None:
     """``dataset build``: generate (or read ``--raw``) raw logs and run the pipeline; Table I."""
     from trainclimate.data import dataset, fleetlogs
+    from trainclimate.sim.params import load_params
 
     if (args.days is not None and args.days < 1) or (args.coaches is not None and args.coaches < 1):
         raise UsageError("--days and --coaches must be at least 1")
@@ -29,12 +30,15 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
             raise UsageError(f"--timezone: unknown time zone {args.timezone!r}") from None
     out = out_dir(args.out, "the dataset")
     generated = None
+    if args.raw and args.coach_params:
+        raise UsageError("--coach-params sets the generated coaches' parameters: not with --raw")
     if args.raw:
         raw = Path(args.raw)
         if not raw.is_dir():
             raise UsageError(f"--raw: no such directory: {raw}")
     else:
         raw = out / "raw"
+        coach_params = load_params(args.coach_params) if args.coach_params else None
         campaigns = tuple(fleetlogs.CAMPAIGNS[c] for c in args.campaign or fleetlogs.CAMPAIGNS)
         total = sum(
             len(c.days[: args.days] if args.days else c.days)
@@ -48,6 +52,7 @@ def cmd_dataset_build(args: argparse.Namespace) -> None:
                 max_days=args.days,
                 max_coaches=args.coaches,
                 progress=bar.update,
+                coach_params=coach_params,
             )
     groups, _ = dataset.discover(raw)
     with progress_bar(len(groups), "pipeline", "coach-day") as bar:
@@ -107,6 +112,12 @@ def register(sub) -> None:
     )
     p.add_argument("--days", type=int, default=None, help="only the first N days per campaign")
     p.add_argument("--coaches", type=int, default=None, help="only the first N coaches")
+    p.add_argument(
+        "--coach-params",
+        default=None,
+        help="coach parameter JSON file (coach-params): every generated coach uses it "
+        "(default: each coach its own, seeded ±15 %% around the default)",
+    )
     p.add_argument(
         "--campaign", action="append", choices=("winter-spring", "summer"), help="repeatable"
     )

@@ -15,13 +15,17 @@ winter, when the rule curve is flat). The day runs from 03:00 to 03:00 local tim
 The simulator steps at 10 s. The HVAC log samples the true room temperatures (linear between
 steps: < 0.01 K error, far below the sensors' 0.1 K) through each coach's sensor model — noise
 and 0.1 K quantisation — at the campaign's rate; T_ref, mode and speed are read at the same
-times. The weather log gives the train's position, the regional weather (plus a small local
-anomaly per train) and the solar elevation and azimuth at the train's position (pvlib). The
-trips log has one row per trip with its mean occupancy.
+times, and the electrical power meter gives the climate system's mean power over each sample's
+interval [t, t + period), at the meter's :data:`POWER_QUANTUM_KW` resolution. The weather log
+gives the train's position, the regional weather (plus a small local anomaly per train) and the
+solar elevation and azimuth at the train's position (pvlib). The trips log has one row per trip
+with its mean occupancy.
 
 Then the defects of real exports are added (:class:`Defects`): communication gaps from a minute
 to hours, duplicated and out-of-order rows, sensor spikes, empty fields, garbage lines and the
-occasional unreadable file, each drawn from the coach-day's seed. Coach-days are simulated in
+occasional unreadable file, each drawn from the coach-day's seed; and the power meter's own
+dropouts (the power field empty for a minute to two hours), drawn from a stream of their own so
+that the other defects are those of logs without a meter. Coach-days are simulated in
 batches (as columns of one vectorised fleet), so memory is bounded by the batch, not the campaign.
 """
 
@@ -55,6 +59,8 @@ LOCAL_TZ = "Europe/Zurich"
 SIM_DT_S = 10.0
 #: Every coach-day is simulated over this many hours (a local day is 23–25 h around DST).
 DAY_HOURS_MAX = 25.0
+#: Resolution of the HVAC power meter's readings. [kW]
+POWER_QUANTUM_KW = 0.01
 
 
 @dataclass(frozen=True)
@@ -131,6 +137,9 @@ class Defects:
     unreadable_file: float = 0.003
     missing_trip: float = 0.02
     logger_off_day: float = 0.04
+    power_gaps_per_day: float = 0.5
+    power_gap_min_s: float = 60.0
+    power_gap_max_s: float = 2 * 3600.0
 
     @classmethod
     def none(cls) -> Defects:
@@ -163,7 +172,10 @@ def _add_defects(
     if source != "trips" and n:
         values = table.to_numpy(dtype=object)
         first_number = 2 if source == "hvac" else 1
+        power = fmt.columns[source].get("p_hvac_kw")
         for j, name in enumerate(table.columns):
+            if name == power:
+                continue  # the meter's defects are its own (_power_dropouts)
             if name in _temperature_columns(fmt, source):
                 for i in np.flatnonzero(rng.random(n) < rates.spike_value):
                     values[i, j] = _spike(values[i, j], fmt, rng)
@@ -191,6 +203,29 @@ def _add_defects(
             ignore_index=True,
         )
     return out, bool(rng.random() < rates.unreadable_file)
+
+
+def _power_dropouts(
+    table: pd.DataFrame,
+    times: pd.DatetimeIndex,
+    fmt: ExportFormat,
+    rates: Defects,
+    rng: np.random.Generator,
+) -> pd.DataFrame:
+    """The exported HVAC table with the power meter's dropouts: its field empty over spans of
+    ``power_gap_min_s``…``power_gap_max_s`` (log-uniform), ``power_gaps_per_day`` a day."""
+    column = fmt.columns["hvac"]["p_hvac_kw"]
+    if not len(table) or column not in table:
+        return table
+    t = _seconds(times)
+    lost = np.zeros(len(t), dtype=bool)
+    for _ in range(rng.poisson(rates.power_gaps_per_day)):
+        start = rng.uniform(t[0], t[-1])
+        length = np.exp(rng.uniform(np.log(rates.power_gap_min_s), np.log(rates.power_gap_max_s)))
+        lost |= (t >= start) & (t < start + length)
+    table = table.copy()
+    table.loc[lost, column] = ""
+    return table
 
 
 def _spike(text: str, fmt: ExportFormat, rng: np.random.Generator) -> str:
@@ -445,6 +480,9 @@ def coach_day_logs(
             "t_room_mid_c": measured[:, 1],
             "t_room_low_c": measured[:, 2],
             "speed_kmh": _interp(ts, grid, env.speed_kmh[:n, col]),
+            "p_hvac_kw": _metered_kw(
+                ts, grid, result.total_power_w[:n, col], campaign.hvac_period_s
+            ),
         }
     )
 
@@ -466,6 +504,20 @@ def coach_day_logs(
     )
     trips = _trips(ops, n, plan.train, plan.line if plan.in_service else "")
     return {"hvac": hvac, "weather": weather, "trips": trips}
+
+
+def _metered_kw(
+    times_s: np.ndarray, grid_s: np.ndarray, power_w: np.ndarray, period_s: float
+) -> np.ndarray:
+    """A power meter's readings at ``times_s``: the mean of the simulated power (held over each
+    step of ``grid_s``) over [t, t + ``period_s``), in kW at :data:`POWER_QUANTUM_KW`."""
+    dt = grid_s[1] - grid_s[0]
+    edges = np.append(grid_s, grid_s[-1] + dt)
+    energy = np.concatenate([[0.0], np.cumsum(power_w * dt)])  # exact for a held power
+    mean_w = (np.interp(times_s + period_s, edges, energy) - np.interp(times_s, edges, energy)) / (
+        np.minimum(times_s + period_s, edges[-1]) - times_s
+    )
+    return np.round(mean_w / 1e3 / POWER_QUANTUM_KW) * POWER_QUANTUM_KW
 
 
 def _solar_at(times: pd.DatetimeIndex, lat: np.ndarray, lon: np.ndarray) -> pd.DataFrame:
@@ -503,17 +555,20 @@ def generate(
     batch_size: int = 24,
     rule: RuleCurve | None = None,
     progress: Callable[[int], None] | None = None,
+    coach_params: CoachParams | None = None,
 ) -> GenerationSummary:
     """Write the raw logs of ``campaigns`` under ``out`` (see the module docstring).
 
     ``max_days`` / ``max_coaches`` keep only the first days and coaches of each campaign (for
     tests and quick looks); ``defects`` the defect rates (default :class:`Defects`);
-    ``progress`` is called with the number of coach-days done after each batch. The same
-    arguments always write the same files.
+    ``progress`` is called with the number of coach-days done after each batch;
+    ``coach_params`` makes every coach use those parameters instead of the fleet's spread
+    (:func:`fleet_params`) — a known truth to calibrate against. The same arguments always
+    write the same files.
     """
     rates = defects or Defects()
     out = Path(out)
-    params = fleet_params()
+    params = fleet_params() if coach_params is None else [coach_params] * len(fleet_params())
     summary = GenerationSummary()
     for campaign in campaigns:
         weather = campaign_weather(campaign)
@@ -580,6 +635,9 @@ def _simulate_and_write(batch, campaign, weather, params, rates, rule, out, sun_
         for source, table in logs.items():
             exported = to_export(table, source, campaign.fmt)
             times = pd.DatetimeIndex(table["time"]) if "time" in table else pd.DatetimeIndex([])
+            if source == "hvac":
+                meter = np.random.default_rng([plan.seed, 2])
+                exported = _power_dropouts(exported, times, campaign.fmt, rates, meter)
             exported, unreadable = _add_defects(exported, times, source, campaign.fmt, rates, rng)
             path = log_path(out, campaign.name, source, plan.train, plan.coach, plan.day)
             if unreadable:

@@ -4,7 +4,9 @@ Every source has a *canonical* table (the pipeline's input, whatever the origin 
 service's stored telemetry):
 
 - HVAC: ``time`` (UTC), ``mode`` (``regular`` / ``slumber`` / ``off``), ``t_ref_c``,
-  ``t_room_up_c``, ``t_room_mid_c``, ``t_room_low_c`` (°C), ``speed_kmh``;
+  ``t_room_up_c``, ``t_room_mid_c``, ``t_room_low_c`` (°C), ``speed_kmh`` and, where the coach
+  meters it, ``p_hvac_kw``: the climate system's electrical power, the mean over the sample's
+  interval [t, t + period) (kW; an optional column, NaN in a file without it);
 - weather: ``time``, ``latitude_deg``, ``longitude_deg``, ``t_amb_c``, ``ghi_w_m2``,
   ``solar_elevation_deg``, ``solar_azimuth_deg`` (clockwise from north);
 - trips (train recordings, one row per trip): ``train``, ``departure``, ``arrival`` (UTC),
@@ -30,7 +32,10 @@ import pandas as pd
 
 SOURCES = ("hvac", "weather", "trips")
 CANONICAL = {
-    "hvac": ("time", "mode", "t_ref_c", "t_room_up_c", "t_room_mid_c", "t_room_low_c", "speed_kmh"),
+    "hvac": (
+        "time", "mode", "t_ref_c", "t_room_up_c", "t_room_mid_c", "t_room_low_c", "speed_kmh",
+        "p_hvac_kw",
+    ),
     "weather": (
         "time", "latitude_deg", "longitude_deg", "t_amb_c", "ghi_w_m2",
         "solar_elevation_deg", "solar_azimuth_deg",
@@ -40,6 +45,8 @@ CANONICAL = {
 #: Columns holding times, and columns holding free text, per source (the rest are numbers).
 TIME_COLUMNS = {"hvac": ("time",), "weather": ("time",), "trips": ("departure", "arrival")}
 TEXT_COLUMNS = {"hvac": ("mode",), "weather": (), "trips": ("train", "origin", "destination")}
+#: Columns a file may lack (read as NaN): what not every coach meters.
+OPTIONAL_COLUMNS = {"hvac": ("p_hvac_kw",), "weather": (), "trips": ()}
 MODES = ("regular", "slumber", "off")
 
 
@@ -53,7 +60,8 @@ class ExportFormat:
 
     ``columns[source]`` maps canonical names to the export's; ``time_format`` is a strftime
     pattern read in ``timezone``; numbers use ``decimal``; ``modes`` maps canonical mode names to
-    the export's labels; the exported speed is ``speed_kmh * speed_factor``.
+    the export's labels; the exported speed is ``speed_kmh * speed_factor``. ``header[source]``
+    holds the column names every file of the source has (the optional ones left out).
     """
 
     name: str
@@ -70,7 +78,10 @@ class ExportFormat:
         object.__setattr__(
             self,
             "header",
-            {s: tuple(self.columns[s][c] for c in CANONICAL[s]) for s in SOURCES},
+            {
+                s: tuple(self.columns[s][c] for c in CANONICAL[s] if c not in OPTIONAL_COLUMNS[s])
+                for s in SOURCES
+            },
         )
 
 
@@ -84,6 +95,7 @@ WINTER_FORMAT = ExportFormat(
         "hvac": dict(
             time="Zeit", mode="Betriebsart", t_ref_c="T_Soll", t_room_up_c="T_Raum_OG",
             t_room_mid_c="T_Raum_MG", t_room_low_c="T_Raum_UG", speed_kmh="Geschwindigkeit_kmh",
+            p_hvac_kw="P_Klima_kW",
         ),
         "weather": dict(
             time="Zeit", latitude_deg="Breite", longitude_deg="Laenge", t_amb_c="T_aussen",
@@ -108,6 +120,7 @@ SUMMER_FORMAT = ExportFormat(
         "hvac": dict(
             time="timestamp", mode="hvac_mode", t_ref_c="t_setpoint", t_room_up_c="t_room_upper",
             t_room_mid_c="t_room_middle", t_room_low_c="t_room_lower", speed_kmh="speed_mps",
+            p_hvac_kw="p_hvac_kw",
         ),
         "weather": dict(
             time="timestamp", latitude_deg="lat", longitude_deg="lon", t_amb_c="temp_air",
@@ -152,6 +165,8 @@ def to_export(frame: pd.DataFrame, source: str, fmt: ExportFormat) -> pd.DataFra
     """A canonical table converted to ``fmt``'s columns and text (all values as strings)."""
     out = {}
     for col in CANONICAL[source]:
+        if col not in frame and col in OPTIONAL_COLUMNS[source]:
+            continue
         values = frame[col]
         if col in TIME_COLUMNS[source]:
             text = pd.DatetimeIndex(values).tz_convert(fmt.timezone).strftime(fmt.time_format)

@@ -20,7 +20,8 @@ For each coach and day (bounded memory, whatever the fleet's size):
 2. **Aggregate** to 1 min (:func:`aggregate`): y is the mean of the valid samples measured in the
    minute up to t, u and d the means of the valid samples over the minute from t (a missing
    value is left out, never counted as zero); a minute is in regular mode only if every sample
-   in it is known to be.
+   in it is known to be. The metered HVAC power, where logged, is carried along as u and d are
+   (its mean over the minute from t), but a minute without it is still complete.
 3. **Segment and filter** (:func:`segment`): interior gaps of at most ``max_fill_min`` minutes
    between regular-mode minutes are interpolated — only the values missing there; a reading in
    the gap is kept (repaired ``short_gap``); every other incomplete or non-regular minute ends a
@@ -51,6 +52,9 @@ from trainclimate.sim.solar import roof_irradiance, side_irradiance
 log = logging.getLogger(__name__)
 
 SIGNALS = (*Y_NAMES, *U_NAMES, *D_NAMES)
+#: The HVAC's metered electrical power: carried through to the trajectories beside y, u and d,
+#: but not a signal a trajectory needs (a minute without it is still a complete minute).
+POWER = "p_hvac_kw"
 #: Physically possible range of each canonical column (outside: a faulty reading).
 RANGES = {
     "t_room_up_c": (-30.0, 60.0),
@@ -65,6 +69,7 @@ RANGES = {
     "solar_elevation_deg": (-90.0, 90.0),
     "solar_azimuth_deg": (0.0, 360.0),
     "occupancy_pct": (0.0, 300.0),
+    "p_hvac_kw": (0.0, 200.0),
 }
 SPIKE_COLUMNS = {"hvac": ("t_ref_c", *Y_NAMES), "weather": ("t_amb_c",), "trips": ()}
 #: Sensor offsets tolerated below a range's lower bound of 0 and read as 0 (counted as repaired
@@ -203,7 +208,9 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
             offset = (v < 0.0) & (v >= -tolerance)
             counts.repaired["clipped_offset"] += int(offset.sum())
             frame.loc[offset, col] = 0.0
-    for col in CANONICAL[source]:
+    # (an optional column may be absent: a table from elsewhere than the reader)
+    present = [c for c in CANONICAL[source] if c in frame]
+    for col in present:
         if col in RANGES:
             lo, hi = RANGES[col]
             v = frame[col].to_numpy(dtype=float)
@@ -228,9 +235,7 @@ def clean(frame: pd.DataFrame, source: str, counts: Counts, settings: PipelineSe
             counts.invalidate(source, col, "spike", int(spike.sum()))
             frame.loc[spike, col] = np.nan
 
-    signals = [
-        c for c in CANONICAL[source] if c not in (*TIME_COLUMNS[source], *TEXT_COLUMNS[source])
-    ]
+    signals = [c for c in present if c not in (*TIME_COLUMNS[source], *TEXT_COLUMNS[source])]
     if source == "hvac":
         signals.append("mode")
     if source != "trips":  # a trip's times are data: its train is on it, occupancy known or not
@@ -272,8 +277,8 @@ def fuse(
     """
     counts = counts or Counts()
     out = pd.DataFrame({"time": hvac["time"].array, "mode": hvac["mode"].to_numpy()})
-    for col in ("t_ref_c", *Y_NAMES, "speed_kmh"):
-        out[col] = hvac[col].to_numpy(dtype=float)
+    for col in ("t_ref_c", *Y_NAMES, "speed_kmh", POWER):
+        out[col] = hvac[col].to_numpy(dtype=float) if col in hvac else np.full(len(hvac), np.nan)
     ts = _seconds(out["time"])
     n = len(out)
 
@@ -356,7 +361,8 @@ def aggregate(fused: pd.DataFrame, start: pd.Timestamp, end: pd.Timestamp) -> pd
     unknown = frame["regular"].isna().groupby(minute).any()
     means.loc[unknown.to_numpy(), "regular"] = np.nan
     measured = frame[list(Y_NAMES)].groupby(frame.index.ceil("1min")).mean()
-    return means.reindex(grid).join(measured.reindex(grid))[[*SIGNALS, "regular"]]
+    minutes = means.reindex(grid).join(measured.reindex(grid))
+    return minutes.reindex(columns=[*SIGNALS, POWER, "regular"])  # (no power logged: NaN)
 
 
 # --- 3. segment ------------------------------------------------------------------------------
@@ -408,6 +414,7 @@ def _trajectory(frame: pd.DataFrame, meta: dict, sampling_min: int) -> Trajector
         y=frame[list(Y_NAMES)].to_numpy(float),
         u=frame[list(U_NAMES)].to_numpy(float),
         d=frame[list(D_NAMES)].to_numpy(float),
+        p_kw=frame[POWER].to_numpy(float),
         sampling_min=sampling_min,
         **meta,
     )
@@ -417,7 +424,8 @@ def _trajectory(frame: pd.DataFrame, meta: dict, sampling_min: int) -> Trajector
 def downsample(piece: pd.DataFrame, step_min: int) -> pd.DataFrame:
     """Step 4: a 1-min piece as blocks of ``step_min`` aligned to the clock, each complete.
 
-    y is the 1-min value at the block's start; u and d the block's means.
+    y is the 1-min value at the block's start; u, d and the power the block's means (the
+    power NaN if a minute of the block lacks it).
     """
     minute = _seconds(piece.index) // 60
     first = int(-(-minute[0] // step_min) * step_min)  # first aligned minute in the piece
@@ -426,8 +434,9 @@ def downsample(piece: pd.DataFrame, step_min: int) -> pd.DataFrame:
         return piece.iloc[:0]
     offset = int(first - minute[0])
     block = piece.iloc[offset : offset + n_blocks * step_min]
-    means = block[list(SIGNALS)].to_numpy(float).reshape(n_blocks, step_min, -1).mean(axis=1)
-    out = pd.DataFrame(means, columns=list(SIGNALS), index=block.index[::step_min])
+    cols = [*SIGNALS, POWER]
+    means = block[cols].to_numpy(float).reshape(n_blocks, step_min, -1).mean(axis=1)
+    out = pd.DataFrame(means, columns=cols, index=block.index[::step_min])
     out[list(Y_NAMES)] = block[list(Y_NAMES)].to_numpy(float)[::step_min]
     return out
 

@@ -95,13 +95,15 @@ class _Layout:
     delimiter: str
     names: tuple[str, ...]  # the header's column names, a trailing empty one dropped
 
-    def position(self, col: str) -> int:
-        """Where canonical column ``col`` is in the file."""
-        return self.names.index(self.fmt.columns[self.source][col])
+    def position(self, col: str) -> int | None:
+        """Where canonical column ``col`` is in the file (None: an optional one it lacks)."""
+        name = self.fmt.columns[self.source][col]
+        return self.names.index(name) if name in self.names else None
 
     @property
     def extra(self) -> tuple[str, ...]:
-        return tuple(n for n in self.names if n not in self.fmt.header[self.source])
+        known = set(self.fmt.columns[self.source].values())
+        return tuple(n for n in self.names if n not in known)
 
 
 def _detect(header_line: str) -> _Layout:
@@ -261,8 +263,12 @@ class _Reading:
             return
         # only the rows kept are read further
         out = {col: times[inside] for col, times in out.items()}
+        kept = int(inside.sum())
         for col in CANONICAL[source]:
             if col in TIME_COLUMNS[source]:
+                continue
+            if layout.position(col) is None:  # an optional column the file does not have
+                out[col] = np.full(kept, np.nan)
                 continue
             values = column(col, inside)
             if col in TEXT_COLUMNS[source] and col != "mode":

@@ -4,12 +4,16 @@ This is what the predictors consume (paper, Section III.B): per sample k on a un
 
 - ``y[k]`` = T_room of the decks up, mid, low (°C), shape (n, 3);
 - ``u[k]`` = T_ref (°C), shape (n, 1);
-- ``d[k]`` = [T_amb (°C), Q_Gt (W/m²), Q_Gs (W/m²), P (% of seats), V (km/h)], shape (n, 5).
+- ``d[k]`` = [T_amb (°C), Q_Gt (W/m²), Q_Gs (W/m²), P (% of seats), V (km/h)], shape (n, 5);
+
+and beside them ``p_kw[k]``, the HVAC's metered electrical power (kW, shape (n,); NaN where the
+coach does not meter it) — data for calibrating the simulator, not a predictor input.
 
 Sampling convention (the same at 1, 5 and 10 min, and the one the controller uses): ``time[k]`` is
 the start of interval k. ``y[k]`` is the room temperature measured by ``time[k]`` (the mean of
 the sensor samples in the minute before it); ``u[k]`` and ``d[k]`` are the setpoint applied and the
-disturbance acting over ``[time[k], time[k+1])`` (their means over the interval). So y(k+1) depends
+disturbance acting over ``[time[k], time[k+1])`` (their means over the interval), as is the
+power ``p_kw[k]``. So y(k+1) depends
 on u(k) and d(k), never on u(k+1) or d(k+1) — the causal structure of the Transient Predictor —
 and y(k) is known when u(k) is chosen, as in the controller.
 
@@ -41,6 +45,7 @@ UNITS = {
     "q_gs_w_m2": "W/m2",
     "occupancy_pct": "% of seats",
     "speed_kmh": "km/h",
+    "p_hvac_kw": "kW",
 }
 META_NAMES = ("traj_id", "campaign", "train", "coach", "sampling_min")
 
@@ -52,7 +57,7 @@ _SCHEMA = pa.schema(
         ("coach", pa.string()),
         ("sampling_min", pa.int16()),
         ("time", pa.timestamp("us", tz="UTC")),
-        *[(name, pa.float64()) for name in (*Y_NAMES, *U_NAMES, *D_NAMES)],
+        *[(name, pa.float64()) for name in (*Y_NAMES, *U_NAMES, *D_NAMES, "p_hvac_kw")],
     ]
 )
 
@@ -62,7 +67,8 @@ class Trajectory:
     """A uniformly sampled, gap-free trajectory (see the module docstring for the convention).
 
     ``time`` (n,) tz-aware UTC; ``y`` (n, 3), ``u`` (n, 1), ``d`` (n, 5) float arrays;
-    ``campaign``, ``train``, ``coach`` where it comes from; ``sampling_min`` its step in minutes.
+    ``campaign``, ``train``, ``coach`` where it comes from; ``sampling_min`` its step in minutes;
+    ``p_kw`` (n,) the metered HVAC power in kW (None: not metered, stored as NaN).
     """
 
     time: pd.DatetimeIndex
@@ -73,9 +79,14 @@ class Trajectory:
     train: str = ""
     coach: str = ""
     sampling_min: int = 1
+    p_kw: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.time)
+        p = np.full(n, np.nan) if self.p_kw is None else np.asarray(self.p_kw, dtype=float)
+        if p.shape != (n,):
+            raise ValueError(f"trajectory p_kw must have shape ({n},)")
+        object.__setattr__(self, "p_kw", p)
         for name, width in (("y", 3), ("u", 1), ("d", 5)):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (n, width):
@@ -108,6 +119,7 @@ class Trajectory:
         cols["t_ref_c"] = self.u[:, 0]
         for j, name in enumerate(D_NAMES):
             cols[name] = self.d[:, j]
+        cols["p_hvac_kw"] = self.p_kw
         return pd.DataFrame(cols)
 
 
@@ -123,6 +135,8 @@ def from_frame(frame: pd.DataFrame) -> Trajectory:
         train=str(first["train"]),
         coach=str(first["coach"]),
         sampling_min=int(first["sampling_min"]),
+        # (a file written before the power was logged has no such column)
+        p_kw=frame["p_hvac_kw"].to_numpy(dtype=float) if "p_hvac_kw" in frame else None,
     )
 
 
