@@ -1,0 +1,104 @@
+"""``calibrate``: fit the simulator to coaches from their logged trajectories."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from trainclimate.cli.common import (
+    UsageError,
+    add_command,
+    dataset_dir,
+    emit,
+    out_file,
+    progress_bar,
+)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> None:
+    """``calibrate``: one twin per ``--coach`` (``A+B``: the trajectories of A and B as one
+    coach's), fitted on its training days and judged on its held-out days."""
+    from trainclimate.data.trajectory import read_trajectories
+    from trainclimate.sim import calibration
+    from trainclimate.sim.params import CoachParams, load_params
+
+    names = tuple(n.strip() for n in args.params.split(",") if n.strip())
+    unknown = [n for n in names if n not in calibration.CALIBRATED]
+    if not names or unknown:
+        what = f"unknown {unknown[0]!r}" if unknown else "none given"
+        raise UsageError(f"--params: {what}; choose from {', '.join(calibration.CALIBRATED)}")
+    if args.starts < 1:
+        raise UsageError("--starts must be at least 1")
+    if args.out and len(args.coach or []) != 1:
+        raise UsageError("--out writes one coach's parameters: give exactly one --coach")
+    out = out_file(args.out, "the calibrated coach parameters")
+    base = load_params(args.base_params) if args.base_params else CoachParams()
+    path = dataset_dir(args) / "trajectories_1min.parquet"
+    if not path.exists():
+        raise UsageError(f"--data: no 1-min trajectories ({path.name}) in {path.parent}")
+    trajectories = read_trajectories(path)
+    coaches = sorted({t.coach for t in trajectories})
+    wanted = args.coach or coaches
+    for group in wanted:
+        missing = [c for c in group.split("+") if c not in coaches]
+        if missing:
+            raise UsageError(f"--coach: no trajectories of coach {missing[0]!r} in the dataset")
+    results = []
+    with progress_bar(len(wanted), "calibrate", "coach") as bar:
+        for group in wanted:
+            members = set(group.split("+"))
+            mine = [t for t in trajectories if t.coach in members]
+            try:
+                fit = calibration.calibrate(group, mine, names, base, starts=args.starts)
+            except calibration.CalibrationError as exc:
+                raise UsageError(str(exc)) from None
+            results.append(fit.to_dict())
+            bar.update(1)
+    if out is not None:
+        out.write_text(json.dumps(results[0]["params"], indent=2) + "\n")
+    data = {"coaches": results, "params_fitted": list(names), "out": str(out) if out else None}
+
+    def human(d: dict) -> str:
+        lines = []
+        for c in d["coaches"]:
+            fitted = ", ".join(
+                f"{n} {v['value']:.4g} ± {v['std']:.2g}" for n, v in c["fitted"].items()
+            )
+            h = c["holdout"]
+            lines.append(
+                f"{c['coach']}: {fitted}; held out: T_room MAE {h['t_room_mae_c']:.3f} K, "
+                f"power MAE {h['power_mae_kw']:.2f} kW, energy {h['energy_error_pct']:+.1f} %"
+            )
+        if d["out"]:
+            lines.append(f"coach parameters written to {d['out']}")
+        return "\n".join(lines)
+
+    emit(args, data, human)
+
+
+def register(sub) -> None:
+    """Add ``calibrate`` to ``sub``."""
+    from trainclimate.sim.calibration import DEFAULT_PARAMS
+
+    p = add_command(sub, "calibrate", cmd_calibrate, "fit the simulator to coaches from their logs")
+    p.add_argument("--data", default=None, help="dataset directory (default: built once)")
+    p.add_argument(
+        "--coach",
+        nargs="+",
+        action="extend",
+        default=None,
+        metavar="ID",
+        help="coaches to calibrate, each on its own (A+B: the logs of A and B as one coach's; "
+        "default: every coach of the dataset)",
+    )
+    p.add_argument(
+        "--params",
+        default=",".join(DEFAULT_PARAMS),
+        help=f"the parameters to fit, comma-separated (default: {','.join(DEFAULT_PARAMS)})",
+    )
+    p.add_argument(
+        "--base-params", default=None, help="coach parameter file to start from (default: the "
+        "default coach)"
+    )  # fmt: skip
+    p.add_argument("--starts", type=int, default=3, help="starts of the fit (default 3)")
+    p.add_argument("--out", default=None, help="write the coach's parameters (coach-params file)")

@@ -1,0 +1,162 @@
+"""Calibrating the simulator to a coach: the replay of its logs, the fit on generated logs of
+known parameters, and every refusal."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cli_support import call, call_json
+from trainclimate.data import fleetlogs
+from trainclimate.data.dataset import build_dataset
+from trainclimate.data.trajectory import Trajectory, read_trajectories
+from trainclimate.sim import calibration as cal
+from trainclimate.sim.params import CoachParams, load_params
+
+#: The coach whose logs are generated: its envelope and supply fans 20 % and 25 % off the default.
+TRUTH = {"envelope_scale": 1.2, "fan_supply_w": 1.25 * CoachParams().fan_supply_w}
+
+
+@pytest.fixture(scope="module")
+def winter_dataset(tmp_path_factory):
+    """1-min trajectories of coaches 124A (in the depot the first day) and 44A, 6 winter days,
+    generated with :data:`TRUTH`."""
+    root = tmp_path_factory.mktemp("calibration")
+    truth = cal.apply(CoachParams(), TRUTH)
+    fleetlogs.generate(
+        root / "raw", campaigns=(fleetlogs.WINTER_SPRING,), max_days=6, max_coaches=2,
+        coach_params=truth,
+    )  # fmt: skip
+    build_dataset(root / "raw", root / "out")
+    return root / "out"
+
+
+@pytest.fixture(scope="module")
+def winter(winter_dataset):
+    return read_trajectories(winter_dataset / "trajectories_1min.parquet")
+
+
+def test_apply_scales_the_envelope_capacities_aperture_and_cop():
+    base = CoachParams()
+    p = cal.apply(
+        base,
+        {"envelope_scale": 2.0, "capacity_scale": 0.5, "solar_scale": 1.5, "cop_level": 0.8},
+    )
+    np.testing.assert_allclose(p.area_ext_m2, 2 * base.area_ext_m2)
+    # the outer envelope doubles; the middle floor's interior film does not
+    np.testing.assert_allclose(
+        p.ua_room_chassis_w_k, [[2, 1, 1], [2, 1, 2], [1, 1, 2]] * base.ua_room_chassis_w_k
+    )
+    np.testing.assert_allclose(p.c_chassis_j_k, 0.5 * base.c_chassis_j_k)
+    assert (p.window_g, p.roof_absorptance) == pytest.approx((0.6, 0.9))
+    assert (p.cop_a, p.cop_b, p.cop_max) == pytest.approx((3.52, 0.048, 3.6))
+    with pytest.raises(cal.CalibrationError, match="unknown calibration parameter 'u_value'"):
+        cal.apply(base, {"u_value": 1.0})
+
+
+def test_the_doors_open_at_stops_and_at_the_ends_of_a_turnaround():
+    speed = np.array([80, 0, 0, 80, 0, 0, 0, 0, 0, 0, 80, 0], dtype=float)[:, None]
+    occ = np.array([30, 30, 30, 30, 0, 0, 0, 0, 0, 0, 20, 0], dtype=float)[:, None]
+    doors = cal._doors(speed, occ)[:, 0]
+    # a stop (standing on a trip); a 6-min turnaround: its first and last 2 min; the
+    # standstill at the end is not known to be a turnaround
+    np.testing.assert_array_equal(doors, [0, 1, 1, 0, 1, 1, 0, 0, 1, 1, 0, 0])
+
+
+def test_the_replay_reproduces_the_logged_disturbances():
+    n = 90
+    time = pd.date_range("2022-03-01 10:00", periods=n, freq="1min", tz="UTC")
+    d = np.column_stack(
+        [np.full(n, 3.0), np.linspace(0, 400, n), np.linspace(200, 0, n), np.full(n, 25.0),
+         np.where(np.arange(n) % 10 < 5, 60.0, 0.0)]
+    )  # fmt: skip
+    y = np.full((n, 3), 21.0)
+    traj = Trajectory(time, y, np.full((n, 1), 22.0), d, "c", "1", "1A", 1, p_kw=np.full(n, 5.0))
+    rep = cal.replay([traj])
+    per = rep.per_minute
+    np.testing.assert_allclose(rep.env.q_roof_w_m2[::per, 0], d[:, 1], atol=0.05)
+    np.testing.assert_allclose(rep.env.q_side_w_m2[::per, 0], d[:, 2], atol=1e-9)
+    np.testing.assert_allclose(rep.env.t_amb_c[::per, 0], 3.0)
+    np.testing.assert_allclose(rep.t_ref_c[::per, 0], 22.0)
+    assert rep.scored[: cal.WARMUP_MIN].sum() == 0 and rep.scored[cal.WARMUP_MIN :].all()
+
+
+@pytest.mark.slow  # 12 simulated coach-days, then a fit
+def test_a_known_envelope_is_recovered_from_generated_logs(winter):
+    """The envelope 20 % above the default, the fans' power known (from the nameplate)."""
+    mine = [t for t in winter if t.coach == "44A"]
+    known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
+    fit = cal.calibrate("44A", mine, ("envelope_scale",), base=known, starts=1)
+    envelope = fit.fitted["envelope_scale"]
+    assert envelope["value"] == pytest.approx(TRUTH["envelope_scale"], rel=0.05)
+    assert 0 < envelope["std"] < 0.05
+    # the twin predicts the held-out day's metered energy
+    assert abs(fit.holdout["energy_error_pct"]) < 5.0
+    assert fit.holdout["t_room_mae_c"] < 0.3 and fit.holdout["minutes"] > 300
+    # the parameters are a whole coach-params set, the fitted fields replaced
+    expected = cal.apply(known, {"envelope_scale": envelope["value"]})
+    assert fit.params.to_dict() == expected.to_dict()
+
+
+def test_winter_days_cannot_calibrate_the_compressor_a_refusal(winter):
+    mine = [t for t in winter if t.coach == "44A"]
+    with pytest.raises(cal.CalibrationError, match="depends on cop_level"):
+        cal.calibrate("44A", mine, ("cop_level", "fan_supply_w"), starts=1)
+
+
+def test_too_little_data_is_a_refusal(winter):
+    mine = [t for t in winter if t.coach == "44A"]
+    one_day = [t for t in mine if t.time[0].date() == mine[0].time[0].date()]
+    with pytest.raises(cal.CalibrationError, match="at least 2 days"):
+        cal.calibrate("44A", one_day)
+    short = [
+        Trajectory(t.time[:90], t.y[:90], t.u[:90], t.d[:90], t.campaign, t.train, t.coach, 1,
+                   p_kw=t.p_kw[:90])
+        for t in mine
+    ]  # fmt: skip
+    with pytest.raises(cal.CalibrationError, match="scored training minutes"):
+        cal.calibrate("44A", short)
+    unmetered = [dataclasses.replace(t, p_kw=None) for t in mine]
+    with pytest.raises(cal.CalibrationError, match="no metered HVAC power"):
+        cal.calibrate("44A", unmetered)
+    with pytest.raises(cal.CalibrationError, match="unknown calibration parameter 'ua'"):
+        cal.calibrate("44A", mine, ("ua",))
+
+
+def test_calibrate_command_errors_are_one_line_exit_2(capsys, winter_dataset, tmp_path):
+    data = ["--data", str(winter_dataset)]
+    for args, needle in (
+        (["--params", "u_value"], "--params: unknown 'u_value'; choose from envelope_scale"),
+        (["--coach", "44A", "124A", "--out", str(tmp_path / "p.json")], "exactly one --coach"),
+        (["--coach", "99Z"], "no trajectories of coach '99Z'"),
+        (["--starts", "0"], "--starts must be at least 1"),
+        (["--coach", "44A", "--params", "cop_level"], "depends on cop_level"),
+        (["--data", str(tmp_path)], "holds no dataset"),
+    ):
+        code, out, err = call(capsys, "calibrate", *data, *args, "--json")
+        assert code == 2 and out == "" and needle in err, (args, err)
+        assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow  # a fit of one parameter
+def test_calibrate_writes_a_coach_params_file_the_simulator_takes(capsys, winter_dataset, tmp_path):
+    out = tmp_path / "44A.json"
+    known = tmp_path / "known.json"
+    known.write_text(json.dumps({"fan_supply_w": TRUTH["fan_supply_w"]}))
+    data = call_json(
+        capsys, "calibrate", "--data", str(winter_dataset), "--coach", "44A",
+        "--params", "envelope_scale", "--base-params", str(known), "--starts", "1",
+        "--out", str(out),
+    )  # fmt: skip
+    [coach] = data["coaches"]
+    assert set(coach) >= {"coach", "params", "fitted", "train", "holdout"}
+    assert set(coach["holdout"]) >= {"t_room_mae_c", "power_mae_kw", "energy_error_pct"}
+    assert coach["fitted"]["envelope_scale"]["value"] == pytest.approx(1.2, rel=0.05)
+    assert load_params(out).to_dict() == coach["params"]
+    result = call_json(
+        capsys, "simulate", "--scenario", "parked-heating-nov", "--hours", "1",
+        "--coach-params", str(out),
+    )  # fmt: skip
+    assert result["energy_kwh"] > 0
