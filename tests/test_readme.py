@@ -53,6 +53,7 @@ ELSEWHERE = {
     "bench controller": "fits the default model; tests/bench/test_controller.py runs it small",
     "experiment summary": "five paired experiments (minutes); tests/analysis/ run them small",
     "bench service": "PostgreSQL, minutes; tests/bench/test_service.py runs it small",
+    "calibrate": "a fit (a minute); tests/sim/test_calibration.py runs the same command",
 }
 
 

@@ -30,7 +30,7 @@ from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
-from trainclimate.sim.params import diversify
+from trainclimate.sim.params import CoachParams, diversify
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator, SimulationResult
 
@@ -276,6 +276,7 @@ def run_pair(
     coach_spread: float = 0.0,
     setup: ExperimentSetup | None = None,
     window_min: float = 30.0,
+    base_params: CoachParams | None = None,
 ) -> PairResult:
     """Run a scenario as a paired experiment (see the module docstring).
 
@@ -297,6 +298,8 @@ def run_pair(
         Overrides the scenario's (:func:`setup_for`).
     window_min : float, default 30.0
         Savings window. [min]
+    base_params : CoachParams, optional
+        The coaches' parameters (e.g. a calibrated twin's); default the scenario's.
 
     Returns
     -------
@@ -317,7 +320,7 @@ def run_pair(
     setup = setup or setup_for(name)
     env1, params = scenarios.build(scenario, n_coaches=1, hours=hours)
     env = Environment.side_by_side([env1] * 3)
-    base = params[0]
+    base = params[0] if base_params is None else base_params
     other = diversify(base, 1, seed=scenario.seed, spread=coach_spread)[0] if coach_spread else base
     sim = FleetSimulator([base, other, base], env, seed=scenario.seed)
     settings = setup.ocp_settings()

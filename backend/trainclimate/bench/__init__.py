@@ -9,6 +9,8 @@ Every benchmark module has ``run(...) -> dict`` (the figures, the JSON of ``benc
   pipeline run, the parse-only baseline, a predictor fit, each reporting its own time and memory
 - :mod:`.simulator` — the vectorised fleet simulator against a per-coach loop (coach-days/s)
 - :mod:`.pipeline` — the data pipeline against plain CSV parsing (raw rows/s, peak MB)
+- :mod:`.calibration` — a twin's calibration per coach-week, and its Jacobian's parameter sets
+  as one fleet against one simulation each (s)
 - :mod:`.predictor` — the streaming Transient Predictor fit against one QR (s, peak MB)
 - :mod:`.controller` — the OCP solve three ways, the controller step, a fleet tick (ms, s)
 - :mod:`.service` — the service on PostgreSQL: ingest (rows/s), the pair comparison's latency

@@ -23,6 +23,7 @@ def report(args: argparse.Namespace, data: dict, text) -> None:
 def cmd_bench(args: argparse.Namespace) -> None:
     """``bench TARGET``: run one benchmark and print its figures (``--json``: its dict)."""
     from trainclimate.bench import (
+        calibration,
         controller,
         load,
         pipeline,
@@ -41,6 +42,8 @@ def cmd_bench(args: argparse.Namespace) -> None:
         if args.file_mb <= 0:
             raise UsageError("--file-mb must be positive")
         report(args, pipeline.run(big_file_mb=args.file_mb), pipeline.text)
+    elif args.target == "calibrate":
+        report(args, calibration.run(), calibration.text)
     elif args.target == "predictor":
         try:
             scales = tuple(int(x) for x in args.scales.split(","))
@@ -89,7 +92,16 @@ def register(sub) -> None:
     p = add_command(sub, "bench", cmd_bench, "run a benchmark")
     p.add_argument(
         "target",
-        choices=("simulator", "pipeline", "predictor", "controller", "service", "load", "replicas"),
+        choices=(
+            "simulator",
+            "pipeline",
+            "calibrate",
+            "predictor",
+            "controller",
+            "service",
+            "load",
+            "replicas",
+        ),
     )
     p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
     p.add_argument(

@@ -32,6 +32,13 @@ def _experiment_text(d: dict) -> str:
     )
 
 
+def _coach_params(args: argparse.Namespace):
+    """``--coach-params FILE`` read and checked (None: each scenario's own coach)."""
+    from trainclimate.sim.params import load_params
+
+    return load_params(args.coach_params) if args.coach_params else None
+
+
 def cmd_experiment_run(args: argparse.Namespace) -> None:
     """``experiment run``: one scenario as a paired experiment (savings, violations)."""
     from trainclimate.analysis.experiment import run_pair
@@ -50,6 +57,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
         hours=args.hours,
         forecast=args.forecast,
         coach_spread=args.coach_spread,
+        base_params=_coach_params(args),
     )
     data = pair.to_dict()
     if args.html:
@@ -63,11 +71,12 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
     from trainclimate.analysis.report import write_experiment_report, write_summary
 
     out = out_dir(args.out, "the experiment reports")
+    base = _coach_params(args)
     predictor = predictor_from(args)
     rows = []
     with progress_bar(len(EXPERIMENTS), "paired experiments", "experiment") as bar:
         for name in EXPERIMENTS:
-            pair = run_pair(name, predictor, forecast=args.forecast)
+            pair = run_pair(name, predictor, forecast=args.forecast, base_params=base)
             row = pair.to_dict()
             row["html"] = str(write_experiment_report(pair, out / f"{name}.html"))
             rows.append(row)
@@ -92,6 +101,12 @@ def register(sub) -> None:
     ):
         p = add_command(esub, name, func, help_)
         add_model_options(p)
+        p.add_argument(
+            "--coach-params",
+            default=None,
+            help="coach parameter file (coach-params, calibrate --out) for the coaches of every "
+            "experiment (default: the scenario's)",
+        )
         if name == "run":
             p.add_argument("--scenario", required=True, help="scenario name (see `scenarios`)")
             p.add_argument("--html", default=None, help="write the report (HTML, Plotly)")

@@ -97,6 +97,9 @@ MIN_TRAIN_MINUTES, HOLDOUT_SHARE = 12 * 60, 0.25
 #: Relative step of the Jacobian's finite differences: wide enough to step over the small
 #: discontinuities of the HVAC's switching logic, which make the error piecewise smooth.
 JACOBIAN_STEP = 0.02
+#: Two starts' fits within RIVAL_COST of each other's cost whose parameters differ by more than
+#: RIVAL_SPREAD (relative) are rivals: the data do not single out one answer.
+RIVAL_COST, RIVAL_SPREAD = 0.05, 0.10
 #: Points of the Latin hypercube screened for the starts of the fit.
 SCREENED = 16
 #: Most simulations one start of the fit may run (each iteration: one, plus one for its Jacobian).
@@ -126,7 +129,7 @@ def apply(base: CoachParams, values: dict[str, float]) -> CoachParams:
             for field in ("roof_absorptance", "side_absorptance", "window_g"):
                 changes[field] = getattr(base, field) * v
         elif name == "cop_level":
-            for field in ("cop_a", "cop_b", "cop_min", "cop_max"):
+            for field in ("cop_a", "cop_b", "cop_min", "cop_max", "cop_carnot_efficiency"):
                 changes[field] = getattr(base, field) * v
         elif name in ("fan_supply_w", "fresh_air_base_fraction"):
             changes[name] = float(v)
@@ -353,7 +356,8 @@ def calibrate(
 
     Bounded ``scipy.optimize.least_squares`` (trust-region reflective) from the ``starts``
     best of the nominal values and :data:`SCREENED` points of a Latin hypercube over the bounds
-    (``seed``), all screened in one simulation; the best fit is kept.
+    (``seed``), all screened in one simulation; the best fit is kept, unless another start ends
+    in an about as good fit elsewhere (:data:`RIVAL_COST`, :data:`RIVAL_SPREAD`).
     Standard errors come from the Jacobian at the optimum, σ = sqrt(diag((JᵀJ)⁻¹) · SSR / (m −
     k)), scaled back to each parameter's unit.
 
@@ -362,8 +366,8 @@ def calibrate(
     CalibrationError
         On an unknown parameter name, too few days or training minutes, training days without
         any metered power, or a fit that the data do not determine (a parameter's standard
-        error above :data:`MAX_RELATIVE_STD` of its value, or two parameters correlated beyond
-        :data:`MAX_CORRELATION`): a refusal, not a wild fit.
+        error above :data:`MAX_RELATIVE_STD` of its value, two parameters correlated beyond
+        :data:`MAX_CORRELATION`, or rival fits): a refusal, not a wild fit.
     """
     base = base or CoachParams()
     unknown = [n for n in names if n not in CALIBRATED]
@@ -441,9 +445,8 @@ def calibrate(
         for i in range(len(screened))
     ]
     candidates = screened[np.argsort(costs)[:starts]]
-    best = None
-    for z0 in candidates:
-        fit = least_squares(
+    fits = [
+        least_squares(
             fun,
             np.clip(z0, lo / unit, hi / unit),
             jac=jac,
@@ -451,8 +454,23 @@ def calibrate(
             x_scale="jac",
             max_nfev=MAX_EVALUATIONS,
         )
-        if best is None or fit.cost < best.cost:
-            best = fit
+        for z0 in candidates
+    ]
+    best = min(fits, key=lambda f: f.cost)
+    # another start ending as good a fit elsewhere: these days do not single out one answer
+    rivals = [
+        f for f in fits if f.cost <= (1 + RIVAL_COST) * best.cost
+        and np.any(np.abs(f.x - best.x) > RIVAL_SPREAD * np.abs(best.x))
+    ]  # fmt: skip
+    if rivals:
+        other = ", ".join(
+            f"{n} {a:.3g} or {b:.3g}"
+            for n, a, b in zip(names, best.x * unit, rivals[0].x * unit, strict=True)
+        )
+        raise CalibrationError(
+            f"coach {coach}: these days fit several parameter sets equally well ({other}): "
+            "calibrate fewer --params, or add days of other weather"
+        )
     values = best.x * unit
     dof = max(1, len(best.fun) - len(values))
     s2 = 2.0 * best.cost / dof

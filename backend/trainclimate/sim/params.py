@@ -152,6 +152,24 @@ class CoachParams:
     fan_supply_w, fan_condenser_w : float
         Supply fans' power while the unit runs; condenser fans' power at full compressor
         load. [W]
+    cop_carnot_efficiency : float
+        0: the COP depends on T_amb alone (``cop_a`` … ``cop_max``); > 0: the Carnot-efficiency
+        model, COP = η · T_e / (T_c − T_e) with η this value, the evaporating temperature T_e
+        below the mixed return/fresh air and the condensing temperature T_c above T_amb by the
+        approaches below, clipped to [``cop_min``, ``cop_max``] (docs/model.md). [–]
+    evaporator_approach_k, condenser_approach_k : float
+        T_mix − T_e and T_c − T_amb of the Carnot-efficiency model. [K]
+    part_load_degradation : float
+        Cd of EN 14825: below ``compressor_min_fraction`` of its capacity the compressor
+        cycles, and its COP falls by the factor 1 − Cd · (1 − load / minimum); 0: none. [–]
+    compressor_min_fraction : float
+        The lowest share of its capacity the compressor modulates down to. [–]
+    fan_condenser_cycling : float
+        0: the condenser fans' power follows the compressor's load; 1: they run at full power
+        whenever the compressor runs. [–]
+    fan_supply_min_fraction : float
+        1: the supply fans draw ``fan_supply_w`` whenever the unit runs; below 1 their power
+        follows the unit's load, from this share at no load to all of it at full load. [–]
     sensor_noise_k, sensor_quantum_k : float
         Standard deviation of the room sensors' Gaussian noise and their quantisation step. [K]
 
@@ -225,6 +243,13 @@ class CoachParams:
     cop_max: float = 4.5
     fan_supply_w: float = 1100.0
     fan_condenser_w: float = 800.0
+    cop_carnot_efficiency: float = 0.0
+    evaporator_approach_k: float = 10.0
+    condenser_approach_k: float = 15.0
+    part_load_degradation: float = 0.0
+    compressor_min_fraction: float = 0.3
+    fan_condenser_cycling: float = 0.0
+    fan_supply_min_fraction: float = 1.0
     # --- sensors ----------------------------------------------------------------------------
     sensor_noise_k: float = 0.05
     sensor_quantum_k: float = 0.1

@@ -90,6 +90,13 @@ PLAUSIBLE: dict[str, Plausible] = {
     "cop_max": Plausible(1, 10, "", "highest COP of a rail cooling unit, ~4.5"),
     "fan_supply_w": Plausible(50, 1e4, "W", "supply fans of one HVAC unit, ~1.1 kW"),
     "fan_condenser_w": Plausible(50, 1e4, "W", "condenser fans of one HVAC unit, ~0.8 kW"),
+    "cop_carnot_efficiency": Plausible(0, 0.8, "", "second-law efficiency η, ~0.3; 0: off"),
+    "evaporator_approach_k": Plausible(0, 30, "K", "mixed air above evaporating, ~10 K"),
+    "condenser_approach_k": Plausible(0, 40, "K", "condensing above outside air, ~15 K"),
+    "part_load_degradation": Plausible(0, 1, "", "EN 14825's Cd, 0.25 by default; 0: off"),
+    "compressor_min_fraction": Plausible(0.01, 1, "", "lowest modulation of the compressor"),
+    "fan_condenser_cycling": Plausible(0, 1, "", "1: condenser fans on with the compressor"),
+    "fan_supply_min_fraction": Plausible(0, 1, "", "1: constant supply fans"),
     # sensors
     "sensor_noise_k": Plausible(0, 1, "K", "noise of a PT100 room sensor, ~0.05 K"),
     "sensor_quantum_k": Plausible(0, 1, "K", "resolution of the logged readings, 0.1 K"),

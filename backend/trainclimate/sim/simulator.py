@@ -364,7 +364,9 @@ class FleetSimulator:
         rec["fresh_fraction"][k] = fresh
         rec["q_hvac_w"][k] = q_hvac
         rec["q_fw_w"][k] = q_fw
-        power = electrical_power(q_hvac, q_fw, t_amb, hvac.fans_running(new_state), p)
+        # the air entering the evaporator: the fresh share of outside air, the rest return air
+        t_mix = fresh * t_amb + (1.0 - fresh) * self.T[:, thermal.ROOM].mean(axis=1)
+        power = electrical_power(q_hvac, q_fw, t_amb, hvac.fans_running(new_state), p, t_mix)
         self._power["heater"][k] = power.heater_w
         self._power["floor_wall"][k] = power.floor_wall_w
         self._power["compressor"][k] = power.compressor_w
