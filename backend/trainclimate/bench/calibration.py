@@ -15,8 +15,8 @@ TARGET_COACH_WEEK_S = 300.0
 COACH = "44A"
 
 
-#: The fits timed by default: the envelope alone, and envelope, COP level and supply fans.
-FITS = (("envelope_scale",), ("envelope_scale", "cop_level", "fan_supply_w"))
+#: The fits timed by default: the envelope alone, and the envelope with the thermal capacities.
+FITS = (("envelope_scale",), ("envelope_scale", "capacity_scale"))
 
 
 def run(days: int = 7, fits: tuple[tuple[str, ...], ...] = FITS) -> dict:

@@ -277,7 +277,9 @@ class _Reading:
             empty = (values == "").to_numpy()
             if col == "mode":
                 labels = {v: k for k, v in fmt.modes.items()}
-                parsed = values.str.strip().map(labels).to_numpy(dtype=object)
+                stripped = values.str.strip()
+                parsed = stripped.map(labels).to_numpy(dtype=object)
+                empty = (stripped == "").to_numpy()
                 bad = pd.isna(parsed) & ~empty
             else:
                 parsed = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float, copy=True)

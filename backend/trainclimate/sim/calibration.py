@@ -288,6 +288,16 @@ def residuals(rep: Replay, y: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.concatenate([ey[np.isfinite(ey)], ep[np.isfinite(ep)]])
 
 
+def residuals_of_sets(rep: Replay, params: list[CoachParams]) -> list[np.ndarray]:
+    """:func:`residuals` of each of the parameter sets ``params``, simulated as one fleet."""
+    y, p = simulate(rep, params)
+    n = rep.env.n_coaches
+    return [
+        residuals(rep, y[:, i * n : (i + 1) * n], p[:, i * n : (i + 1) * n])
+        for i in range(len(params))
+    ]
+
+
 def errors(rep: Replay, y: np.ndarray, p: np.ndarray) -> dict[str, float]:
     """The twin's errors on the scored minutes: deck temperature MAE (K), power MAE (kW) and
     the metered energy's relative error (%; minutes with a metered power only)."""
@@ -402,9 +412,9 @@ def calibrate(
     def fun(z: np.ndarray) -> np.ndarray:
         key = z.tobytes()
         if key not in cache:
-            y, p = simulate(rep, [params_at(z)])
+            [r] = residuals_of_sets(rep, [params_at(z)])
             cache.clear()
-            cache[key] = residuals(rep, y, p)
+            cache[key] = r
         return cache[key]
 
     def jac(z: np.ndarray) -> np.ndarray:
@@ -414,12 +424,7 @@ def calibrate(
         sets = [params_at(z)] + [
             params_at(z + h * e) for h, e in zip(steps, np.eye(len(z)), strict=True)
         ]
-        y, p = simulate(rep, sets)
-        n = rep.env.n_coaches
-        r = [
-            residuals(rep, y[:, i * n : (i + 1) * n], p[:, i * n : (i + 1) * n])
-            for i in range(len(sets))
-        ]
+        r = residuals_of_sets(rep, sets)
         cache.clear()
         cache[z.tobytes()] = r[0]
         return np.column_stack([(ri - r[0]) / h for ri, h in zip(r[1:], steps, strict=True)])
@@ -438,12 +443,7 @@ def calibrate(
     # simulated at once (one fleet, a column block per candidate)
     sample = qmc.LatinHypercube(d=len(names), seed=seed).random(SCREENED)
     screened = np.vstack([x0, qmc.scale(sample, lo, hi)]) / unit
-    y, p = simulate(rep, [params_at(z) for z in screened])
-    n = rep.env.n_coaches
-    costs = [
-        float(np.sum(residuals(rep, y[:, i * n : (i + 1) * n], p[:, i * n : (i + 1) * n]) ** 2))
-        for i in range(len(screened))
-    ]
+    costs = [float(np.sum(r**2)) for r in residuals_of_sets(rep, [params_at(z) for z in screened])]
     candidates = screened[np.argsort(costs)[:starts]]
     fits = [
         least_squares(
