@@ -140,3 +140,33 @@ def test_a_state_stored_by_a_fleet_of_another_size_starts_the_coaches_afresh(
         reported = session.scalars(select(Telemetry.coach_id).where(Telemetry.time == t1)).all()
     assert sorted(reported) == sorted(demo.coach_ids())
     fleet.db.dispose()
+
+
+def test_the_demo_fleet_takes_a_calibrated_coachs_parameters(tmp_path, model_file):
+    """Every demo coach simulated with the parameters given (e.g. ``calibrate --out``), not its
+    scenario's: a coach with twice the envelope loses more heat on the same day."""
+    from trainclimate.sim.calibration import apply
+    from trainclimate.sim.params import CoachParams
+
+    fleet = demo_fleet(tmp_path, model_file)
+    day = pd.Timestamp(demo.START_LOCAL.split()[0], tz=demo.LOCAL_TZ)
+    own, _ = fleet._build_day(day)
+    leaky = apply(CoachParams(), {"envelope_scale": 2.0})
+    fleet.coach_params = leaky
+    given, _ = fleet._build_day(day)
+    assert all(p.to_dict() == leaky.to_dict() for p in _unstacked(given))
+    assert not any(p.to_dict() == leaky.to_dict() for p in _unstacked(own))
+    fleet.db.dispose()
+
+
+def _unstacked(sim: FleetSimulator):
+    """The simulator's per-coach parameter sets."""
+    import dataclasses
+
+    from trainclimate.sim.params import CoachParams
+
+    n = sim.env.n_coaches
+    return [
+        CoachParams(**{f.name: getattr(sim.p, f.name)[i] for f in dataclasses.fields(CoachParams)})
+        for i in range(n)
+    ]

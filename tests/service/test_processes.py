@@ -382,6 +382,11 @@ def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
     [
         (["serve", "--speedup", "0"], "--speedup must be positive"),
         (["serve", "--speedup", "nan"], "--speedup must be positive"),
+        (["serve", "--coach-params", "/x.json"], "--coach-params sets the demo fleet's coaches"),
+        (
+            ["serve", "--fleet", "demo", "--coach-params", "/x.json"],
+            "coach parameter file not found: /x.json",
+        ),
         (["gateway", "--server", "http://127.0.0.1:9", "--coaches", "1-A,1-B"], "--token"),
         (["token", "create", "--role", "nope"], "invalid choice: 'nope'"),
         (
@@ -396,6 +401,8 @@ def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
     ids=[
         "serve-speedup-0",
         "serve-speedup-nan",
+        "serve-coach-params-without-demo",
+        "serve-coach-params-missing",
         "gateway-without-token",
         "token-bad-role",
         "gateway-no-token-file",

@@ -37,6 +37,12 @@ def cmd_serve(args: argparse.Namespace) -> None:
     if not (np.isfinite(args.speedup) and args.speedup > 0):
         raise UsageError("--speedup must be positive")
     broker = mqtt_broker(args)
+    if args.coach_params is not None:
+        if args.fleet != "demo":
+            raise UsageError("--coach-params sets the demo fleet's coaches: give --fleet demo")
+        from trainclimate.sim.params import load_params
+
+        load_params(args.coach_params)  # a bad file is a one-line error before anything starts
     if args.replica_name is not None and not (
         0 < len(args.replica_name) <= REPLICA_NAME_MAX and args.replica_name.isprintable()
     ):
@@ -47,6 +53,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         fleet=args.fleet,
         speedup=args.speedup,
         predictor_path=args.predictor,
+        demo_coach_params=args.coach_params,
         **(
             {
                 "mqtt_url": args.mqtt,
@@ -273,6 +280,12 @@ def register(sub) -> None:
     )
     p.add_argument("--fleet", choices=("demo",), default=None, help="add the simulated demo fleet")
     p.add_argument("--speedup", type=float, default=1.0, help="demo clock × real time")
+    p.add_argument(
+        "--coach-params",
+        default=None,
+        help="coach parameter file (coach-params, calibrate --out) for every demo coach "
+        "(default: each scenario's coach)",
+    )
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--predictor", default=None, help="model file (default: the cached model)")

@@ -48,6 +48,7 @@ from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.db import Database, head_revision, migrate
+from trainclimate.sim.params import load_params
 
 log = logging.getLogger(__name__)
 #: Plotly.js as the installed plotly package ships it (served at /vendor/plotly.min.js).
@@ -90,7 +91,8 @@ async def lifespan(app: FastAPI):
     threads = [threading.Thread(target=scheduler.run_live, args=(stop,), name="live-loop")]
     scheduler.beat("live", scheduler.period_s)  # counted as running from its start
     if settings.fleet == "demo":
-        fleet = demo.DemoFleet(db, scheduler, settings.speedup)
+        coach = load_params(settings.demo_coach_params) if settings.demo_coach_params else None
+        fleet = demo.DemoFleet(db, scheduler, settings.speedup, coach_params=coach)
         threads.append(threading.Thread(target=fleet.run, args=(stop,), name="demo-fleet"))
         scheduler.beat(demo.FLEET, scheduler.period_s / settings.speedup)
     for t in threads:

@@ -37,7 +37,8 @@ def default_database_url() -> str:
 
 class Settings(BaseSettings):
     """``database_url`` (``--db``; env ``TRAINCLIMATE_DATABASE_URL``; default a SQLite file);
-    ``fleet`` ``demo`` to add the simulated demo fleet; ``speedup`` how many times faster than
+    ``fleet`` ``demo`` to add the simulated demo fleet (``demo_coach_params``: a coach parameter
+    file for all its coaches, e.g. a calibrated twin); ``speedup`` how many times faster than
     real time the demo fleet's clock runs; ``sampling_min`` the controller's period;
     ``stale_periods`` after how many periods without telemetry a coach is stale;
     ``cors_origins`` other origins allowed to call the API (default none: the dashboard is served
@@ -67,6 +68,7 @@ class Settings(BaseSettings):
     database_url: str = Field(default_factory=default_database_url)
     fleet: str | None = None
     speedup: float = 1.0
+    demo_coach_params: Path | None = None
     sampling_min: float = 5.0
     stale_periods: int = STALE_PERIODS
     cors_origins: list[str] = Field(default_factory=list)

@@ -44,6 +44,7 @@ from trainclimate.service.store.models import Coach, FleetClock, Setpoint, Telem
 from trainclimate.service.store.telemetry import rows_from_simulation
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
+from trainclimate.sim.params import CoachParams
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.scenarios import Scenario, Service
 from trainclimate.sim.setpoint import apply_setpoint
@@ -202,8 +203,15 @@ def register(session) -> None:
 class DemoFleet:
     """Runs the demo fleet (see the module docstring)."""
 
-    def __init__(self, db: Database, scheduler: Scheduler, speedup: float):
+    def __init__(
+        self,
+        db: Database,
+        scheduler: Scheduler,
+        speedup: float,
+        coach_params: CoachParams | None = None,
+    ):
         self.db = db
+        self.coach_params = coach_params  # every coach's, instead of its scenario's
         self.scheduler = scheduler
         self.speedup = float(speedup)
         self.period = scheduler.period
@@ -234,8 +242,9 @@ class DemoFleet:
             seed = train.scenario.seed + day.day_of_year
             sc = replace(train.scenario, date=f"{day:%Y-%m-%d}", seed=seed)
             env, p = scenarios.build(sc, n_coaches=1)
+            coach = self.coach_params or p[0]
             envs += [env, env]  # coaches A and B: twins in one train
-            params += [p[0], p[0]]
+            params += [coach, coach]
             lost += [train.connection_lost(env.time), np.zeros(len(env.time), bool)]
         sim = FleetSimulator(params, Environment.side_by_side(envs), seed=int(day.day_of_year))
         return sim, np.column_stack(lost)
