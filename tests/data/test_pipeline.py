@@ -674,3 +674,12 @@ def test_the_metered_power_is_carried_but_its_gaps_split_nothing():
     [five] = trajectories[5]
     np.testing.assert_allclose(five.p_kw[:6], [4.02 + 0.05 * k for k in range(6)])
     assert np.isnan(five.p_kw[6:9]).all()  # a block with a minute missing has no mean
+
+
+def test_the_share_of_each_minute_the_train_stood_is_carried():
+    log = hvac_log(120, step_s=20)  # three samples a minute
+    log.loc[log.index % 3 == 0, "speed_kmh"] = 30.0  # moving for the first 20 s of each minute
+    trajectories, _ = run(log, trips=trips_log(("05:00", "09:00", 40.0)))
+    [one] = trajectories[1]
+    np.testing.assert_allclose(one.standing, 2 / 3)
+    np.testing.assert_allclose(one.d[:, 4], 10.0)  # the mean speed says less

@@ -63,6 +63,10 @@ def test_the_doors_open_at_stops_and_at_the_ends_of_a_turnaround():
     # a stop (standing on a trip); a 6-min turnaround: its first and last 2 min; the
     # standstill at the end is not known to be a turnaround
     np.testing.assert_array_equal(doors, [0, 1, 1, 0, 1, 1, 0, 0, 1, 1, 0, 0])
+    # a 2-s log knows a 40-s stop inside a minute whose mean speed is 30 km/h
+    share = np.array([0, 1, 1, 2 / 3, 1, 1, 1, 1, 1, 1, 0.25, 1])[:, None]
+    doors = cal._doors(np.where(share > 0.5, 30.0, speed), occ, share)[:, 0]
+    np.testing.assert_allclose(doors, [0, 1, 1, 2 / 3, 0, 0, 0, 0, 0, 0, 0.25, 0])
 
 
 def test_the_replay_reproduces_the_logged_disturbances():
@@ -160,3 +164,20 @@ def test_calibrate_writes_a_coach_params_file_the_simulator_takes(capsys, winter
         "--coach-params", str(out),
     )  # fmt: skip
     assert result["energy_kwh"] > 0
+
+
+@pytest.mark.slow  # 16 generated coach-days, then a fit of three parameters (~2 min)
+def test_envelope_cop_and_fans_differing_by_20_to_25_percent_come_back_within_10(tmp_path):
+    """The issue's case: a coach whose envelope, COP level and supply fans are 20 %, −20 % and
+    25 % off the default, logged 8 winter and 8 summer days (as 124A and 124B: one coach)."""
+    truth = {"envelope_scale": 1.2, "cop_level": 0.8, "fan_supply_w": 1.25 * 1100.0}
+    fleetlogs.generate(
+        tmp_path / "raw", max_days=8, max_coaches=1, coach_params=cal.apply(CoachParams(), truth)
+    )
+    build_dataset(tmp_path / "raw", tmp_path / "out")
+    trajectories = read_trajectories(tmp_path / "out" / "trajectories_1min.parquet")
+    fit = cal.calibrate("124A+124B", trajectories, tuple(truth), starts=1)
+    for name, value in truth.items():
+        assert fit.fitted[name]["value"] == pytest.approx(value, rel=0.10), name
+    # the twin predicts the held-out days' HVAC energy within 5 %
+    assert abs(fit.holdout["energy_error_pct"]) < 5.0 and fit.holdout["minutes"] > 1000

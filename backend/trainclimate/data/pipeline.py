@@ -20,8 +20,9 @@ For each coach and day (bounded memory, whatever the fleet's size):
 2. **Aggregate** to 1 min (:func:`aggregate`): y is the mean of the valid samples measured in the
    minute up to t, u and d the means of the valid samples over the minute from t (a missing
    value is left out, never counted as zero); a minute is in regular mode only if every sample
-   in it is known to be. The metered HVAC power, where logged, is carried along as u and d are
-   (its mean over the minute from t), but a minute without it is still complete.
+   in it is known to be. The metered HVAC power, where logged, and the share of the minute the
+   train stood are carried along as u and d are (their means over the minute from t), but a
+   minute without them is still complete.
 3. **Segment and filter** (:func:`segment`): interior gaps of at most ``max_fill_min`` minutes
    between regular-mode minutes are interpolated — only the values missing there; a reading in
    the gap is kept (repaired ``short_gap``); every other incomplete or non-regular minute ends a
@@ -55,6 +56,14 @@ SIGNALS = (*Y_NAMES, *U_NAMES, *D_NAMES)
 #: The HVAC's metered electrical power: carried through to the trajectories beside y, u and d,
 #: but not a signal a trajectory needs (a minute without it is still a complete minute).
 POWER = "p_hvac_kw"
+#: The share of each minute the train stood (speed below :data:`STANDING_KMH`), from the HVAC
+#: log's speed samples: carried like the power (a 2-s log knows a 40-s stop inside a minute
+#: whose mean speed is 30 km/h; the doors open then).
+STANDING = "standing_share"
+#: Below this speed a train stands. [km/h]
+STANDING_KMH = 1.0
+#: What the pipeline carries beside y, u and d into the trajectories, not required.
+CARRIED = (POWER, STANDING)
 #: Physically possible range of each canonical column (outside: a faulty reading).
 RANGES = {
     "t_room_up_c": (-30.0, 60.0),
@@ -352,6 +361,8 @@ def aggregate(fused: pd.DataFrame, start: pd.Timestamp, end: pd.Timestamp) -> pd
     frame = fused.drop(columns=["mode", "untracked"], errors="ignore").set_index("time")
     mode = fused["mode"].to_numpy(dtype=object)
     frame["regular"] = np.where(pd.isna(mode), np.nan, mode == "regular").astype(float)
+    speed = frame["speed_kmh"].to_numpy(dtype=float)
+    frame[STANDING] = np.where(np.isnan(speed), np.nan, speed < STANDING_KMH)
     grid = pd.date_range(start, end, freq="1min", inclusive="left")
     acting = [c for c in frame.columns if c not in Y_NAMES]
     minute = frame.index.floor("1min")
@@ -362,7 +373,7 @@ def aggregate(fused: pd.DataFrame, start: pd.Timestamp, end: pd.Timestamp) -> pd
     means.loc[unknown.to_numpy(), "regular"] = np.nan
     measured = frame[list(Y_NAMES)].groupby(frame.index.ceil("1min")).mean()
     minutes = means.reindex(grid).join(measured.reindex(grid))
-    return minutes.reindex(columns=[*SIGNALS, POWER, "regular"])  # (no power logged: NaN)
+    return minutes.reindex(columns=[*SIGNALS, *CARRIED, "regular"])  # (no power logged: NaN)
 
 
 # --- 3. segment ------------------------------------------------------------------------------
@@ -415,6 +426,7 @@ def _trajectory(frame: pd.DataFrame, meta: dict, sampling_min: int) -> Trajector
         u=frame[list(U_NAMES)].to_numpy(float),
         d=frame[list(D_NAMES)].to_numpy(float),
         p_kw=frame[POWER].to_numpy(float),
+        standing=frame[STANDING].to_numpy(float),
         sampling_min=sampling_min,
         **meta,
     )
@@ -434,7 +446,7 @@ def downsample(piece: pd.DataFrame, step_min: int) -> pd.DataFrame:
         return piece.iloc[:0]
     offset = int(first - minute[0])
     block = piece.iloc[offset : offset + n_blocks * step_min]
-    cols = [*SIGNALS, POWER]
+    cols = [*SIGNALS, *CARRIED]
     means = block[cols].to_numpy(float).reshape(n_blocks, step_min, -1).mean(axis=1)
     out = pd.DataFrame(means, columns=cols, index=block.index[::step_min])
     out[list(Y_NAMES)] = block[list(Y_NAMES)].to_numpy(float)[::step_min]

@@ -7,7 +7,8 @@ This is what the predictors consume (paper, Section III.B): per sample k on a un
 - ``d[k]`` = [T_amb (°C), Q_Gt (W/m²), Q_Gs (W/m²), P (% of seats), V (km/h)], shape (n, 5);
 
 and beside them ``p_kw[k]``, the HVAC's metered electrical power (kW, shape (n,); NaN where the
-coach does not meter it) — data for calibrating the simulator, not a predictor input.
+coach does not meter it), and ``standing[k]``, the share of the interval the train stood — data
+for calibrating the simulator, not predictor inputs.
 
 Sampling convention (the same at 1, 5 and 10 min, and the one the controller uses): ``time[k]`` is
 the start of interval k. ``y[k]`` is the room temperature measured by ``time[k]`` (the mean of
@@ -46,6 +47,7 @@ UNITS = {
     "occupancy_pct": "% of seats",
     "speed_kmh": "km/h",
     "p_hvac_kw": "kW",
+    "standing_share": "–",
 }
 META_NAMES = ("traj_id", "campaign", "train", "coach", "sampling_min")
 
@@ -57,7 +59,10 @@ _SCHEMA = pa.schema(
         ("coach", pa.string()),
         ("sampling_min", pa.int16()),
         ("time", pa.timestamp("us", tz="UTC")),
-        *[(name, pa.float64()) for name in (*Y_NAMES, *U_NAMES, *D_NAMES, "p_hvac_kw")],
+        *[
+            (name, pa.float64())
+            for name in (*Y_NAMES, *U_NAMES, *D_NAMES, "p_hvac_kw", "standing_share")
+        ],
     ]
 )
 
@@ -68,7 +73,8 @@ class Trajectory:
 
     ``time`` (n,) tz-aware UTC; ``y`` (n, 3), ``u`` (n, 1), ``d`` (n, 5) float arrays;
     ``campaign``, ``train``, ``coach`` where it comes from; ``sampling_min`` its step in minutes;
-    ``p_kw`` (n,) the metered HVAC power in kW (None: not metered, stored as NaN).
+    ``p_kw`` (n,) the metered HVAC power in kW (None: not metered, stored as NaN);
+    ``standing`` (n,) the share of each interval the train stood (None: unknown, NaN).
     """
 
     time: pd.DatetimeIndex
@@ -80,13 +86,16 @@ class Trajectory:
     coach: str = ""
     sampling_min: int = 1
     p_kw: np.ndarray | None = None
+    standing: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.time)
-        p = np.full(n, np.nan) if self.p_kw is None else np.asarray(self.p_kw, dtype=float)
-        if p.shape != (n,):
-            raise ValueError(f"trajectory p_kw must have shape ({n},)")
-        object.__setattr__(self, "p_kw", p)
+        for name in ("p_kw", "standing"):
+            given = getattr(self, name)
+            value = np.full(n, np.nan) if given is None else np.asarray(given, dtype=float)
+            if value.shape != (n,):
+                raise ValueError(f"trajectory {name} must have shape ({n},)")
+            object.__setattr__(self, name, value)
         for name, width in (("y", 3), ("u", 1), ("d", 5)):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (n, width):
@@ -120,6 +129,7 @@ class Trajectory:
         for j, name in enumerate(D_NAMES):
             cols[name] = self.d[:, j]
         cols["p_hvac_kw"] = self.p_kw
+        cols["standing_share"] = self.standing
         return pd.DataFrame(cols)
 
 
@@ -135,8 +145,11 @@ def from_frame(frame: pd.DataFrame) -> Trajectory:
         train=str(first["train"]),
         coach=str(first["coach"]),
         sampling_min=int(first["sampling_min"]),
-        # (a file written before the power was logged has no such column)
+        # (a file written before these were carried has no such columns)
         p_kw=frame["p_hvac_kw"].to_numpy(dtype=float) if "p_hvac_kw" in frame else None,
+        standing=(
+            frame["standing_share"].to_numpy(dtype=float) if "standing_share" in frame else None
+        ),
     )
 
 

@@ -13,9 +13,10 @@ Replaying a trajectory needs what the logs do not hold, chosen so:
 - the logged projections Q_Gt = |G cos z| and Q_Gs = |G sin z sin(β − θ)| are reproduced by a
   sun at zenith z = atan2(Q_Gs, Q_Gt) with G = hypot(Q_Gt, Q_Gs), abeam of the train (exactly,
   but for z kept below 89.99°: a roof irradiance off by at most 2 × 10⁻⁴ of the side's);
-- the lower-deck door is open while the train stands (below 1 km/h) during a trip (occupancy
-  above 0) — the stops — and for the first and last :data:`TURNAROUND_DOOR_MIN` minutes of a
-  standstill between trips (a turnaround); the doors are not logged;
+- the lower-deck door is open for the share of a minute the train stood (the trajectories'
+  ``standing``; else a mean speed below 1 km/h) during a trip (occupancy above 0) — the stops —
+  and for the first and last :data:`TURNAROUND_DOOR_MIN` minutes of a standstill between trips
+  (a turnaround); the doors are not logged;
 - the chassis and inventory start at the logged room temperatures and the first
   :data:`WARMUP_MIN` minutes of each trajectory are not scored, so the unknown initial state
   has settled;
@@ -185,6 +186,7 @@ def replay(trajectories: list[Trajectory]) -> Replay:
     u = np.stack([padded(t.u[:, 0]) for t in trajectories], axis=1)
     y = np.stack([padded(t.y) for t in trajectories], axis=1)
     p = np.stack([padded(t.p_kw) for t in trajectories], axis=1)
+    standing = np.stack([padded(t.standing) for t in trajectories], axis=1)
     length = np.array([len(t) for t in trajectories])
     scored = (np.arange(minutes)[:, None] >= WARMUP_MIN) & (np.arange(minutes)[:, None] < length)
 
@@ -203,7 +205,7 @@ def replay(trajectories: list[Trajectory]) -> Replay:
         heading_deg=np.zeros_like(t_amb),
         speed_kmh=speed,
         occupancy_pct=occupancy,
-        door_open=steps(_doors(d[:, :, 4], d[:, :, 3])),
+        door_open=steps(_doors(d[:, :, 4], d[:, :, 3], standing)),
         mode=np.full(t_amb.shape, MODE_REGULAR),
     )
     first = np.array([t.y[0] for t in trajectories])  # (n, 3)
@@ -211,20 +213,25 @@ def replay(trajectories: list[Trajectory]) -> Replay:
     return Replay(env, steps(u), initial, y, p, scored & np.isfinite(y).all(axis=2))
 
 
-def _doors(speed_kmh: np.ndarray, occupancy_pct: np.ndarray) -> np.ndarray:
-    """Whether the lower-deck door is open each minute (minutes, columns), from the logged
-    speed and occupancy (see the module docstring)."""
+def _doors(
+    speed_kmh: np.ndarray, occupancy_pct: np.ndarray, standing_share: np.ndarray | None = None
+) -> np.ndarray:
+    """The share of each minute (minutes, columns) the lower-deck door is open, from the logged
+    speed, occupancy and share of the minute the train stood (see the module docstring)."""
     standing = speed_kmh < 1.0
-    doors = standing & (occupancy_pct > 0.0)
+    share = standing.astype(float)
+    if standing_share is not None:
+        share = np.where(np.isfinite(standing_share), standing_share, share)
+    doors = np.where(occupancy_pct > 0.0, share, 0.0)
     between = standing & (occupancy_pct <= 0.0)
     for j in range(between.shape[1]):
         edges = np.diff(np.concatenate([[0], between[:, j].astype(np.int8), [0]]))
         for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
             # (a standstill at a trajectory's edge is a turnaround only if a trip is on both sides)
             if a > 0 and b < len(between):
-                doors[a : min(b, a + TURNAROUND_DOOR_MIN), j] = True
-                doors[max(a, b - TURNAROUND_DOOR_MIN) : b, j] = True
-    return doors.astype(float)
+                doors[a : min(b, a + TURNAROUND_DOOR_MIN), j] = 1.0
+                doors[max(a, b - TURNAROUND_DOOR_MIN) : b, j] = 1.0
+    return doors
 
 
 class _ReplaySimulator(FleetSimulator):
