@@ -279,7 +279,7 @@ def test_a_restarted_scheduler_continues_from_the_stored_history(db, settings):
     assert len(setpoints(db)) == 2 * 13
 
 
-def test_run_live_once_issues_only_the_current_tick(db, settings):
+def test_run_live_once_issues_only_the_current_tick(db, settings, caplog):
     scheduler = Scheduler(db, settings)
     assert scheduler.run_live_once() == 0  # no live clock yet: nothing reported
     add_coaches(db, ["A", "B"])
@@ -308,6 +308,11 @@ def test_run_live_once_issues_only_the_current_tick(db, settings):
     ]
     got = by_coach(db, at(75))
     assert (got["A"].source, got["B"].source, got["B"].reason) == ("ddpc", "fallback", "stale")
+    # the gap in the record is said, not silent
+    skipped = [r.getMessage() for r in caplog.records if "skipped" in r.getMessage()]
+    assert len(skipped) == 2 and all(
+        m.endswith("(the service was down or behind the live clock)") for m in skipped
+    )
 
 
 def test_run_live_survives_the_database_going_away(db, settings, monkeypatch, caplog):

@@ -194,6 +194,20 @@ class Scheduler:
             telemetry = load_rows(session, ids, tick - window, tick)
             overrides = active_overrides(session, ids, tick)
             rows = []
+            behind = [
+                c.id
+                for c in coaches
+                if c.last_tick is not None and c.last_tick < tick - self.period
+            ]
+            if behind and fleet == "live":
+                # the ticks between are not issued late (they can no longer be applied): the
+                # record shows the gap, and this says why
+                log.warning(
+                    "tick %s: %s skipped at least one tick (the service was down or behind "
+                    "the live clock)",
+                    tick,
+                    ", ".join(behind),
+                )
             for coach in coaches:
                 try:
                     samples = controller_samples(
