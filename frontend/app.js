@@ -173,12 +173,28 @@ async function modelHealth(hours) {
   return active ? api(`/models/${active.version}/health?hours=${hours}`) : null;
 }
 
+/** What each meter counts: the headline savings name theirs, the other meter's stand beside. */
+const METER_LABEL = { hvac: "HVAC units", hvac_and_floor: "HVAC + floor heating" };
+
+function pct(v) {
+  return v === null || v === undefined ? "–" : `${fmt(v, 1)} %`;
+}
+
+/** The headline savings on their meter, and the savings on the other meter. */
+function savingsKpis(label, figures, id) {
+  const other = figures.meter === "hvac" ? "hvac_and_floor" : "hvac";
+  return [
+    kpi(`${label} (${METER_LABEL[figures.meter]})`, pct(figures.savings_pct), id),
+    kpi(`… ${METER_LABEL[other]}`, pct(figures.savings_by_meter_pct[other]), `${id}-other-meter`),
+  ];
+}
+
 function drawFleetKpis(node, s, health) {
   const saved = s.energy_deactivated_kwh - s.energy_activated_kwh;
   const trains = s.trains.length;
   node.replaceChildren(
-    kpi("Fleet energy savings", s.savings_pct === null ? "–" : `${fmt(s.savings_pct, 1)} %`, "kpi-fleet-savings"),
-    kpi("Energy saved", `${fmt(saved, 0)} kWh`, "kpi-saved"),
+    ...savingsKpis("Fleet energy savings", s, "kpi-fleet-savings"),
+    kpi(`Energy saved (${METER_LABEL[s.meter]})`, `${fmt(saved, 0)} kWh`, "kpi-saved"),
     kpi("Avg hourly violation, activated", `${fmt(s.avg_hourly_violation_activated_k, 3)} K`, "kpi-violation"),
     kpi("… deactivated (reference)", `${fmt(s.avg_hourly_violation_deactivated_k, 3)} K`),
     kpi("Trains compared", `${trains}`, "kpi-trains"),
@@ -389,10 +405,10 @@ async function showTrain(trainId) {
     ]);
     view.querySelector("#train-clock").textContent = coach.clock ? `clock ${local(coach.clock)} (Zurich)` : "";
     view.querySelector("#summary").replaceChildren(
-      kpi("Energy savings", cmp.savings_pct === null ? "–" : `${fmt(cmp.savings_pct, 1)} %`, "kpi-savings"),
+      ...savingsKpis("Energy savings", cmp, "kpi-savings"),
       kpi(`Avg hourly violation, activated ${act}`, `${fmt(cmp.avg_hourly_violation_k, 3)} K`),
       kpi(`Avg hourly violation, deactivated ${deact}`, `${fmt(cmp.baseline_violation_k, 3)} K`),
-      kpi("Energy activated / deactivated", `${fmt(cmp.energy_activated_kwh, 1)} / ${fmt(cmp.energy_deactivated_kwh, 1)} kWh`),
+      kpi(`Energy activated / deactivated (${METER_LABEL[cmp.meter]})`, `${fmt(cmp.energy_activated_kwh, 1)} / ${fmt(cmp.energy_deactivated_kwh, 1)} kWh`),
       kpi("Excluded", `${fmt(cmp.excluded_minutes, 0)} min`));
     drawPair(view.querySelector("#pair-figure"), cmp, a, b, act, deact, coach.comfort_band_k);
   }
@@ -412,9 +428,10 @@ function temperatureTraces(ts, axis, showlegend, band) {
   return traces;
 }
 
-function cumulative(ts) {
+/** Cumulative energy (kWh) of 1-min rows on ``meter``: the HVAC units' leave the floor heating out. */
+function cumulative(ts, meter) {
   let sum = 0;
-  return ts.power_kw.map((p) => (sum += (p || 0) / 60));
+  return ts.power_kw.map((p, i) => (sum += ((p || 0) - (meter === "hvac" ? ts.floor_power_kw[i] || 0 : 0)) / 60));
 }
 
 function drawPair(node, cmp, a, b, act, deact, band) {
@@ -423,8 +440,8 @@ function drawPair(node, cmp, a, b, act, deact, band) {
     ...temperatureTraces(a, "y2", false, band),
     { x: a.time.map(local), y: a.t_amb_c, name: "T_amb", yaxis: "y3", line: { color: COLOUR.amb } },
     { x: a.time.map(local), y: a.ghi_w_m2, name: "global irradiance", yaxis: "y4", line: { color: COLOUR.ghi } },
-    { x: b.time.map(local), y: cumulative(b), name: `energy ${deact} (deactivated)`, yaxis: "y5", line: { color: COLOUR.deact } },
-    { x: a.time.map(local), y: cumulative(a), name: `energy ${act} (activated)`, yaxis: "y5", line: { color: COLOUR.act } },
+    { x: b.time.map(local), y: cumulative(b, cmp.meter), name: `energy ${deact} (deactivated)`, yaxis: "y5", line: { color: COLOUR.deact } },
+    { x: a.time.map(local), y: cumulative(a, cmp.meter), name: `energy ${act} (activated)`, yaxis: "y5", line: { color: COLOUR.act } },
     { type: "bar", x: cmp.windows.map((w) => local(new Date(new Date(w.start).getTime() + cmp.window_min * 30e3).toISOString())),
       y: cmp.windows.map((w) => w.savings_pct), name: "30-min savings (%)", yaxis: "y6", marker: { color: COLOUR.savings }, opacity: 0.65,
       width: cmp.window_min * 60e3 * 0.8 },
@@ -440,7 +457,7 @@ function drawPair(node, cmp, a, b, act, deact, band) {
     yaxis2: { title: { text: `${act} activated (°C)` }, domain: [0.51, 0.73], anchor: "x" },
     yaxis3: { title: { text: "T_amb (°C)" }, domain: [0.27, 0.48], anchor: "x" },
     yaxis4: { title: { text: "irradiance (W/m²)" }, overlaying: "y3", side: "right", anchor: "x", rangemode: "tozero", tickmode: "auto" },
-    yaxis5: { title: { text: "energy (kWh)" }, domain: [0, 0.24], anchor: "x" },
+    yaxis5: { title: { text: `energy, ${METER_LABEL[cmp.meter]} (kWh)` }, domain: [0, 0.24], anchor: "x" },
     yaxis6: { title: { text: "30-min savings (%)" }, overlaying: "y5", side: "right", anchor: "x", showgrid: false, rangemode: "tozero", tickmode: "auto" },
   };
   Plotly.react(node, traces, layout, { responsive: true, displaylogo: false });

@@ -96,7 +96,8 @@ def sim_rows(coach: int, first: int, last: int) -> list[dict]:
 
 def flat_row(time: datetime, **values) -> dict:
     """A hand-made row: decks at 21.5 °C, T_ref = T_rule = 22 °C, 0 °C outside, dark, parked,
-    10 kW, regular mode, connected — ``values`` replace any of them."""
+    10 kW (its floor heating's share not reported), regular mode, connected — ``values`` replace
+    any of them."""
     row = {
         "time": time,
         "t_room_up_c": 21.5,
@@ -111,6 +112,7 @@ def flat_row(time: datetime, **values) -> dict:
         "occupancy_pct": 0.0,
         "speed_kmh": 0.0,
         "power_kw": 10.0,
+        "floor_power_kw": None,
         "mode": "regular",
         "connected": True,
     }

@@ -71,7 +71,7 @@ def counted_energy_kwh(pair, coach: int, drop: np.ndarray | None = None) -> floa
     rows = (result.time >= c.window_start[0]) & (result.time < end)
     if drop is not None:
         rows &= ~drop
-    return float(result.total_power_w[rows, coach].sum() / 1e3 * result.dt_s / 3600.0)
+    return float(result.meter_w("hvac")[rows, coach].sum() / 1e3 * result.dt_s / 3600.0)
 
 
 def ticks_of(run, coach: int) -> list[tuple[int, str, str]]:
@@ -214,7 +214,7 @@ def test_the_command_override_forces_t_rule_and_excludes_its_windows(heating_ove
     # the totals leave the excluded windows out
     counted = ~np.repeat(c.excluded, 30 * STEPS_PER_MIN)
     rows = np.flatnonzero(result.time >= c.window_start[0])[: counted.size][counted]
-    e_act = result.total_power_w[rows, ACTIVATED].sum() / 1e3 * result.dt_s / 3600.0
+    e_act = result.meter_w("hvac")[rows, ACTIVATED].sum() / 1e3 * result.dt_s / 3600.0
     assert c.energy_activated_total_kwh == pytest.approx(e_act, rel=1e-12)
     assert c.savings_pct is not None and c.savings_pct > 1.0
 
@@ -244,15 +244,15 @@ def test_a_connection_loss_drops_the_coachs_data_and_its_commands(heating_loss):
     # no logger data while cut off: the lost minutes carry no energy (power NaN)
     w0 = span(result, "08:45", "09:15")
     dt_h = result.dt_s / 3600.0
-    expected = result.total_power_w[w0 & ~lost_act, ACTIVATED].sum() / 1e3 * dt_h
+    expected = result.meter_w("hvac")[w0 & ~lost_act, ACTIVATED].sum() / 1e3 * dt_h
     assert c.energy_activated_kwh[0] == pytest.approx(expected, rel=1e-12)
-    full = result.total_power_w[w0, ACTIVATED].sum() / 1e3 * dt_h
+    full = result.meter_w("hvac")[w0, ACTIVATED].sum() / 1e3 * dt_h
     assert c.energy_activated_kwh[0] < full - 0.1  # a heating coach draws > 1 kW
     assert c.energy_deactivated_kwh[0] == pytest.approx(
-        result.total_power_w[w0, DEACTIVATED].sum() / 1e3 * dt_h, rel=1e-12
+        result.meter_w("hvac")[w0, DEACTIVATED].sum() / 1e3 * dt_h, rel=1e-12
     )
     w2 = span(result, "09:45", "10:15")
-    expected = result.total_power_w[w2 & ~lost_deact, DEACTIVATED].sum() / 1e3 * dt_h
+    expected = result.meter_w("hvac")[w2 & ~lost_deact, DEACTIVATED].sum() / 1e3 * dt_h
     assert c.energy_deactivated_kwh[2] == pytest.approx(expected, rel=1e-12)
     # only window 09:15 counts
     assert c.energy_activated_total_kwh == pytest.approx(c.energy_activated_kwh[1], rel=1e-12)
@@ -385,7 +385,10 @@ def test_experiment_run_writes_the_report(capsys, predictor_file, tmp_path):
     assert data["savings_30min_pct"] == [] and data["excluded_minutes"] == 0.0
     code, out, err = run_cli(capsys, predictor_file, "--hours", "2")
     assert code == 0, err
-    assert out.startswith("parked-heating-nov: savings – (band-edge reference –)")
+    assert out.startswith(
+        "parked-heating-nov: savings – on the hvac meter, – with the floor heating (band-edge "
+        "reference –)"
+    )
 
 
 @pytest.mark.parametrize(

@@ -58,8 +58,8 @@ def test_the_figure_has_both_coaches_weather_energy_and_savings(heating_loss):
         *coach_traces,  # row 2: the activated coach
         "T_amb",
         "global irradiance",
-        "energy, deactivated",
-        "energy, activated",
+        "energy (HVAC units), deactivated",
+        "energy (HVAC units), activated",
         "30-min savings (%)",
     ]
     e = slice(None, None, PLOT_EVERY)
@@ -82,7 +82,7 @@ def test_the_figure_has_both_coaches_weather_energy_and_savings(heating_loss):
     for trace, coach in ((fig.data[14], DEACTIVATED), (fig.data[15], ACTIVATED)):
         assert trace.yaxis == "y5" and len(trace.y) == 210
         last = len(result.time) - PLOT_EVERY
-        expected = result.total_power_w[: last + 1, coach].sum() / 1e3 * result.dt_s / 3600
+        expected = result.meter_w("hvac")[: last + 1, coach].sum() / 1e3 * result.dt_s / 3600
         assert trace.y[-1] == pytest.approx(expected, rel=1e-12)
         assert np.all(np.diff(trace.y) >= 0)
     bars = fig.data[16]
@@ -157,7 +157,7 @@ def test_summary_markdown_sets_the_papers_figures_beside_ours(rows):
     md = summary_markdown(rows)
     lines = md.strip().splitlines()
     assert len(lines) == 2 + len(rows)
-    assert {line.count("|") for line in lines} == {12}  # 11 columns everywhere
+    assert {line.count("|") for line in lines} == {14}  # 13 columns everywhere
     expected = {
         "parked-cooling-oct": ("28.03", "0.0173"),
         "parked-cooling-aug-conservative": ("20.11", "0.0014"),
@@ -168,19 +168,21 @@ def test_summary_markdown_sets_the_papers_figures_beside_ours(rows):
     r = rows[0]
     for name, (savings, violation) in expected.items():
         c = cells(md, name)
-        assert (c[2], c[4]) == (savings, violation)
-        assert c[3] == f"{r['avg_hourly_violation_k']:.4f}"
-        assert c[5] == f"{r['baseline_violation_k']:.4f}"
+        assert (c[2], c[6]) == (savings, violation)
+        assert c[3] == f"{r['savings_by_meter_pct']['hvac_and_floor']:.2f}"
+        assert c[4] == f"{r['avg_hourly_violation_k']:.4f}"
+        assert c[5] == f"{r['avg_hourly_violation_sensor_k']:.4f}"
+        assert c[7] == f"{r['baseline_violation_k']:.4f}"
         a, d = r["energy_activated_kwh"], r["energy_deactivated_kwh"]
-        assert c[8] == f"{a:.1f} / {d:.1f}"
-        assert c[9] == f"{sum(r['discomfort_kh']) / 3:.3f}" and c[10] == "0"
+        assert c[10] == f"{a:.1f} / {d:.1f}"
+        assert c[11] == f"{sum(r['discomfort_kh']) / 3:.3f}" and c[12] == "0"
     ours = f"{r['savings_pct']:.2f}"
     assert cells(md, "parked-cooling-aug-conservative")[1] == ours
     # none of ours where a value is undefined, none of the paper's for a scenario it lacks
     missing = cells(md, "parked-cooling-oct")
-    assert (missing[1], missing[6], missing[7]) == ("–", "–", "–")
+    assert (missing[1], missing[8], missing[9]) == ("–", "–", "–")
     winter = cells(md, "winter-day")
-    assert (winter[1], winter[2], winter[4]) == (ours, "–", "–")
+    assert (winter[1], winter[2], winter[6]) == (ours, "–", "–")
 
 
 def test_summary_table_html(rows):

@@ -134,6 +134,13 @@ def test_the_overview_answers_with_fleet_figures_and_clicks_through(browser, ser
             "(v) => document.querySelector('#kpi-fleet-savings .value').textContent === v",
             arg=expected,
         )
+    # the demo's coaches split the floor heating off: the headline is the HVAC units' meter,
+    # and the tile says so, the whole coach's beside it
+    assert summary["meter"] == "hvac"
+    label = page.locator("#kpi-fleet-savings .label").inner_text()
+    assert label == "Fleet energy savings (HVAC units)"
+    other = page.locator("#kpi-fleet-savings-other-meter .label").inner_text()
+    assert other == "… HVAC + floor heating"
     assert page.locator("#kpi-trains .value").inner_text() == str(len(demo.TRAINS))
     energy = {t["name"]: t["points"] for t in w.traces("#energy-figure")}
     assert energy["activated coaches"] == energy["deactivated coaches"] == len(summary["windows"])
@@ -260,6 +267,7 @@ def test_pages_load_and_charts_have_data(browser, server):
     assert page.locator("#pair-figure .main-svg").count() > 0  # drawn, not only data
     savings = page.locator("#kpi-savings .value").inner_text()
     assert savings.endswith("%"), savings
+    assert page.locator("#kpi-savings .label").inner_text() == "Energy savings (HVAC units)"
     w.shot("dashboard-pair")
     # the range picker asks the API for another range
     with page.expect_response(lambda r: "/comparison?start=" in r.url and r.ok):

@@ -11,8 +11,14 @@ differ from the defaults (the conservative bound of Experiment 2, the energy-fav
 Experiment 3), the field events of the paper's experiments — the connection lost to a coach, the
 commands overwritten by a communication error — when the layer is switched on, and how long after
 that the activated coach is taken to be in steady state (savings are counted from then, as the
-paper counted from 14:00 after activating at 13:15). The comparison itself is
+paper counted from 14:00 after activating at 13:15), and the HVAC options of the coaches the
+paper's text implies (the cooling's switching limit of Experiment 1). The comparison itself is
 :func:`trainclimate.analysis.savings.compare`, the function the service's API calls.
+
+Energy is counted on both meters of :data:`~trainclimate.sim.power.METERS`; the headline is the
+paper's (the HVAC units alone, :data:`~trainclimate.sim.power.HEADLINE_METER`). Violation is
+counted from the true deck temperatures and, as the paper could measure it, from the onboard
+sensors' readings (their noise and resolution).
 """
 
 from __future__ import annotations
@@ -30,7 +36,9 @@ from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
+from trainclimate.sim.hvac import STATE_NAMES
 from trainclimate.sim.params import CoachParams, diversify
+from trainclimate.sim.power import HEADLINE_METER, METERS
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator, SimulationResult
 
@@ -86,6 +94,9 @@ class ExperimentSetup:
         Local clock time the layer is switched on (None: as soon as its lead-in is complete).
     steady_after_min : float
         Delay from activation to the start of the counted period. [min]
+    hvac_options : dict
+        :class:`~trainclimate.sim.params.CoachParams` fields both coaches' HVAC has in this
+        experiment (a field observation's suspected cause).
     note : str
         What the setup reproduces.
     """
@@ -94,6 +105,7 @@ class ExperimentSetup:
     events: tuple[Event, ...] = ()
     activate_at: str | None = None
     steady_after_min: float = 45.0
+    hvac_options: dict = field(default_factory=dict)
     note: str = ""
 
     def ocp_settings(self) -> OCPSettings:
@@ -107,6 +119,10 @@ class ExperimentSetup:
         return dataclasses.replace(OCPSettings(), **self.settings)
 
 
+#: Minimum off time of a deck's cooling in Experiment 1 (``cooling_min_off_s``): 3 min, the
+#: common anti-short-cycle delay of a compressor's protection (the paper names no value). [s]
+COOLING_MIN_OFF_S = 180.0
+
 EXPERIMENTS: dict[str, ExperimentSetup] = {
     "winter-day": ExperimentSetup(
         activate_at="05:15",
@@ -116,9 +132,17 @@ EXPERIMENTS: dict[str, ExperimentSetup] = {
     ),
     "parked-cooling-oct": ExperimentSetup(
         activate_at="13:15",
-        events=(Event("connection_loss", "activated", "17:50"),),
+        events=(
+            # the text gives no duration: one 30-minute window
+            Event("connection_loss", "deactivated", "13:45", 30.0),
+            Event("connection_loss", "activated", "17:50"),
+        ),
+        # the upper deck's tracking failure around 15:00, which the paper conjectures to be a
+        # limit on how often the cooling may switch on: a compressor's anti-short-cycle timer
+        hvac_options={"cooling_min_off_s": COOLING_MIN_OFF_S},
         note="Experiment 1: activated at 13:15, counted from 14:00; the connection to the "
-        "activated coach lost at 17:50",
+        "deactivated coach lost 13:45–14:15 and to the activated coach from 17:50; the cooling "
+        f"may not restart within {COOLING_MIN_OFF_S / 60:g} min of stopping",
     ),
     "parked-cooling-aug-conservative": ExperimentSetup(
         settings={"t_max": 0.6},
@@ -126,7 +150,9 @@ EXPERIMENTS: dict[str, ExperimentSetup] = {
     ),
     "parked-cooling-aug-energy": ExperimentSetup(
         settings={"sigma": 10.0, "tau": 1.0, "gamma": 0.1},
-        note="Experiment 3: weights favouring energy (σ = 10, τ = 1, γ = 0.1)",
+        events=(Event("connection_loss", "activated", "15:15"),),
+        note="Experiment 3: weights favouring energy (σ = 10, τ = 1, γ = 0.1); the connection "
+        "to the activated coach lost from 15:15",
     ),
     "parked-heating-nov": ExperimentSetup(
         events=(Event("command_override", "activated", "13:30", 30.0),),
@@ -163,8 +189,14 @@ class PairResult:
         How it was run.
     result : SimulationResult
         Columns :data:`ACTIVATED`, :data:`DEACTIVATED` and :data:`EDGE`.
-    comparison, edge_comparison : Comparison
-        Activated and band-edge coach each against the deactivated one.
+    by_meter : dict of str to (Comparison, Comparison)
+        Per meter (:data:`~trainclimate.sim.power.METERS`): the activated and the band-edge
+        coach each against the deactivated one.
+    violation_sensor_k : float
+        The activated coach's average hourly violation from its sensors' readings. [K]
+    state_share : dict
+        For ``activated`` and ``deactivated``: HVAC state name → fraction of the counted time
+        (the samples of the included windows). [–]
     activated_at : pandas.Timestamp or None
         When the layer first acted (UTC).
     counted_from : pandas.Timestamp
@@ -182,8 +214,9 @@ class PairResult:
     scenario: scenarios.Scenario
     setup: ExperimentSetup
     result: SimulationResult
-    comparison: Comparison
-    edge_comparison: Comparison
+    by_meter: dict[str, tuple[Comparison, Comparison]]
+    violation_sensor_k: float
+    state_share: dict[str, dict[str, float]]
     activated_at: pd.Timestamp | None
     counted_from: pd.Timestamp
     ticks: dict
@@ -191,16 +224,27 @@ class PairResult:
     controller_time_ratio: float
     wall_s: float
 
+    @property
+    def comparison(self) -> Comparison:
+        """The activated coach against the deactivated one on the headline meter."""
+        return self.by_meter[HEADLINE_METER][0]
+
+    @property
+    def edge_comparison(self) -> Comparison:
+        """The band-edge coach against the deactivated one on the headline meter."""
+        return self.by_meter[HEADLINE_METER][1]
+
     def to_dict(self) -> dict:
         """The JSON of ``trainclimate experiment run``, and the KPIs beside it.
 
         Returns
         -------
         dict
-            JSON-ready: savings (%), violations (K), energies (kWh), discomfort (K·h per deck),
-            minutes, hours, timestamps (ISO 8601), the band-edge reference's savings and the
-            layer's share of them (%, None when the reference saves nothing), the controller
-            settings and ticks.
+            JSON-ready: savings (%) on the headline ``meter`` and by meter, violations (K, from
+            the true temperatures and from the sensors), energies (kWh), discomfort (K·h per
+            deck), the HVAC states' shares of the counted time, minutes, hours, timestamps
+            (ISO 8601), the band-edge reference's savings and the layer's share of them (%, None
+            when the reference saves nothing), the controller settings and ticks.
         """
         c, e = self.comparison, self.edge_comparison
         # a share of a saving: meaningless when the reference itself saves nothing
@@ -211,8 +255,13 @@ class PairResult:
         )
         return {
             "scenario": self.scenario.name,
+            "meter": HEADLINE_METER,
             "savings_pct": c.savings_pct,
+            "savings_by_meter_pct": {m: a.savings_pct for m, (a, _) in self.by_meter.items()},
+            "edge_savings_by_meter_pct": {m: b.savings_pct for m, (_, b) in self.by_meter.items()},
             "avg_hourly_violation_k": c.avg_hourly_violation_k,
+            "avg_hourly_violation_sensor_k": self.violation_sensor_k,
+            "state_share": self.state_share,
             "baseline_violation_k": c.baseline_violation_k,
             "savings_30min_pct": c.savings_30min_pct,
             "excluded_minutes": c.excluded_minutes,
@@ -221,6 +270,13 @@ class PairResult:
             "edge_violation_k": e.avg_hourly_violation_k,
             "energy_activated_kwh": c.energy_activated_total_kwh,
             "energy_deactivated_kwh": c.energy_deactivated_total_kwh,
+            "energy_by_meter_kwh": {
+                m: {
+                    "activated": a.energy_activated_total_kwh,
+                    "deactivated": a.energy_deactivated_total_kwh,
+                }
+                for m, (a, _) in self.by_meter.items()
+            },
             "discomfort_kh": c.discomfort_kh,
             "baseline_discomfort_kh": c.baseline_discomfort_kh,
             "computational_time_ratio": self.controller_time_ratio,
@@ -232,6 +288,7 @@ class PairResult:
             "excluded_windows": c.excluded.tolist(),
             "controller_settings": dataclasses.asdict(self.setup.ocp_settings()),
             "controller_ticks": self.ticks,
+            "hvac_options": dict(self.setup.hvac_options),
             "note": self.setup.note,
             "wall_seconds": self.wall_s,
         }
@@ -254,17 +311,39 @@ def _event_masks(setup: ExperimentSetup, env: Environment) -> tuple[np.ndarray, 
     return masks["connection_loss"], masks["command_override"]
 
 
-def _series(result: SimulationResult, coach: int, affected: np.ndarray, lost: np.ndarray):
-    power = result.total_power_w[:, coach] / 1e3
+def _series(
+    result: SimulationResult,
+    coach: int,
+    affected: np.ndarray,
+    lost: np.ndarray,
+    meter: str = HEADLINE_METER,
+    sensors: bool = False,
+) -> CoachSeries:
+    """One column of the pair as compared: its ``meter``'s power (none while its connection is
+    lost) and its true deck temperatures, or the sensors' readings."""
+    power = result.meter_w(meter)[:, coach] / 1e3
     power = np.where(lost[: len(power), coach], np.nan, power)  # no logger data while cut off
+    rooms = result.t_room_meas_c if sensors else result.t_room_c
     return CoachSeries(
         time=result.time,
         power_kw=power,
-        t_room_c=result.t_room_c[:, coach],
+        t_room_c=rooms[:, coach],
         t_rule_c=result.t_rule_c[:, coach],
         affected=affected[: len(power), coach],
         in_band=result.env.mode[: len(power), coach] == MODE_REGULAR,
     )
+
+
+def state_share(result: SimulationResult, coach: int, comparison: Comparison) -> dict[str, float]:
+    """HVAC state name → fraction of the samples in the comparison's included windows. [–]"""
+    counted = np.zeros(len(result.time), bool)
+    window = pd.Timedelta(minutes=comparison.window_min)
+    for start, excluded in zip(comparison.window_start, comparison.excluded, strict=True):
+        if not excluded:
+            counted |= (result.time >= start) & (result.time < start + window)
+    states, n = np.unique(result.hvac_state[counted, coach], return_counts=True)
+    total = max(int(counted.sum()), 1)
+    return {STATE_NAMES[int(st)]: float(k / total) for st, k in zip(states, n, strict=True)}
 
 
 def run_pair(
@@ -321,6 +400,7 @@ def run_pair(
     env1, params = scenarios.build(scenario, n_coaches=1, hours=hours)
     env = Environment.side_by_side([env1] * 3)
     base = params[0] if base_params is None else base_params
+    base = dataclasses.replace(base, **setup.hvac_options)
     other = diversify(base, 1, seed=scenario.seed, spread=coach_spread)[0] if coach_spread else base
     sim = FleetSimulator([base, other, base], env, seed=scenario.seed)
     settings = setup.ocp_settings()
@@ -351,17 +431,29 @@ def run_pair(
         activated_at = None if first is None else env.time[first]
     counted_from = (activated_at or env.time[0]) + pd.Timedelta(minutes=setup.steady_after_min)
     affected = disconnected | overridden
-    series = [_series(result, c, affected, disconnected) for c in range(3)]
     kw = {"start": counted_from, "window_min": window_min}
-    comparison = compare(series[ACTIVATED], series[DEACTIVATED], **kw)
-    edge_comparison = compare(series[EDGE], series[DEACTIVATED], **kw)
+    by_meter = {}
+    for meter in METERS:
+        series = [_series(result, c, affected, disconnected, meter) for c in range(3)]
+        by_meter[meter] = (
+            compare(series[ACTIVATED], series[DEACTIVATED], **kw),
+            compare(series[EDGE], series[DEACTIVATED], **kw),
+        )
+    sensed = [_series(result, c, affected, disconnected, sensors=True) for c in range(2)]
+    headline = by_meter[HEADLINE_METER][0]
     steps = [r.step_time_s for r in log.results]
     return PairResult(
         scenario=scenario,
         setup=setup,
         result=result,
-        comparison=comparison,
-        edge_comparison=edge_comparison,
+        by_meter=by_meter,
+        violation_sensor_k=compare(
+            sensed[ACTIVATED], sensed[DEACTIVATED], **kw
+        ).avg_hourly_violation_k,
+        state_share={
+            "activated": state_share(result, ACTIVATED, headline),
+            "deactivated": state_share(result, DEACTIVATED, headline),
+        },
         activated_at=activated_at,
         counted_from=counted_from,
         ticks=tick_summary(log),

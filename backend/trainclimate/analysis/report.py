@@ -12,6 +12,7 @@ from plotly.subplots import make_subplots
 
 from trainclimate.analysis.summary import fleet_kpis
 from trainclimate.sim import hvac, thermal
+from trainclimate.sim.power import HEADLINE_METER, METER_LABELS
 from trainclimate.sim.rule import MODE_NAMES
 from trainclimate.sim.scenarios import LOCAL_TZ, Scenario
 from trainclimate.sim.simulator import DECKS, SimulationResult
@@ -368,11 +369,13 @@ def experiment_figure(pair, title: str = "") -> go.Figure:
         title_text="W/m²", row=3, col=1, secondary_y=True, tickmode="auto", rangemode="tozero"
     )
     dt_h = result.dt_s / 3600.0
+    meter = METER_LABELS[HEADLINE_METER]
     for coach, name, colour in (
-        (DEACTIVATED, "energy, deactivated", "#7f7f7f"),
-        (ACTIVATED, "energy, activated", "#2ca02c"),
+        (DEACTIVATED, f"energy ({meter}), deactivated", "#7f7f7f"),
+        (ACTIVATED, f"energy ({meter}), activated", "#2ca02c"),
     ):
-        cumulative = np.cumsum(np.nan_to_num(result.total_power_w[:, coach]) / 1e3 * dt_h)
+        power_w = result.meter_w(HEADLINE_METER)[:, coach]
+        cumulative = np.cumsum(np.nan_to_num(power_w) / 1e3 * dt_h)
         fig.add_trace(
             go.Scatter(x=t, y=cumulative[e], name=name, line={"color": colour}),
             row=4,
@@ -420,7 +423,7 @@ def experiment_figure(pair, title: str = "") -> go.Figure:
     return fig
 
 
-def _num(v, fmt: str) -> str:
+def fmt_num(v, fmt: str) -> str:
     """``v`` formatted with ``fmt``, or "–" when it is None."""
     return "–" if v is None else format(v, fmt)
 
@@ -439,7 +442,9 @@ def summary_table_html(rows: list[dict]) -> str:
         An HTML ``<table>``.
     """
     head = (
-        "<tr><th>scenario</th><th>energy savings (%)</th><th>average hourly violation (K)</th>"
+        f"<tr><th>scenario</th><th>energy savings, {METER_LABELS[HEADLINE_METER]} (%)</th>"
+        f"<th>energy savings, {METER_LABELS['hvac_and_floor']} (%)</th>"
+        "<th>average hourly violation (K)</th><th>the same from the sensors (K)</th>"
         "<th>deactivated coach's violation (K)</th><th>band-edge savings (%)</th>"
         "<th>share of band-edge (%)</th><th>energy act./deact. (kWh)</th>"
         "<th>discomfort act. (K·h per deck)</th><th>excluded minutes</th>"
@@ -447,10 +452,12 @@ def summary_table_html(rows: list[dict]) -> str:
     )
 
     body = "".join(
-        f"<tr><td>{html.escape(r['scenario'])}</td><td>{_num(r['savings_pct'], '.2f')}</td>"
-        f"<td>{r['avg_hourly_violation_k']:.4f}</td><td>{r['baseline_violation_k']:.4f}</td>"
-        f"<td>{_num(r['edge_savings_pct'], '.2f')}</td>"
-        f"<td>{_num(r['share_of_edge_pct'], '.0f')}</td>"
+        f"<tr><td>{html.escape(r['scenario'])}</td><td>{fmt_num(r['savings_pct'], '.2f')}</td>"
+        f"<td>{fmt_num(r['savings_by_meter_pct']['hvac_and_floor'], '.2f')}</td>"
+        f"<td>{r['avg_hourly_violation_k']:.4f}</td>"
+        f"<td>{r['avg_hourly_violation_sensor_k']:.4f}</td><td>{r['baseline_violation_k']:.4f}</td>"
+        f"<td>{fmt_num(r['edge_savings_pct'], '.2f')}</td>"
+        f"<td>{fmt_num(r['share_of_edge_pct'], '.0f')}</td>"
         f"<td>{r['energy_activated_kwh']:.1f} / {r['energy_deactivated_kwh']:.1f}</td>"
         f"<td>{', '.join(f'{v:.3f}' for v in r['discomfort_kh'])}</td>"
         f"<td>{r['excluded_minutes']:.0f}</td><td>{r['computational_time_ratio']:.1e}</td></tr>"
@@ -513,18 +520,22 @@ def summary_markdown(rows: list[dict]) -> str:
         The Markdown text, ending with a newline.
     """
     lines = [
-        "| scenario | savings (%) | paper (%) | avg hourly violation (K) | paper (K) | "
+        f"| scenario | savings, {METER_LABELS[HEADLINE_METER]} (%) | paper (%) | "
+        f"savings, {METER_LABELS['hvac_and_floor']} (%) | avg hourly violation (K) | "
+        "from the sensors (K) | paper (K) | "
         "deactivated coach (K) | band-edge savings (%) | share of band-edge (%) | "
         "energy act. / deact. (kWh) | discomfort act. (K·h/deck) | excluded (min) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         paper = PAPER_TABLE.get(r["scenario"])
         lines.append(
-            f"| {r['scenario']} | {_num(r['savings_pct'], '.2f')} | "
-            f"{_num(paper and paper[0], '.2f')} | {r['avg_hourly_violation_k']:.4f} | "
-            f"{_num(paper and paper[1], '.4f')} | {r['baseline_violation_k']:.4f} | "
-            f"{_num(r['edge_savings_pct'], '.2f')} | {_num(r['share_of_edge_pct'], '.0f')} | "
+            f"| {r['scenario']} | {fmt_num(r['savings_pct'], '.2f')} | "
+            f"{fmt_num(paper and paper[0], '.2f')} | "
+            f"{fmt_num(r['savings_by_meter_pct']['hvac_and_floor'], '.2f')} | "
+            f"{r['avg_hourly_violation_k']:.4f} | {r['avg_hourly_violation_sensor_k']:.4f} | "
+            f"{fmt_num(paper and paper[1], '.4f')} | {r['baseline_violation_k']:.4f} | "
+            f"{fmt_num(r['edge_savings_pct'], '.2f')} | {fmt_num(r['share_of_edge_pct'], '.0f')} | "
             f"{r['energy_activated_kwh']:.1f} / {r['energy_deactivated_kwh']:.1f} | "
             f"{sum(r['discomfort_kh']) / 3:.3f} | {r['excluded_minutes']:.0f} |"
         )

@@ -24,7 +24,9 @@ def _experiment_text(d: dict) -> str:
         return "–" if v is None else f"{v:.2f} %"
 
     return (
-        f"{d['scenario']}: savings {pct(d['savings_pct'])} (band-edge reference "
+        f"{d['scenario']}: savings {pct(d['savings_pct'])} on the {d['meter']} meter, "
+        f"{pct(d['savings_by_meter_pct']['hvac_and_floor'])} with the floor heating (band-edge "
+        "reference "
         f"{pct(d['edge_savings_pct'])}), average hourly violation "
         f"{d['avg_hourly_violation_k']:.4f} K (deactivated coach {d['baseline_violation_k']:.4f} K)"
         f", {d['excluded_minutes']:.0f} min excluded, counted from {d['counted_from']}"
@@ -65,11 +67,42 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
     emit(args, data, _experiment_text)
 
 
+def cmd_experiment_ablation(args: argparse.Namespace) -> None:
+    """``experiment summary --ablation``: Table II with one column per condition of the paper's
+    text, added in order."""
+    from trainclimate.analysis.ablation import STEPS, run_ablation, write_ablation
+    from trainclimate.analysis.experiment import EXPERIMENTS
+
+    out = out_dir(args.out, "the ablation table")
+    base = _coach_params(args)
+    predictor = predictor_from(args)
+    with progress_bar(len(EXPERIMENTS), "ablation", "experiment") as bar:
+        rows = run_ablation(
+            predictor, forecast=args.forecast, base_params=base, progress=lambda _: bar.update(1)
+        )
+    data = {"steps": list(STEPS), "experiments": rows, "markdown": str(write_ablation(rows, out))}
+
+    def human(d: dict) -> str:
+        lines = [
+            f"{r['scenario']}: "
+            + ", ".join(
+                f"{STEPS[k]} {s['savings_pct']:.2f} %" if s["savings_pct"] is not None else "–"
+                for k, s in r["steps"].items()
+            )
+            for r in d["experiments"]
+        ]
+        return "\n".join(lines) + f"\nablation written: {d['markdown']}"
+
+    emit(args, data, human)
+
+
 def cmd_experiment_summary(args: argparse.Namespace) -> None:
     """``experiment summary``: every paired experiment, the table and the reports."""
     from trainclimate.analysis.experiment import EXPERIMENTS, run_pair
     from trainclimate.analysis.report import write_experiment_report, write_summary
 
+    if args.ablation:
+        return cmd_experiment_ablation(args)
     out = out_dir(args.out, "the experiment reports")
     base = _coach_params(args)
     predictor = predictor_from(args)
@@ -119,3 +152,9 @@ def register(sub) -> None:
             )
         else:
             p.add_argument("--out", default="out/experiments", help="output directory")
+            p.add_argument(
+                "--ablation",
+                action="store_true",
+                help="Table II step by step: as before, on the HVAC meter, with the October "
+                "conditions, the field events, the sensors' violation (writes ablation.md)",
+            )

@@ -9,16 +9,19 @@ the pipeline would produce different data:
 - the *quick* dataset (:func:`quick_dataset`): the first :data:`QUICK_DAYS` days of each campaign,
   every coach (≈ 20 s), from which the service fits the model it starts with on a new machine.
 
-A build happens in a temporary directory renamed into place at the end, so an interrupted build
+A build happens in a temporary directory renamed into place at the end, under a lock file (a
+second process waits for the first), so an interrupted build
 leaves nothing half-made. The files the generator corrupts on purpose are counted in one line,
 not warned about one by one.
 """
 
 from __future__ import annotations
 
+import fcntl
 import logging
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from trainclimate.paths import home, writable_dir
@@ -26,7 +29,7 @@ from trainclimate.paths import home, writable_dir
 log = logging.getLogger(__name__)
 
 #: Bump when generated data or the pipeline's output would change.
-DATASET_VERSION = "fleet-2"
+DATASET_VERSION = "fleet-3"
 #: Days of each campaign in the quick dataset.
 QUICK_DAYS = 4
 
@@ -56,12 +59,33 @@ def quick_dataset(progress: Progress | None = None) -> Path:
     return _dataset(f"{DATASET_VERSION}-quick{QUICK_DAYS}d", QUICK_DAYS, progress)
 
 
-def _dataset(name: str, max_days: int | None, progress: Progress | None) -> Path:
-    from trainclimate.data import dataset, fleetlogs
+@contextmanager
+def exclusive(target: Path) -> Iterator[None]:
+    """Hold ``<target>.lock`` (an advisory ``flock``) while a cached artifact is checked and
+    built: a second process wanting it waits for the first instead of building it alongside
+    (two builds sharing a directory corrupt it)."""
+    with open(target.with_name(target.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
+
+def _dataset(name: str, max_days: int | None, progress: Progress | None) -> Path:
     target = writable_dir(home(), "trainclimate's home") / name
     if (target / "dataset.json").exists():
         return target
+    with exclusive(target):
+        if not (target / "dataset.json").exists():  # not built while this one waited
+            _build(target, max_days, progress)
+    return target
+
+
+def _build(target: Path, max_days: int | None, progress: Progress | None) -> None:
+    from trainclimate.data import dataset, fleetlogs
+
+    name = target.name
     coach_days = sum(
         len(c.days[:max_days] if max_days else c.days) * len(c.coaches)
         for c in fleetlogs.CAMPAIGNS.values()
@@ -88,4 +112,3 @@ def _dataset(name: str, max_days: int | None, progress: Progress | None) -> Path
     shutil.rmtree(tmp / "raw")  # the trajectories are what is reused; raw logs are 0.3 GB
     shutil.rmtree(target, ignore_errors=True)
     tmp.rename(target)
-    return target

@@ -50,7 +50,9 @@ def default_predictor(
     path = default_model_path(sampling_min, rho, horizon)
     if not path.exists():
         data = cache.default_dataset(progress)
-        _fit(data, sampling_min, rho, horizon, path, "every coach of the default dataset")
+        with cache.exclusive(model_store() / path.name):
+            if not path.exists():
+                _fit(data, sampling_min, rho, horizon, path, "every coach of the default dataset")
     return load_predictor(path)
 
 
@@ -61,7 +63,9 @@ def quick_predictor(progress=None) -> TransientPredictor:
     path = quick_model_path()
     if not path.exists():
         data = cache.quick_dataset(progress)
-        _fit(data, SAMPLING_MIN, RHO, HORIZON, path, "every coach of the quick dataset")
+        with cache.exclusive(model_store() / path.name):
+            if not path.exists():
+                _fit(data, SAMPLING_MIN, RHO, HORIZON, path, "every coach of the quick dataset")
     return load_predictor(path)
 
 

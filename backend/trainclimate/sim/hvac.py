@@ -119,6 +119,30 @@ def _climate_state(state, t_amb, t_ref, p: CoachParams) -> np.ndarray:
     )
 
 
+def _room_state(state, t_room_c, t_ref_c, demand_w, p: CoachParams) -> np.ndarray:
+    """Between the ambient thresholds: the state the decks ask for (``climate_from_room``).
+
+    From mixed, cooling once no deck's demand heats, one cools and none is colder than T_ref by
+    half of ``climate_room_band_k``, heating likewise; from cooling (heating), back to mixed once
+    a deck is ``climate_room_band_k`` colder (warmer) than T_ref — it needs what the state
+    forbids.
+    """
+    cooling, heating = demand_w < 0, demand_w > 0
+    band = p.climate_room_band_k
+    error = t_room_c.mean(axis=1) - t_ref_c
+    too_cold, too_warm = error < -band, error > band
+    # back from mixed only with the coach within half the band on the side the state cannot
+    # correct: the hysteresis that lets the decks' demand change sign first
+    cool = cooling.any(axis=1) & ~heating.any(axis=1) & (error >= -band / 2)
+    heat = heating.any(axis=1) & ~cooling.any(axis=1) & (error <= band / 2)
+    from_mixed = first_true([cool, heat], [COOLING, HEATING], MIXED)
+    return first_true(
+        [state == COOLING, state == HEATING],
+        [np.where(too_cold, MIXED, COOLING), np.where(too_warm, MIXED, HEATING)],
+        from_mixed,
+    )
+
+
 def next_state(
     state: np.ndarray,
     mode: np.ndarray,
@@ -126,16 +150,19 @@ def next_state(
     t_ref_c: np.ndarray,
     t_amb_c: np.ndarray,
     p: CoachParams,
+    demand_w: np.ndarray | None = None,
 ) -> np.ndarray:
     """The HVAC state block: the HVAC state after this control step.
 
     Regular mode: preheating while T_room < T_ref − ``pre_enter_k`` until it reaches
     T_ref − ``pre_exit_k`` (likewise precooling above); otherwise heating below
-    T_amb = T_ref − ``heat_below_k``, cooling above T_ref − ``cool_above_k`` and mixed between,
-    each switch with ``climate_hysteresis_k``. Slumber mode keeps a wide band: active heating
-    below T_ref − ``slumber_enter_k`` until T_ref − ``slumber_exit_k``, active cooling likewise
-    above, active ventilation when the coach is warm and outside air is cooler, off otherwise.
-    Off mode: off.
+    T_amb = T_ref − ``heat_below_k``, cooling above T_ref − ``cool_above_k``, each switch with
+    ``climate_hysteresis_k``; between, with ``climate_from_room`` and the decks' demand, the
+    state the decks ask for (cooling while no deck heats, heating while none cools, mixed when
+    they pull both ways or the coach's mean has drifted ``climate_room_band_k`` past T_ref),
+    else mixed. Slumber mode keeps a wide band: active heating below T_ref − ``slumber_enter_k``
+    until T_ref − ``slumber_exit_k``, active cooling likewise above, active ventilation when the
+    coach is warm and outside air is cooler, off otherwise. Off mode: off.
 
     Parameters
     ----------
@@ -151,6 +178,10 @@ def next_state(
         Ambient temperature. [°C]
     p : CoachParams
         Parameters stacked over the N coaches.
+    demand_w : numpy.ndarray of shape (N, 3), optional
+        Each deck's sustained demand, its PID's output averaged over the integral time
+        (:attr:`PID.demand`; positive heats); without it the ambient alone decides between the
+        thresholds. [W]
 
     Returns
     -------
@@ -167,6 +198,9 @@ def next_state(
 
     # regular mode
     climate = _climate_state(state, t_amb_c, t_ref_c, p)
+    if demand_w is not None:
+        room = _room_state(state, t_room_c, t_ref_c, demand_w, p)
+        climate = np.where((climate == MIXED) & (p.climate_from_room > 0), room, climate)
     stay_pre = (state == PREHEATING) & (dev < -p.pre_exit_k)
     stay_precool = (state == PRECOOLING) & (dev > p.pre_exit_k)
     regular = first_true(
@@ -433,7 +467,9 @@ class PID:
       held by a limit (output or rate) in the direction the error pushes;
     - reset and initial conditions on a state change: preheating / precooling start at full
       output, slumber heating / cooling and the idle states from zero, and a change among
-      heating, cooling and mixed is bumpless (the integral takes the clipped last output).
+      heating, cooling and mixed is bumpless (the integral takes the clipped last output);
+    - with ``cooling_min_off_s``, a deck's cooling that stopped may not run again before that
+      long (its lower output limit is 0 meanwhile).
 
     Parameters
     ----------
@@ -456,6 +492,12 @@ class PID:
         Last error, setpoint − measurement. [K]
     output : numpy.ndarray of shape (N, 3)
         Last output. [W]
+    demand : numpy.ndarray of shape (N, 3)
+        The output averaged over the integral time (first-order, time constant ``pid_ti_s``):
+        the deck's sustained demand, which the state block reads. [W]
+    cooling_off_s : numpy.ndarray of shape (N, 3)
+        Time since each deck's cooling last ran (inf or NaN: never), for
+        ``cooling_min_off_s``. [s]
 
     References
     ----------
@@ -471,6 +513,8 @@ class PID:
         self.last_y = np.full((n, 3), np.nan)
         self.output = np.zeros((n, 3))
         self.last_e = np.zeros((n, 3))
+        self.demand = np.zeros((n, 3))
+        self.cooling_off_s = np.full((n, 3), np.inf)
 
     def reset_on_transition(self, old: np.ndarray, new: np.ndarray) -> None:
         """Apply the state-dependent reset and initial conditions where the state changed.
@@ -524,6 +568,8 @@ class PID:
         candidate = self.integral + kp * dt / ti * e
         unsat = kp * e + candidate + self.deriv
         lo, hi = output_limits(state, p)
+        locked = (self.output >= 0) & (self.cooling_off_s < p.cooling_min_off_s[:, None])
+        lo = np.where(locked, np.maximum(lo, 0.0), lo)
         limited = np.clip(unsat, self.output - rate * dt, self.output + rate * dt)
         out = np.clip(limited, lo, hi)
         held = ((out < unsat - 1e-9) & (e > 0)) | ((out > unsat + 1e-9) & (e < 0))
@@ -531,4 +577,6 @@ class PID:
         self.last_y = y_c.copy()
         self.last_e = e
         self.output = out
+        self.cooling_off_s = np.where(out < 0, 0.0, self.cooling_off_s + dt)
+        self.demand += (out - self.demand) * dt / (ti + dt)
         return out

@@ -135,7 +135,18 @@ class CoachParams:
         ``pre_enter_k`` below (above) T_ref and ends within ``pre_exit_k`` of it. [K]
     heat_below_k, cool_above_k, climate_hysteresis_k : float
         Heating state for T_amb < T_ref − ``heat_below_k``, cooling for T_amb > T_ref −
-        ``cool_above_k``, mixed between; each switch with ``climate_hysteresis_k``. [K]
+        ``cool_above_k``, the room's choice between; each switch with ``climate_hysteresis_k``.
+        [K]
+    climate_from_room : float
+        1: between those ambient thresholds the decks choose (:func:`~trainclimate.sim.hvac.
+        next_state`): cooling while none asks for heat, heating while none asks for cooling,
+        mixed when they pull both ways; 0: always mixed there (the ambient alone). [–]
+    climate_room_band_k : float
+        How far the mean room temperature may drift past T_ref, in the state the decks chose,
+        before the coach goes back to mixed. [K]
+    cooling_min_off_s : float
+        Minimum off time of a deck's cooling after it stopped, the compressor protection a
+        real unit may have (0: none). [s]
     slumber_enter_k, slumber_exit_k, slumber_vent_k : float
         Slumber-mode band around T_ref: active heating/cooling enter and exit thresholds and
         the active-ventilation threshold. [K]
@@ -230,6 +241,9 @@ class CoachParams:
     heat_below_k: float = 8.0
     cool_above_k: float = 2.0
     climate_hysteresis_k: float = 1.0
+    climate_from_room: float = 1.0
+    climate_room_band_k: float = 0.5
+    cooling_min_off_s: float = 0.0
     slumber_enter_k: float = 5.0
     slumber_exit_k: float = 4.0
     slumber_vent_k: float = 2.0
@@ -378,6 +392,8 @@ class CoachParams:
             "cop_b",
             "economiser_band_k",
             "climate_hysteresis_k",
+            "climate_room_band_k",
+            "cooling_min_off_s",
         ]
         for name in non_negative:
             if np.any(np.asarray(getattr(self, name)) < 0):

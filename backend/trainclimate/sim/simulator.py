@@ -22,7 +22,7 @@ import pandas as pd
 from trainclimate.sim import hvac, thermal
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, stack
-from trainclimate.sim.power import electrical_power
+from trainclimate.sim.power import METERS, electrical_power
 from trainclimate.sim.rule import MODE_REGULAR, RuleCurve
 
 DECKS = ("up", "mid", "low")
@@ -37,7 +37,7 @@ class SimulationError(RuntimeError):
 
 
 #: The PID memory that a simulator snapshot carries.
-_PID_STATE = ("integral", "deriv", "last_y", "output", "last_e")
+_PID_STATE = ("integral", "deriv", "last_y", "output", "last_e", "demand", "cooling_off_s")
 
 #: A setpoint policy: called at every step with the step index and the simulator, returns T_ref
 #: (N,) in °C. ``None`` means the rule-based architecture, T_ref = T_rule.
@@ -104,6 +104,11 @@ class SimulationResult:
     def total_power_w(self) -> np.ndarray:
         """Total electrical power of the HVAC, shape (S, N). [W]"""
         return sum(self.power_w.values())
+
+    def meter_w(self, meter: str) -> np.ndarray:
+        """The electrical power a meter counts (:data:`~trainclimate.sim.power.METERS`), shape
+        (S, N). [W]"""
+        return sum(self.power_w[c] for c in METERS[meter])
 
     @property
     def energy_kwh(self) -> np.ndarray:
@@ -335,7 +340,9 @@ class FleetSimulator:
         y = self.measure()
         passengers = env.occupancy_pct[k][:, None] / 100.0 * p.seats
 
-        new_state = hvac.next_state(self.hvac_state, env.mode[k], y, t_ref, t_amb, p)
+        new_state = hvac.next_state(
+            self.hvac_state, env.mode[k], y, t_ref, t_amb, p, demand_w=self.pid.demand
+        )
         self.pid.reset_on_transition(self.hvac_state, new_state)
         self.hvac_state = new_state
         fresh, sub = hvac.fresh_air_fraction(new_state, y, t_ref, t_amb, passengers, p)
@@ -442,7 +449,9 @@ class FleetSimulator:
         self.T = T
         self.hvac_state = np.asarray(state["hvac_state"], dtype=np.int8)
         for name in _PID_STATE:
-            rows = state["pid"][name]
+            rows = state["pid"].get(name)
+            if rows is None:  # a snapshot from before this memory existed: its initial value
+                continue
             setattr(
                 self.pid, name, np.array([[np.nan if v is None else v for v in r] for r in rows])
             )

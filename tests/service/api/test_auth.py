@@ -122,7 +122,7 @@ def test_health_and_readiness_need_no_token(client):
     body = ready.json()
     assert {k: body[k] for k in ("status", "migrations", "model_version", "under_rule")} == {
         "status": "ready",
-        "migrations": "0005",
+        "migrations": "0006",
         "model_version": 1,
         "under_rule": False,
     }

@@ -104,6 +104,10 @@ def test_summary_is_the_pair_comparisons_pooled(client, tokens):
             headers=viewer,
         ).json()
         assert t["start"] == c["start"] and t["end"] == c["end"]
+        # no row splits the floor heating off: the whole coach's meter, as the comparison's
+        assert t["meter"] == c["meter"] == "hvac_and_floor"
+        assert t["savings_by_meter_pct"]["hvac"] is None
+        assert t["savings_by_meter_pct"]["hvac_and_floor"] == pytest.approx(c["savings_pct"])
         for k in FIGURES:
             assert t[k] == pytest.approx(c[k], abs=1e-9), (tid, k)
         assert t["avg_hourly_violation_activated_k"] == pytest.approx(c["avg_hourly_violation_k"])
@@ -256,3 +260,44 @@ def test_summary_kept_while_the_counted_windows_are_unchanged(client, tokens, mo
     assert client.delete(f"{API}/coaches/F3-A/override", params=reason, headers=op).is_success
     third = summary()
     assert summed[-1] == ["F3"] and third == second
+
+
+def test_the_fleet_counts_the_hvac_units_when_every_train_splits_the_floor_off(client, tokens):
+    """S1 and S2 report the floor heating's share: each on the HVAC units' meter; the fleet too
+    — until a train without the split joins, which puts the fleet on the whole coach's meter
+    while S1 and S2 keep theirs."""
+    op, viewer = tokens["operator"], tokens["viewer"]
+    for train, (pa, pb) in {"S1": (6.0, 7.0), "S2": (5.0, 7.0)}.items():
+        register(client, op, f"{train}-A", train, active=True)
+        register(client, op, f"{train}-B", train, active=False)
+        post_rows(
+            client,
+            op,
+            f"{train}-A",
+            _rows(1, 60, power_kw=lambda m, p=pa: p, floor_power_kw=lambda m: 2.0),
+        )
+        post_rows(
+            client,
+            op,
+            f"{train}-B",
+            _rows(1, 60, power_kw=lambda m, p=pb: p, floor_power_kw=lambda m: 2.0),
+        )
+    params = {"hours": 1.0, "end": at(60).isoformat()}
+    s = client.get(f"{API}/fleet/summary", params=params, headers=viewer).json()
+    trains = {t["id"]: t for t in s["trains"]}
+    assert trains["S1"]["meter"] == trains["S2"]["meter"] == s["meter"] == "hvac"
+    assert trains["S1"]["savings_pct"] == pytest.approx(20.0)  # 4 against 5 kW
+    assert trains["S2"]["savings_pct"] == pytest.approx(40.0)  # 3 against 5 kW
+    assert s["savings_pct"] == pytest.approx(30.0)  # 7 against 10 kW
+    assert s["savings_by_meter_pct"]["hvac_and_floor"] == pytest.approx(100 * (1 - 11 / 14))
+    assert s["energy_activated_kwh"] == pytest.approx(7.0)
+    assert sum(w["energy_activated_kwh"] for w in s["windows"]) == pytest.approx(7.0)
+    register(client, op, "S3-A", "S3", active=True)
+    register(client, op, "S3-B", "S3", active=False)
+    post_rows(client, op, "S3-A", _rows(1, 60, power_kw=lambda m: 8.0))
+    post_rows(client, op, "S3-B", _rows(1, 60))
+    s = client.get(f"{API}/fleet/summary", params=params, headers=viewer).json()
+    trains = {t["id"]: t for t in s["trains"]}
+    assert s["meter"] == "hvac_and_floor" and s["savings_by_meter_pct"]["hvac"] is None
+    assert (trains["S1"]["meter"], trains["S3"]["meter"]) == ("hvac", "hvac_and_floor")
+    assert s["energy_activated_kwh"] == pytest.approx(6.0 + 5.0 + 8.0)

@@ -23,6 +23,7 @@ from service_support import (
 )
 from trainclimate.analysis import savings
 from trainclimate.service.store import queries
+from trainclimate.service.store.telemetry import to_wire
 
 
 def when(value: str) -> datetime:
@@ -92,9 +93,15 @@ def test_pair_comparison(client, tokens, monkeypatch):
     assert c["excluded_minutes"] == 60.0
     assert c["avg_hourly_violation_k"] > 0 and c["baseline_violation_k"] == 0.0
 
-    # the analysis module's function did the maths: called once, on these series ...
-    assert len(calls) == 1
-    (act, deact), kwargs = calls[0]
+    # rows without the floor heating's share: the whole coach's meter is the headline, the
+    # HVAC units' is unknown
+    assert c["meter"] == "hvac_and_floor"
+    assert c["savings_by_meter_pct"] == {"hvac": None, "hvac_and_floor": c["savings_pct"]}
+    # the analysis module's function did the maths: once per meter, on these series ...
+    assert len(calls) == 2
+    hvac_series = calls[0][0][0]
+    assert np.isnan(hvac_series.power_kw).all()  # no split: no HVAC-units power
+    (act, deact), kwargs = calls[1]
     assert kwargs == {"start": pd.Timestamp(T0), "window_min": 30.0}
     assert isinstance(act, savings.CoachSeries) and isinstance(deact, savings.CoachSeries)
     assert act.power_kw.tolist() == [_power_a(m) for m in range(1, 121)]
@@ -169,3 +176,27 @@ def test_comparison_needs_a_pair(client, tokens):
             client.get(f"{API}/trains/Q/comparison", params=params, headers=viewer).status_code
             == 422
         )
+
+
+def test_pair_comparison_on_both_meters(client, tokens):
+    """Rows that split the floor heating off: the headline is the HVAC units' meter (the power
+    less the floor's), the whole coach's beside it; the floor heating, the same in both coaches,
+    only dilutes the whole coach's saving."""
+    op, viewer = tokens["operator"], tokens["viewer"]
+    register(client, op, "M-A", "M", active=True)
+    register(client, op, "M-B", "M", active=False)
+    post_rows(client, op, "M-A", flat_rows(1, 60, power_kw=6.0, floor_power_kw=2.0))
+    post_rows(client, op, "M-B", flat_rows(1, 60, power_kw=7.0, floor_power_kw=2.0))
+    c = client.get(f"{API}/trains/M/comparison", headers=viewer).json()
+    assert c["meter"] == "hvac"
+    assert c["savings_pct"] == pytest.approx(20.0)  # 1 − 4/5
+    assert c["savings_by_meter_pct"] == {
+        "hvac": pytest.approx(20.0),
+        "hvac_and_floor": pytest.approx(100 / 7),  # 1 − 6/7
+    }
+    assert (c["energy_activated_kwh"], c["energy_deactivated_kwh"]) == pytest.approx((4.0, 5.0))
+    # the share must be a share
+    bad = [flat_row(at(61), power_kw=1.0, floor_power_kw=2.0)]
+    body = {"coach_id": "M-A", "rows": [to_wire(r) for r in bad]}
+    reply = client.post(f"{API}/telemetry", json=body, headers=op)
+    assert reply.status_code == 422 and "floor_power_kw is a share of power_kw" in reply.text

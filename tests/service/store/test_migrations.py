@@ -89,7 +89,7 @@ def fill(url: str) -> None:
 
 def test_migrate_up_down_up(db_url):
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0005")
+    assert schema(db_url) == (TABLES, "0006")
     assert set(Base.metadata.tables) == TABLES
     assert differences(db_url) == []
     fill(db_url)
@@ -97,7 +97,7 @@ def test_migrate_up_down_up(db_url):
     downgrade(db_url)
     assert schema(db_url) == (set(), None)
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0005")
+    assert schema(db_url) == (TABLES, "0006")
     assert differences(db_url) == []
 
 
@@ -121,12 +121,12 @@ def alembic(db_url: str, tmp_path: Path, *args: str) -> subprocess.CompletedProc
 def test_alembic_command_line(db_url, tmp_path):
     assert ALEMBIC.exists(), f"no alembic script next to {sys.executable}"
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0005")
+    assert schema(db_url) == (TABLES, "0006")
     # `check` autogenerates against the models and fails on any difference
     assert "No new upgrade operations detected" in alembic(db_url, tmp_path, "check").stdout
     fill(db_url)
     alembic(db_url, tmp_path, "downgrade", "base")
     assert schema(db_url) == (set(), None)
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0005")
+    assert schema(db_url) == (TABLES, "0006")
     assert differences(db_url) == []

@@ -66,6 +66,7 @@ def synthetic(rng, train: np.ndarray, active: np.ndarray, minute: np.ndarray) ->
         "speed_kmh": rng.uniform(0.0, 120.0, n),
         "ghi_w_m2": ghi,
         "power_kw": power,
+        "floor_power_kw": 0.2 * power,  # the floor heating's share, as a winter coach's
     }
     return {c: np.broadcast_to(np.asarray(values[c], float), (n,)) for c in VALUE_COLS}
 

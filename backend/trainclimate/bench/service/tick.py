@@ -187,6 +187,7 @@ def _fleet_block(coaches: int, minutes: int):
         "occupancy_pct": means(env.occupancy_pct),
         "speed_kmh": means(env.speed_kmh),
         "power_kw": means(r.total_power_w) / 1e3,
+        "floor_power_kw": means(r.power_w["floor_wall"]) / 1e3,
     }
     start = env.time[0]
     time_s = start.timestamp() + 60.0 * np.repeat(np.arange(1, minutes + 1), len(ids))

@@ -163,6 +163,7 @@ class TimeSeries(BaseModel):
     t_amb_c: list[float | None]
     ghi_w_m2: list[float | None]
     power_kw: list[float | None]
+    floor_power_kw: list[float | None]
     occupancy_pct: list[float | None]
     speed_kmh: list[float | None]
     mode: list[str]
@@ -183,9 +184,31 @@ class TelemetryRow(Strict):
     q_gs_w_m2: float = Field(default=0.0, ge=0, le=1500, examples=[40.0])
     occupancy_pct: float = Field(default=0.0, ge=0, le=300, examples=[35.0])
     speed_kmh: float = Field(default=0.0, ge=0, le=250, examples=[80.0])
-    power_kw: float | None = Field(default=None, ge=0, le=200, examples=[9.5])
+    power_kw: float | None = Field(
+        default=None,
+        ge=0,
+        le=200,
+        examples=[9.5],
+        description="the HVAC's electrical power, floor and wall heating included",
+    )
+    floor_power_kw: float | None = Field(
+        default=None,
+        ge=0,
+        le=200,
+        examples=[2.4],
+        description="the floor and wall heating's share of power_kw, when the feed reports it: "
+        "the HVAC units alone (the meter the savings headline uses) are the difference",
+    )
     mode: Mode = Field(default="regular")
     connected: bool = True
+
+    @model_validator(mode="after")
+    def _floor_within_power(self) -> TelemetryRow:
+        if self.floor_power_kw is not None and (
+            self.power_kw is None or self.floor_power_kw > self.power_kw + 1e-9
+        ):
+            raise ValueError("floor_power_kw is a share of power_kw: give both, floor ≤ total")
+        return self
 
     @field_validator("time")
     @classmethod
@@ -276,6 +299,19 @@ class ControllerChange(Strict):
     reason: str = Field(min_length=1, max_length=500, examples=["maintenance of the HVAC"])
 
 
+#: The meters energy is counted on: the HVAC units alone (heater, compressor, fans; what the
+#: paper's loggers metered) and the whole coach (with the floor and wall heating).
+Meter = Literal["hvac", "hvac_and_floor"]
+METER_DESCRIPTION = (
+    "the meter of the energies and savings: hvac (the HVAC units alone, when every counted "
+    "minute splits the floor and wall heating off) or hvac_and_floor (the whole coach)"
+)
+BY_METER_DESCRIPTION = (
+    "the savings on each meter; hvac is null when a counted minute does not split the floor "
+    "heating off"
+)
+
+
 class WindowSavings(BaseModel):
     start: datetime
     energy_activated_kwh: float
@@ -294,7 +330,9 @@ class Comparison(BaseModel):
     end: datetime
     window_min: float
     windows: list[WindowSavings]
+    meter: Meter = Field(description=METER_DESCRIPTION)
     savings_pct: float | None
+    savings_by_meter_pct: dict[Meter, float | None] = Field(description=BY_METER_DESCRIPTION)
     energy_activated_kwh: float
     energy_deactivated_kwh: float
     avg_hourly_violation_k: float
@@ -305,7 +343,9 @@ class Comparison(BaseModel):
 class SavingsFigures(BaseModel):
     """Savings and comfort of activated against deactivated coaches over included windows."""
 
+    meter: Meter = Field(description=METER_DESCRIPTION)
     savings_pct: float | None = Field(description="100 (1 − E_act / E_deact); null: no E_deact")
+    savings_by_meter_pct: dict[Meter, float | None] = Field(description=BY_METER_DESCRIPTION)
     energy_activated_kwh: float
     energy_deactivated_kwh: float
     avg_hourly_violation_activated_k: float

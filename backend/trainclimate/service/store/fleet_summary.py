@@ -50,6 +50,7 @@ from trainclimate.service.store.models import (
     Train,
     UTCDateTime,
 )
+from trainclimate.sim.power import HEADLINE_METER, METERS
 
 #: A coach whose decks have been outside the comfort band this long, without a break, needs
 #: attention. [min]
@@ -167,8 +168,9 @@ def window_sums(
         an array of :data:`SUMS`: the minutes both coaches have a row on the minute grid, those
         affected (either coach not connected, without power, or overridden), the energy of
         each coach [kWh], the minutes counted for comfort (nothing affected, both in regular
-        mode), and the discomfort per deck of the activated and the deactivated coach over
-        those [K·h].
+        mode), the discomfort per deck of the activated and the deactivated coach over
+        those [K·h], each coach's energy on the HVAC units' meter (without the floor and wall
+        heating) [kWh] and the minutes where a coach's row does not split the floor heating off.
     """
     if not pairs:
         return {}
@@ -218,6 +220,9 @@ def window_sums(
             and_(a.c.mode == "regular", b.c.mode == "regular").label("band"),
             func.coalesce(a.c.power_kw, 0.0).label("pa"),
             func.coalesce(b.c.power_kw, 0.0).label("pb"),
+            func.coalesce(a.c.floor_power_kw, 0.0).label("fa"),
+            func.coalesce(b.c.floor_power_kw, 0.0).label("fb"),
+            or_(a.c.floor_power_kw.is_(None), b.c.floor_power_kw.is_(None)).label("unsplit"),
             *(v.label(f"va{i}") for i, v in enumerate(_violation(a, t_max_k))),
             *(v.label(f"vb{i}") for i, v in enumerate(_violation(b, t_max_k))),
         )
@@ -241,6 +246,9 @@ def window_sums(
         func.sum(case((counted, 1), else_=0)),
         *(func.sum(case((counted, m.c[f"va{i}"]), else_=0.0)) / 60.0 for i in range(3)),
         *(func.sum(case((counted, m.c[f"vb{i}"]), else_=0.0)) / 60.0 for i in range(3)),
+        func.sum(case((m.c.grid, m.c.pa - m.c.fa), else_=0.0)) * kwh,
+        func.sum(case((m.c.grid, m.c.pb - m.c.fb), else_=0.0)) * kwh,
+        func.sum(case((and_(m.c.grid, m.c.unsplit), 1), else_=0)),
     ]
     if postgresql:
         # without JIT compilation, which the plan's cost asks for and which took longer than
@@ -266,6 +274,9 @@ SUMS = (
     "counted_minutes",
     *(f"discomfort_{d}_kh" for d in ("up", "mid", "low")),
     *(f"baseline_discomfort_{d}_kh" for d in ("up", "mid", "low")),
+    "energy_activated_hvac_kwh",
+    "energy_deactivated_hvac_kwh",
+    "unsplit_minutes",
 )
 
 
@@ -299,9 +310,12 @@ def pair_windows(
     return index, grid, (minutes == round(window_min)) & (affected == 0)
 
 
-def pair_totals(grid: np.ndarray, included: np.ndarray, window_min: float) -> PairTotals:
-    """A pair's totals from its :func:`pair_windows`' sums and included windows."""
-    e_act, e_deact, counted = grid[:, 2], grid[:, 3], grid[:, 4]
+def pair_totals(
+    grid: np.ndarray, included: np.ndarray, window_min: float, meter: str = "hvac_and_floor"
+) -> PairTotals:
+    """A pair's totals on ``meter`` from its :func:`pair_windows`' sums and included windows."""
+    e_act, e_deact = grid[:, _energy_columns(meter)].T
+    counted = grid[:, 4]
     return PairTotals(
         energy_activated_kwh=float(e_act[included].sum()),
         energy_deactivated_kwh=float(e_deact[included].sum()),
@@ -314,8 +328,28 @@ def pair_totals(grid: np.ndarray, included: np.ndarray, window_min: float) -> Pa
     )
 
 
-def _totals_dict(t: PairTotals) -> dict:
+def split_everywhere(grid: np.ndarray, included: np.ndarray) -> bool:
+    """Whether every minute of the included windows splits the floor heating off (the HVAC
+    units' meter counts then)."""
+    return not np.any(grid[included, SUMS.index("unsplit_minutes")] > 0)
+
+
+def _energy_columns(meter: str) -> list[int]:
+    """The columns of :data:`SUMS` with the activated and the deactivated coach's energy on
+    ``meter``."""
+    suffix = "_kwh" if meter == "hvac_and_floor" else "_hvac_kwh"
+    return [SUMS.index(f"energy_{coach}{suffix}") for coach in ("activated", "deactivated")]
+
+
+def _totals_dict(by_meter: dict[str, PairTotals], meter: str) -> dict:
+    """The figures of ``meter``'s totals, and the savings on every meter (None for one that
+    does not count)."""
+    t = by_meter[meter]
     return {
+        "meter": meter,
+        "savings_by_meter_pct": {
+            m: by_meter[m].savings_pct if m in by_meter else None for m in METERS
+        },
         "savings_pct": t.savings_pct,
         "energy_activated_kwh": t.energy_activated_kwh,
         "energy_deactivated_kwh": t.energy_deactivated_kwh,
@@ -418,7 +452,9 @@ def summary(
     Returns
     -------
     dict
-        ``hours``, ``window_min``, the fleet's ``savings_pct`` [%], ``energy_activated_kwh`` and
+        ``hours``, ``window_min``, the fleet's ``meter`` (the HVAC units' when every train
+        splits the floor heating off, else the whole coach's), ``savings_pct`` [%] on it and
+        ``savings_by_meter_pct``, ``energy_activated_kwh`` and
         ``energy_deactivated_kwh`` [kWh], ``avg_hourly_violation_activated_k`` and
         ``avg_hourly_violation_deactivated_k`` [K], ``excluded_minutes`` [min],
         ``counted_hours`` [h]; ``trains``: per train ``id``, ``name``, ``activated``,
@@ -450,13 +486,21 @@ def summary(
         hi = first + pd.Timedelta(minutes=window_min * n)
         pairs.append((act.id, deact.id, first.to_pydatetime(), hi.to_pydatetime()))
     sums = _cached_window_sums(session, pairs, window_min, cache)
-    fleet = PairTotals.empty(window_min)
-    out_trains, windows = [], {}
+    per_train = []
     for t, act, deact, first, n, stop in ranges:
         index, grid, included = pair_windows(sums.get(act.id, {}), first, n, window_min)
-        totals = pair_totals(grid, included, window_min)
-        fleet = fleet + totals
-        for w, e_act, e_deact in zip(index[included], *grid[included, 2:4].T, strict=True):
+        meters = METERS if split_everywhere(grid, included) else ("hvac_and_floor",)
+        totals = {m: pair_totals(grid, included, window_min, m) for m in meters}
+        per_train.append((t, act, deact, first, stop, index, grid, included, totals))
+    # the fleet's headline is the HVAC units' meter when every train has it
+    fleet_meters = [m for m in METERS if all(m in x[-1] for x in per_train)]
+    fleet_meter = HEADLINE_METER if HEADLINE_METER in fleet_meters else "hvac_and_floor"
+    energy = _energy_columns(fleet_meter)
+    fleet = {m: PairTotals.empty(window_min) for m in fleet_meters}
+    out_trains, windows = [], {}
+    for t, act, deact, first, stop, index, grid, included, totals in per_train:
+        fleet = {m: fleet[m] + totals[m] for m in fleet}
+        for w, e_act, e_deact in zip(index[included], *grid[included][:, energy].T, strict=True):
             pooled = windows.setdefault(int(w), [0.0, 0.0, 0])
             pooled[0], pooled[1], pooled[2] = pooled[0] + e_act, pooled[1] + e_deact, pooled[2] + 1
         out_trains.append(
@@ -467,14 +511,16 @@ def summary(
                 "deactivated": deact.id,
                 "start": first.to_pydatetime(),
                 "end": stop,
-                **_totals_dict(totals),
+                **_totals_dict(
+                    totals, HEADLINE_METER if HEADLINE_METER in totals else "hvac_and_floor"
+                ),
             }
         )
     clocks_now = {v["id"]: v["clock"] for v in views if v["clock"] is not None}
     return {
         "hours": hours,
         "window_min": window_min,
-        **_totals_dict(fleet),
+        **_totals_dict(fleet, fleet_meter),
         "trains": out_trains,
         "windows": [
             {

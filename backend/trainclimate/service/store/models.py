@@ -119,7 +119,9 @@ class FleetClock(Base):
 class Telemetry(Base):
     """One coach's 1-minute row stamped ``time`` (the minute up to it): deck temperatures,
     applied T_ref and T_rule (°C), ambient temperature (°C), irradiance (W/m²), occupancy (%),
-    speed (km/h), HVAC power (kW), mode and whether the link was up; unique (coach, time)."""
+    speed (km/h), HVAC power (kW; the whole coach's, floor and wall heating included) and the
+    floor and wall heating's share of it (kW, if the feed reports it), mode and whether the link
+    was up; unique (coach, time)."""
 
     __tablename__ = "telemetry"
     __table_args__ = (UniqueConstraint("coach_id", "time", name="uq_telemetry_coach_time"),)
@@ -138,6 +140,7 @@ class Telemetry(Base):
     occupancy_pct: Mapped[float | None] = mapped_column(Float)
     speed_kmh: Mapped[float | None] = mapped_column(Float)
     power_kw: Mapped[float | None] = mapped_column(Float)
+    floor_power_kw: Mapped[float | None] = mapped_column(Float)
     mode: Mapped[str] = mapped_column(String(16), default="regular")
     connected: Mapped[bool] = mapped_column(Boolean, default=True)
 

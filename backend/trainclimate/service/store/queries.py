@@ -29,6 +29,7 @@ from trainclimate.service.store.models import (
     Train,
 )
 from trainclimate.service.store.telemetry import load_frame
+from trainclimate.sim.power import HEADLINE_METER, METERS
 from trainclimate.sim.setpoint import U_BAND_K
 
 #: The comfort bound the controller holds the decks to around T_rule (T_max of its problem). [K]
@@ -271,6 +272,7 @@ def timeseries(session: Session, coach: Coach, start: datetime, end: datetime) -
         "t_amb_c": _none(frame["t_amb_c"]),
         "ghi_w_m2": _none(frame["ghi_w_m2"]),
         "power_kw": _none(frame["power_kw"]),
+        "floor_power_kw": _none(frame["floor_power_kw"]),
         "occupancy_pct": _none(frame["occupancy_pct"]),
         "speed_kmh": _none(frame["speed_kmh"]),
         "mode": list(frame["mode"]),
@@ -358,7 +360,12 @@ def comparison_state(session: Session, train: Train, start: datetime, end: datet
     return (*(c.id for c in pair), tuple(telemetry), tuple(tuple(o) for o in overrides))
 
 
-def _series(session: Session, coach: Coach, grid: pd.DatetimeIndex, start, end) -> CoachSeries:
+def _series(
+    session: Session, coach: Coach, grid: pd.DatetimeIndex, start, end
+) -> dict[str, CoachSeries]:
+    """The coach's series on each meter (:data:`~trainclimate.sim.power.METERS`): the whole
+    coach's power, and the HVAC units' — the power less the floor and wall heating, NaN (so
+    affected) in a minute whose row does not split it."""
     frame = load_frame(session, coach.id, start, end).reindex(grid)
     overridden = np.zeros(len(grid), bool)
     for o in session.scalars(
@@ -370,14 +377,20 @@ def _series(session: Session, coach: Coach, grid: pd.DatetimeIndex, start, end) 
         overridden |= (grid > o.starts_at) & (grid <= stop)
     connected = frame["connected"].astype("boolean").fillna(False).to_numpy(bool)
     # a row stamped t covers the minute (t − 1 min, t]: the analysis takes each sample's start
-    return CoachSeries(
-        time=grid - pd.Timedelta(minutes=1),
-        power_kw=frame["power_kw"].to_numpy(float),
-        t_room_c=frame[["t_room_up_c", "t_room_mid_c", "t_room_low_c"]].to_numpy(float),
-        t_rule_c=frame["t_rule_c"].to_numpy(float),
-        affected=~connected | overridden,
-        in_band=(frame["mode"] == "regular").to_numpy(bool),
-    )
+    power = frame["power_kw"].to_numpy(float)
+    return {
+        meter: CoachSeries(
+            time=grid - pd.Timedelta(minutes=1),
+            power_kw=power
+            if meter == "hvac_and_floor"
+            else power - frame["floor_power_kw"].to_numpy(float),
+            t_room_c=frame[["t_room_up_c", "t_room_mid_c", "t_room_low_c"]].to_numpy(float),
+            t_rule_c=frame["t_rule_c"].to_numpy(float),
+            affected=~connected | overridden,
+            in_band=(frame["mode"] == "regular").to_numpy(bool),
+        )
+        for meter in METERS
+    }
 
 
 def counted_range(
@@ -426,7 +439,12 @@ def comparison(
         raise RequestError("the range is shorter than two minutes")
     a = _series(session, act, grid, start, end)
     b = _series(session, deact, grid, start, end)
-    c = compare(a, b, start=first, window_min=window_min)
+    by_meter = {m: compare(a[m], b[m], start=first, window_min=window_min) for m in METERS}
+    # the HVAC units' meter counts only where every window the whole coach's counts splits the
+    # floor heating off (a feed without the split: the whole coach's is the headline)
+    split = not np.any(by_meter["hvac"].excluded & ~by_meter["hvac_and_floor"].excluded)
+    meter = HEADLINE_METER if split else "hvac_and_floor"
+    c = by_meter[meter]
     return {
         "train_id": train.id,
         "activated": act.id,
@@ -444,7 +462,12 @@ def comparison(
             }
             for i, w in enumerate(c.window_start)
         ],
+        "meter": meter,
         "savings_pct": c.savings_pct,
+        "savings_by_meter_pct": {
+            m: x.savings_pct if split or m == "hvac_and_floor" else None
+            for m, x in by_meter.items()
+        },
         "energy_activated_kwh": c.energy_activated_total_kwh,
         "energy_deactivated_kwh": c.energy_deactivated_total_kwh,
         "avg_hourly_violation_k": c.avg_hourly_violation_k,

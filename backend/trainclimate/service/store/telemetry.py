@@ -24,7 +24,7 @@ from trainclimate.service.store.upsert import insert_new
 
 Y_COLS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
 D_COLS = ("t_amb_c", "q_gt_w_m2", "q_gs_w_m2", "occupancy_pct", "speed_kmh")
-VALUE_COLS = (*Y_COLS, "t_ref_c", "t_rule_c", *D_COLS, "ghi_w_m2", "power_kw")
+VALUE_COLS = (*Y_COLS, "t_ref_c", "t_rule_c", *D_COLS, "ghi_w_m2", "power_kw", "floor_power_kw")
 
 
 def insert_rows(session: Session, coach_id: str, rows: list[dict]) -> int:
@@ -189,6 +189,7 @@ WIRE_FIELDS = (
     "occupancy_pct",
     "speed_kmh",
     "power_kw",
+    "floor_power_kw",
     "mode",
     "connected",
 )
@@ -196,11 +197,12 @@ WIRE_FIELDS = (
 
 def to_wire(row: dict) -> dict:
     """A stored row (one value per column) as a row of ``POST /api/v1/telemetry``: the time in
-    ISO 8601 with its offset and the decks as ``t_room_c`` [up, mid, low]."""
+    ISO 8601 with its offset and the decks as ``t_room_c`` [up, mid, low]; a field the row does
+    not have (a feed without the floor heating's share) is left out."""
     return {
         "time": pd.Timestamp(row["time"]).isoformat(),
         "t_room_c": [row["t_room_up_c"], row["t_room_mid_c"], row["t_room_low_c"]],
-        **{k: row[k] for k in WIRE_FIELDS},
+        **{k: row[k] for k in WIRE_FIELDS if k in row},
     }
 
 
@@ -213,7 +215,7 @@ def from_wire(row: dict) -> dict:
         "t_room_up_c": up,
         "t_room_mid_c": mid,
         "t_room_low_c": low,
-        **{k: row[k] for k in WIRE_FIELDS},
+        **{k: row.get(k) for k in WIRE_FIELDS},
     }
 
 
@@ -222,7 +224,8 @@ def rows_from_simulation(
 ) -> dict[str, list[dict]]:
     """Telemetry rows of a :class:`~trainclimate.sim.simulator.FleetSimulator`'s steps [k0, k1),
     one per coach and minute (the minute up to the row's time), as a logger would report them:
-    the sensors' mean, the applied T_ref and T_rule, the weather, occupancy, speed and power,
+    the sensors' mean, the applied T_ref and T_rule, the weather, occupancy, speed, the power and
+    the floor and wall heating's share of it,
     and whether the link was up: ``connected`` is false for a coach's minute with a step where
     ``disconnected`` ((steps, coaches) bool on the simulator's grid; default none) is true."""
     from trainclimate.sim.rule import MODE_NAMES, MODE_REGULAR
@@ -237,6 +240,7 @@ def rows_from_simulation(
         y = r.t_room_meas_c[sl].mean(axis=0)
         # the minute's power only: the total over all steps so far would grow with the day
         power_kw = sum(v[sl] for v in r.power_w.values()).mean(axis=0) / 1e3
+        floor_kw = r.power_w["floor_wall"][sl].mean(axis=0) / 1e3
         up = np.ones(len(coach_ids), bool) if disconnected is None else ~disconnected[sl].any(0)
         for c, cid in enumerate(coach_ids):
             modes = env.mode[sl, c]
@@ -256,6 +260,7 @@ def rows_from_simulation(
                     "occupancy_pct": float(env.occupancy_pct[sl, c].mean()),
                     "speed_kmh": float(env.speed_kmh[sl, c].mean()),
                     "power_kw": float(power_kw[c]),
+                    "floor_power_kw": float(floor_kw[c]),
                     "mode": mode,
                     "connected": bool(up[c]),
                 }
