@@ -177,3 +177,95 @@ def test_pid_resets_on_state_transitions():
     pid.reset_on_transition(np.array([hvac.HEATING]), np.array([hvac.MIXED]))
     after = run_pid(pid, 22.0, 21.0, hvac.MIXED, 1)[-1]
     assert np.all(np.abs(after - before) < 0.05 * p.q_heat_max_w)
+
+
+def room_state(prev, decks, t_ref, t_amb, demand, p=P1):
+    """:func:`hvac.next_state` in regular mode with deck temperatures and the decks' demand."""
+    return int(
+        hvac.next_state(
+            np.array([prev]),
+            np.array([MODE_REGULAR]),
+            np.array([decks], float),
+            np.array([float(t_ref)]),
+            np.array([float(t_amb)]),
+            p,
+            demand_w=np.array([demand], float),
+        )[0]
+    )
+
+
+def test_between_the_thresholds_the_room_chooses_the_state():
+    """T_ref 22, T_amb 17 (between 14 and 20 °C): the decks' demand and the mean decide."""
+    warm = [22.1, 22.0, 21.9]
+    # from mixed: cooling once no deck heats and one cools; heating likewise; else mixed
+    assert room_state(hvac.MIXED, warm, 22, 17, [-900, -200, 0]) == hvac.COOLING
+    assert room_state(hvac.MIXED, warm, 22, 17, [300, 100, 500]) == hvac.HEATING
+    assert room_state(hvac.MIXED, warm, 22, 17, [-900, -200, 400]) == hvac.MIXED
+    assert room_state(hvac.MIXED, warm, 22, 17, [0, 0, 0]) == hvac.MIXED
+    # … but not with the coach's mean more than half the band (0.25 K) on the wrong side
+    assert room_state(hvac.MIXED, [21.8, 21.7, 21.6], 22, 17, [-900, -200, 0]) == hvac.MIXED
+    # cooling holds, whatever the demand, until the mean is 0.5 K below T_ref
+    assert room_state(hvac.COOLING, [21.9, 21.6, 21.2], 22, 17, [0, 0, 0]) == hvac.COOLING
+    assert room_state(hvac.COOLING, [21.6, 21.4, 21.3], 22, 17, [0, 0, 0]) == hvac.MIXED
+    assert room_state(hvac.HEATING, [22.6, 22.5, 22.5], 22, 17, [0, 0, 0]) == hvac.MIXED
+    # one deck alone far off does not move the coach (the unit acts on the mean)
+    assert room_state(hvac.COOLING, [22.2, 22.0, 21.0], 22, 17, [-500, 0, 0]) == hvac.COOLING
+    # outside the thresholds T_amb decides as before
+    assert room_state(hvac.MIXED, warm, 22, 12.5, [-900, -900, -900]) == hvac.HEATING
+    assert room_state(hvac.MIXED, warm, 22, 21.5, [900, 900, 900]) == hvac.COOLING
+    # climate_from_room 0: always mixed between the thresholds (the earlier model)
+    ambient = stack([CoachParams(climate_from_room=0.0)])
+    assert room_state(hvac.MIXED, warm, 22, 17, [-900, -200, 0], ambient) == hvac.MIXED
+    assert room_state(hvac.COOLING, warm, 22, 17, [-900, -200, 0], ambient) == hvac.MIXED
+
+
+def test_the_demand_is_the_output_averaged_over_the_integral_time():
+    p = CoachParams()
+    pid = hvac.PID(1, P1, dt_s=10.0)
+    out = run_pid(pid, 22.0, 30.0, hvac.COOLING, 60)  # 10 min at full cooling
+    assert np.all(pid.demand < 0) and np.all(pid.demand > out[-1])
+    # it lags the output by the integral time and then follows it: after 10 time constants of
+    # full cooling it is the output
+    run_pid(pid, 22.0, 30.0, hvac.COOLING, int(10 * p.pid_ti_s[0] / 10.0))
+    np.testing.assert_allclose(pid.demand, pid.output, rtol=1e-3)
+
+
+def test_a_deck_s_cooling_may_not_restart_within_its_minimum_off_time():
+    p1 = stack([CoachParams(cooling_min_off_s=120.0)])
+    pid = hvac.PID(1, p1, dt_s=10.0)
+    run_pid(pid, 22.0, 23.0, hvac.MIXED, 30)  # cooling
+    assert np.all(pid.output < 0)
+    off = run_pid(pid, 22.0, 20.0, hvac.MIXED, 3)  # too cold: the cooling stops, heat comes
+    assert np.all(off[-1] >= 0)
+    # too warm again: cooling is locked for 120 s after it stopped, then runs
+    again = run_pid(pid, 22.0, 24.0, hvac.MIXED, 14)
+    stopped_at = np.argmax(off[:, 0] >= 0)  # the step (of `off`) where it stopped
+    locked_steps = 12 - (len(off) - stopped_at)
+    assert np.all(again[:locked_steps] >= 0)
+    assert np.all(again[-1] < 0)
+    # without the limit it would have cooled at once
+    free = hvac.PID(1, P1, dt_s=10.0)
+    run_pid(free, 22.0, 23.0, hvac.MIXED, 30)
+    run_pid(free, 22.0, 20.0, hvac.MIXED, 3)
+    assert np.all(run_pid(free, 22.0, 24.0, hvac.MIXED, 2)[-1] < 0)
+
+
+def test_a_snapshot_from_before_the_demand_and_the_off_timer_restores():
+    """The demo keeps its simulator's snapshot in the database: one written before the PIDs
+    had a demand and a cooling off-timer continues, those starting from their initial values."""
+    from trainclimate.sim import scenarios
+    from trainclimate.sim.simulator import FleetSimulator
+
+    env, params = scenarios.build(scenarios.get("parked-heating-nov"), n_coaches=2, hours=0.5)
+    sim = FleetSimulator(params, env, seed=1)
+    sim.run(steps=30)
+    old = sim.snapshot()
+    for name in ("demand", "cooling_off_s"):
+        del old["pid"][name]
+    again = FleetSimulator(params, env, seed=1)
+    again.restore(old)
+    np.testing.assert_array_equal(again.pid.integral, sim.pid.integral)
+    np.testing.assert_array_equal(again.pid.demand, np.zeros((2, 3)))
+    again.k = sim.k
+    again.run(steps=10)  # it steps on
+    assert np.isfinite(again.T).all()
