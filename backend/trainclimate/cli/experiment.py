@@ -86,7 +86,7 @@ def cmd_experiment_ablation(args: argparse.Namespace) -> None:
         lines = [
             f"{r['scenario']}: "
             + ", ".join(
-                f"{STEPS[k]} {s['savings_pct']:.2f} %" if s["savings_pct"] is not None else "–"
+                f"{STEPS[k]} " + ("–" if s["savings_pct"] is None else f"{s['savings_pct']:.2f} %")
                 for k, s in r["steps"].items()
             )
             for r in d["experiments"]
