@@ -12,6 +12,7 @@ JSON keys are listed in the README and in ``docs/``.
 - :mod:`.calibrate` — ``calibrate``
 - :mod:`.predictor` — ``predictor evaluate|fit|default|study``
 - :mod:`.experiment` — ``experiment run|summary``
+- :mod:`.study` — ``study fleet``
 - :mod:`.service` — ``serve``, ``token create``, ``gateway``
 - :mod:`.bench` — ``bench …``
 """
@@ -22,7 +23,16 @@ import argparse
 import logging
 import sys
 
-from trainclimate.cli import bench, calibrate, dataset, experiment, predictor, service, simulate
+from trainclimate.cli import (
+    bench,
+    calibrate,
+    dataset,
+    experiment,
+    predictor,
+    service,
+    simulate,
+    study,
+)
 from trainclimate.cli.common import Parser, UsageError
 from trainclimate.data.pipeline import PipelineError
 from trainclimate.paths import StorageError
@@ -34,7 +44,7 @@ from trainclimate.sim.weather import WeatherError
 
 DESCRIPTION = "Data-driven predictive HVAC energy management for SBB Regio-Dosto coaches."
 #: The command groups, in the order ``--help`` lists them.
-GROUPS = (simulate, bench, dataset, calibrate, predictor, experiment, service)
+GROUPS = (simulate, bench, dataset, calibrate, predictor, experiment, study, service)
 #: Errors that are the user's input, not a bug: exit 2 with their first line.
 USER_ERRORS = (
     UsageError,

@@ -31,13 +31,15 @@ def cmd_bench(args: argparse.Namespace) -> None:
         replicas,
         service,
         simulator,
+        study,
     )
 
     if args.target == "simulator":
         coaches = 100 if args.coaches is None else args.coaches
-        if coaches < 1 or args.days <= 0:
+        days = 1.0 if args.days is None else args.days
+        if coaches < 1 or days <= 0:
             raise UsageError("--coaches must be ≥ 1 and --days positive")
-        report(args, simulator.run(coaches, args.days, args.loop_coaches), simulator.text)
+        report(args, simulator.run(coaches, days, args.loop_coaches), simulator.text)
     elif args.target == "pipeline":
         if args.file_mb <= 0:
             raise UsageError("--file-mb must be positive")
@@ -75,6 +77,14 @@ def cmd_bench(args: argparse.Namespace) -> None:
             except load.LoadBenchError as exc:
                 raise UsageError(str(exc)) from None
         report(args, data, load.text)
+    elif args.target == "study":
+        coaches = 128 if args.coaches is None else args.coaches
+        days = 2 if args.days is None else int(args.days)
+        if coaches < 2 or days < 1:
+            raise UsageError("--coaches must be ≥ 2 and --days ≥ 1")
+        with progress_bar(4, "study benchmark", "stage") as bar:
+            data = study.run(coaches, days, chunk_coaches=max(1, coaches // 2), progress=bar.update)
+        report(args, data, study.text)
     elif args.target == "replicas":
         coaches = 10_000 if args.coaches is None else args.coaches
         with progress_bar(3, "replicas benchmark", "stage") as bar:
@@ -101,6 +111,7 @@ def register(sub) -> None:
             "service",
             "load",
             "replicas",
+            "study",
         ),
     )
     p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
@@ -138,9 +149,12 @@ def register(sub) -> None:
         "--coaches",
         type=int,
         default=None,
-        help="simulator: coaches simulated (default 100); replicas: live coaches (default 10 000)",
+        help="simulator: coaches simulated (default 100); replicas: live coaches (default 10 000);"
+        " study: coaches (default 128)",
     )
-    p.add_argument("--days", type=float, default=1.0)
+    p.add_argument(
+        "--days", type=float, default=None, help="simulator: days (default 1); study: days (2)"
+    )
     p.add_argument(
         "--loop-coaches", type=int, default=5, help="coaches simulated one by one for the baseline"
     )

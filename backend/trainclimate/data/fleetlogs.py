@@ -161,13 +161,36 @@ class CoachDay:
         return pd.Timestamp(f"{nxt:%Y-%m-%d} 03:00", tz=LOCAL_TZ).tz_convert("UTC")
 
 
-def _local(day: str, hours: float) -> pd.Timestamp:
+def local_hours(day: str, hours: float) -> pd.Timestamp:
     """Local clock time ``hours`` after midnight of ``day`` (may pass midnight), in UTC."""
     minutes = round(hours * 60)
     stamp = pd.Timestamp(day) + pd.Timedelta(minutes=minutes)
     return stamp.tz_localize(LOCAL_TZ, nonexistent="shift_forward", ambiguous=True).tz_convert(
         "UTC"
     )
+
+
+def draw_service_day(rng: np.random.Generator) -> tuple[str, float, float, list]:
+    """An in-service day's timetable drawn from ``rng``: a Zurich S-Bahn line, the first
+    departure (04:45–06:45), the end of service (22:00–00:45) and one or two layovers (late
+    morning 40 min–2 h; in half the days also early evening 30 min–1.5 h).
+
+    Returns
+    -------
+    line : str
+        A key of :data:`~trainclimate.sim.routes.LINES`.
+    first, last : float
+        Hours after local midnight of the first departure and of the end of service. [h]
+    layovers : list of (float, float)
+        (start in hours after local midnight, length in hours) of each layover. [h]
+    """
+    line = str(rng.choice(sorted(LINES)))
+    first = rng.uniform(4.75, 6.75)
+    last = rng.uniform(22.0, 24.75)
+    layovers = [(rng.uniform(9.5, 13.5), rng.uniform(0.67, 2.0))]
+    if rng.random() < 0.5:
+        layovers.append((rng.uniform(18.5, 20.5), rng.uniform(0.5, 1.5)))
+    return line, first, last, layovers
 
 
 def plan_day(campaign: Campaign, coach_index: int, day_index: int, rates: Defects) -> CoachDay:
@@ -177,18 +200,13 @@ def plan_day(campaign: Campaign, coach_index: int, day_index: int, rates: Defect
     day = campaign.days[day_index]
     logged = bool(rng.random() >= rates.logger_off_day)
     in_service = bool(rng.random() < 0.85)
-    line = str(rng.choice(sorted(LINES)))
-    first = rng.uniform(4.75, 6.75)
-    last = rng.uniform(22.0, 24.75)
-    layovers = [(rng.uniform(9.5, 13.5), rng.uniform(0.67, 2.0))]
-    if rng.random() < 0.5:
-        layovers.append((rng.uniform(18.5, 20.5), rng.uniform(0.5, 1.5)))
+    line, first, last, layovers = draw_service_day(rng)
     interventions = []
     for _ in range(rng.poisson(3.0)):
         a = rng.uniform(first, last)
         length = rng.uniform(1 / 3, 3.0)
         offset = float(rng.choice([-2.0, -1.5, -1.0, -0.5, 0.5, 1.0, 1.5, 2.0]))
-        interventions.append((_local(day, a), _local(day, a + length), offset))
+        interventions.append((local_hours(day, a), local_hours(day, a + length), offset))
     return CoachDay(
         campaign=campaign,
         coach_index=coach_index,
@@ -196,9 +214,9 @@ def plan_day(campaign: Campaign, coach_index: int, day_index: int, rates: Defect
         logged=logged,
         in_service=in_service,
         line=line,
-        first_departure=_local(day, first),
-        last_arrival=_local(day, last),
-        layovers=tuple((_local(day, a), _local(day, a + b)) for a, b in layovers),
+        first_departure=local_hours(day, first),
+        last_arrival=local_hours(day, last),
+        layovers=tuple((local_hours(day, a), local_hours(day, a + b)) for a, b in layovers),
         interventions=tuple(sorted(interventions)),
         seed=seed,
     )

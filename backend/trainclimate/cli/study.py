@@ -1,0 +1,231 @@
+"""``study fleet``: what the layer would save on a whole fleet over many days, on Dask."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+from trainclimate.cli.common import (
+    UsageError,
+    add_command,
+    add_group,
+    add_model_options,
+    emit,
+    out_dir,
+    predictor_from,
+    progress_bar,
+)
+
+
+def _file_id(path: str | Path) -> str:
+    """A file's name and the start of its SHA-256 (what identifies an input of the study)."""
+    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+    return f"{Path(path).name}:{digest}"
+
+
+def fleet_from_file(path: str) -> tuple[tuple[str, ...], tuple[dict, ...]]:
+    """The coaches of a fleet file and their parameters.
+
+    The file is JSON: ``{"coaches": [{"coach": ID, "params": {…}}, …]}`` — the shape
+    ``calibrate --json`` prints — with each ``params`` in the ``coach-params`` format (missing
+    keys take the defaults).
+
+    Raises
+    ------
+    UsageError
+        If the file is missing, not JSON, or a coach or its parameters are malformed.
+    """
+    from trainclimate.sim.params import CoachParams, ParamsError
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise UsageError(f"--fleet: no such file {path}") from None
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"--fleet: {path} is not a JSON file ({exc})") from None
+    coaches = data.get("coaches") if isinstance(data, dict) else None
+    if not isinstance(coaches, list) or not coaches:
+        raise UsageError(f'--fleet: {path} needs {{"coaches": [{{"coach": ID, "params": {{…}}}}]}}')
+    ids, params = [], []
+    for i, entry in enumerate(coaches):
+        if not isinstance(entry, dict) or not isinstance(entry.get("coach"), str):
+            raise UsageError(f"--fleet: entry {i} of {path} has no coach id")
+        try:
+            params.append(CoachParams.from_dict(entry.get("params") or {}).to_dict())
+        except ParamsError as exc:
+            raise UsageError(f"--fleet: coach {entry['coach']}: {exc}") from None
+        ids.append(entry["coach"])
+    return tuple(ids), tuple(params)
+
+
+def spec_from_args(args: argparse.Namespace):
+    """The :class:`~trainclimate.study.plan.StudySpec` the command's arguments ask for."""
+    from trainclimate.sim.params import CoachParams, load_params
+    from trainclimate.study.plan import StudySpec
+
+    if args.fleet and args.coaches is not None:
+        raise UsageError("give --coaches N or --fleet FILE, not both")
+    if args.fleet:
+        if args.coach_params:
+            raise UsageError("--coach-params is for --coaches N; a --fleet has its own")
+        ids, params = fleet_from_file(args.fleet)
+    else:
+        n = 8 if args.coaches is None else args.coaches
+        if n < 1:
+            raise UsageError("--coaches must be at least 1")
+        base = (load_params(args.coach_params) if args.coach_params else CoachParams()).to_dict()
+        ids = tuple(f"S{i + 1:04d}" for i in range(n))
+        params = (base,) * n
+    return StudySpec(
+        coach_ids=ids,
+        coach_params=params,
+        start=args.start,
+        days=args.days,
+        controllers=tuple(c.strip() for c in args.controllers.split(",") if c.strip()),
+        parked_share=args.parked_share,
+        occupancy_scale=args.occupancy_scale,
+        coach_spread=args.coach_spread,
+        seed=args.seed,
+        weather_source=_file_id(args.weather) if args.weather else "generated",
+        chunk_coaches=args.chunk_coaches,
+        chunk_days=args.chunk_days,
+        forecast=args.forecast,
+    )
+
+
+def cmd_study_fleet(args: argparse.Namespace) -> None:
+    """``study fleet``: run (or resume) a fleet study and print its answer."""
+    from trainclimate.predict.default import default_model_path
+    from trainclimate.sim.weather import load_weather_csv
+    from trainclimate.study.plan import StudyError, check_weather, study_weather
+    from trainclimate.study.report import write_study_report
+    from trainclimate.study.runner import check_scheduler, read_chunks, run_study
+    from trainclimate.study.summary import summarise
+
+    if args.workers is not None and args.workers < 1:
+        raise UsageError("--workers must be at least 1")
+    if args.price_chf_kwh < 0 or args.co2_kg_kwh < 0:
+        raise UsageError("--price-chf-kwh and --co2-kg-kwh must not be negative")
+    measured = load_weather_csv(args.weather) if args.weather else None
+    try:
+        spec = spec_from_args(args)
+        weather = measured or study_weather(spec)
+        check_weather(weather, spec)
+        check_scheduler(args.scheduler)
+    except StudyError as exc:
+        raise UsageError(str(exc)) from None
+    out = out_dir(args.out, "the study's results")
+    predictor = predictor_from(args)
+    spec = dataclasses.replace(spec, model=_file_id(args.predictor or default_model_path()))
+    with progress_bar(spec.coach_days, "study fleet", "coach-day") as bar:
+
+        def progress(chunks: int, coach_days: int) -> None:
+            bar.update(coach_days)
+
+        try:
+            run = run_study(
+                spec,
+                out,
+                weather=weather,
+                predictor=predictor,
+                scheduler=args.scheduler,
+                workers=args.workers,
+                progress=progress,
+            )
+        except StudyError as exc:
+            raise UsageError(str(exc)) from None
+    frame = read_chunks(spec, out)
+    data = summarise(
+        frame, spec, price_chf_per_kwh=args.price_chf_kwh, co2_kg_per_kwh=args.co2_kg_kwh
+    )
+    data.update(
+        chunks=run.chunks,
+        chunks_skipped=run.chunks_skipped,
+        chunks_run=run.chunks_run,
+        workers=run.workers,
+        seconds=run.seconds,
+        coach_days_run=run.coach_days_run,
+        coach_days_per_s=run.coach_days_run / run.seconds if run.seconds else None,
+        timings=run.timings,
+        fingerprint=spec.fingerprint(),
+        study={
+            "start": spec.start,
+            "days": spec.days,
+            "coaches": spec.n_coaches,
+            "controllers": list(spec.controllers),
+            "parked_share": spec.parked_share,
+            "occupancy_scale": spec.occupancy_scale,
+            "coach_spread": spec.coach_spread,
+            "seed": spec.seed,
+            "weather": spec.weather_source,
+            "forecast": spec.forecast,
+            "model": spec.model,
+            "chunk": [spec.chunk_coaches, spec.chunk_days],
+        },
+        out=str(out),
+    )
+    (out / "summary.json").write_text(json.dumps(data, indent=1) + "\n")
+    if args.html is not None:
+        path = Path(args.html) if args.html else out / "report.html"
+        data["html"] = str(write_study_report(data, frame, path).resolve())
+    emit(args, data, _text)
+
+
+def _text(d: dict) -> str:
+    def pct(v):
+        return "–" if v is None else f"{v:.2f} %"
+
+    return (
+        f"{d['coach_days']} coach-days ({d['coaches']} coaches × {d['days']} days): rule-based "
+        f"{d['energy_rule_kwh'] / 1e3:.2f} MWh, DDPC {d['energy_ddpc_kwh'] / 1e3:.2f} MWh on the "
+        f"{d['meter']} meter: savings {pct(d['savings_pct'])} "
+        f"({pct(d['savings_by_meter_pct']['hvac_and_floor'])} with the floor heating), "
+        f"{d['saved_mwh']:.2f} MWh, {d['saved_chf']:,.0f} CHF, {d['saved_t_co2']:.2f} t CO₂-eq; "
+        f"average hourly violation {d['avg_hourly_violation_k']:.4f} K (rule-based "
+        f"{d['avg_hourly_violation_rule_k']:.4f} K)\n"
+        f"chunks: {d['chunks']} ({d['chunks_skipped']} already done); results in {d['out']}"
+        + (f"\nreport written: {d['html']}" if "html" in d else "")
+    )
+
+
+def register(sub) -> None:
+    """Add ``study fleet`` to ``sub``."""
+    from trainclimate.study.summary import CO2_KG_PER_KWH, PRICE_CHF_PER_KWH
+
+    group = add_group(sub, "study", "fleet studies on Dask")
+    p = add_command(
+        group,
+        "fleet",
+        cmd_study_fleet,
+        "rule-based against DDPC on a whole fleet over many days, in chunks on Dask "
+        "(resumable: a re-run on the same --out skips finished chunks)",
+    )
+    p.add_argument("--coaches", type=int, default=None, help="fleet size (default 8)")
+    p.add_argument("--fleet", default=None, help="fleet file: calibrate --json output")
+    p.add_argument("--coach-params", default=None, help="the --coaches' parameter file")
+    p.add_argument("--start", default="2025-01-01", help="first local day (default 2025-01-01)")
+    p.add_argument("--days", type=int, default=7, help="number of days (default 7)")
+    p.add_argument("--weather", default=None, help="weather CSV (time,t_amb_c,ghi_w_m2)")
+    p.add_argument("--parked-share", type=float, default=0.15,
+                   help="share of coach-days parked in regular mode (0.15)")  # fmt: skip
+    p.add_argument("--occupancy-scale", type=float, default=1.0,
+                   help="factor on the service's occupancy (default 1)")  # fmt: skip
+    p.add_argument("--controllers", default="rule,ddpc", help="rule,ddpc or rule,ddpc,edge")
+    p.add_argument("--coach-spread", type=float, nargs="?", const=0.15, default=0.15,
+                   help="coach parameters drawn ±this around their own (0.15)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=2025, help="seed (default 2025)")
+    p.add_argument("--scheduler", default="local", help="local or tcp://HOST:PORT")
+    p.add_argument("--workers", type=int, default=None, help="local workers (default: CPUs)")
+    p.add_argument("--chunk-coaches", type=int, default=64, help="coaches per chunk (64)")
+    p.add_argument("--chunk-days", type=int, default=7, help="days per chunk (7)")
+    p.add_argument("--out", default="out/study", help="results directory (default out/study)")
+    p.add_argument("--html", nargs="?", const="", default=None,
+                   help="write the HTML report (default: OUT/report.html)")  # fmt: skip
+    p.add_argument("--price-chf-kwh", type=float, default=PRICE_CHF_PER_KWH,
+                   help=f"electricity price (default {PRICE_CHF_PER_KWH})")  # fmt: skip
+    p.add_argument("--co2-kg-kwh", type=float, default=CO2_KG_PER_KWH,
+                   help=f"emission factor (default {CO2_KG_PER_KWH})")  # fmt: skip
+    add_model_options(p, "ddpc: ")
