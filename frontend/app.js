@@ -204,11 +204,13 @@ function drawFleetKpis(node, s, health) {
 }
 
 function drawModelFlag(node, health) {
-  node.hidden = !(health && health.exceeds_bound);
+  node.hidden = !(health && (health.exceeds_bound || health.drift));
   node.replaceChildren();
   if (node.hidden) return;
-  node.append(`Model v${health.version}: its online first-step error ${fmt(health.mae_per_step_c[0], 3)} K exceeds the ${fmt(health.bound_c, 2)} K bound. `,
-    el("a", { href: "#/model", text: "Model health →" }));
+  const why = health.exceeds_bound
+    ? `its online first-step error ${fmt(health.mae_per_step_c[0], 3)} K exceeds the ${fmt(health.bound_c, 2)} K bound`
+    : `drift: ${health.drift_reason}`;
+  node.append(`Model v${health.version}: ${why}. `, el("a", { href: "#/model", text: "Model health →" }));
 }
 
 function drawEnergy(node, s) {
@@ -270,8 +272,13 @@ async function showModel() {
       kpi("Samples", `${h.samples}`, "kpi-samples"),
       kpi("Prediction step", `${fmt(h.step_min, 0)} min`));
     const steps = h.mae_per_step_c.map((_, k) => (k + 1) * h.step_min);
+    const models = await api("/models");
+    const candidates = await Promise.all(models.filter((m) => m.state === "candidate")
+      .map((m) => api(`/models/${m.version}/health?hours=${view.querySelector("#model-hours").value}`)));
     Plotly.react(view.querySelector("#mae-figure"), [
-      { x: steps, y: h.mae_per_step_c, name: "MAE over coaches and decks", mode: "lines+markers", line: { color: COLOUR.act } },
+      { x: steps, y: h.mae_per_step_c, name: `active v${h.version}`, mode: "lines+markers", line: { color: COLOUR.act } },
+      ...candidates.map((c) => ({ x: c.mae_per_step_c.map((_, k) => (k + 1) * c.step_min), y: c.mae_per_step_c,
+        name: `candidate v${c.version} (shadow)`, mode: "lines+markers", line: { dash: "dot" } })),
       { x: steps.length ? [steps[0], steps[steps.length - 1]] : [], y: [h.bound_c, h.bound_c], name: `bound ${fmt(h.bound_c, 2)} K`, mode: "lines", line: { color: "#b42318", dash: "dash" } },
     ], { margin: { t: 20, r: 20, l: 60, b: 50 }, legend: { orientation: "h", y: -0.2 },
       xaxis: { title: { text: "prediction horizon (min)" } }, yaxis: { title: { text: "mean absolute error (K)" }, rangemode: "tozero" } }, PLOT_CONFIG);
@@ -279,6 +286,13 @@ async function showModel() {
       el("td", {}, el("a", { href: `#/coach/${encodeURIComponent(c.coach_id)}`, text: c.coach_id })),
       el("td", { class: c.first_step_mae_c > h.bound_c ? "num expired" : "num", text: fmt(c.first_step_mae_c, 3) }),
       el("td", { class: "num", text: String(c.samples) }))) : [el("tr", {}, el("td", { text: "no prediction in the window yet" }))]));
+    const mean = (v) => { const x = (v || []).filter((e) => e !== null); return x.length ? x.reduce((a, b) => a + b, 0) / x.length : null; };
+    const beside = Object.fromEntries(candidates.map((c) => [c.version, c.beside]));
+    view.querySelector("#model-versions tbody").replaceChildren(...models.map((m) => el("tr", { "data-version": String(m.version), "data-state": m.state },
+      el("td", { text: `v${m.version}` }), el("td", {}, el("span", { class: `badge ${{ active: "active", candidate: "override", retired: "inactive" }[m.state]}`, text: m.state })),
+      el("td", { class: "num", text: fmt(mean(m.validation_mae_per_step_c), 3) }),
+      el("td", { class: "num", text: fmt(mean(m.online_mae_per_step_c), 3) }),
+      el("td", { class: "num", text: beside[m.version] ? fmt(mean(beside[m.version].mae_per_step_c), 3) : "–" }))));
   }
   await every(2 * REFRESH_MS, refresh);
 }

@@ -44,6 +44,10 @@ SMALL: dict[str, tuple[list[str], set[str]]] = {
     "experiment run": (["--predictor", MODEL], {"savings_pct", "avg_hourly_violation_k"}),
     "report demo": (["--predictor", MODEL, "--coaches", "1", "--hours", "2"], set()),
     "token create": ([], {"token", "role"}),
+    "study fleet": (
+        ["--coaches", "2", "--days", "1", "--chunk-coaches", "1", "--predictor", MODEL],
+        {"coach_days", "savings_pct", "avg_hourly_violation_k", "chunks", "chunks_skipped"},
+    ),
 }
 #: README commands run at a small scale by another test, and why not here.
 ELSEWHERE = {
@@ -54,6 +58,7 @@ ELSEWHERE = {
     "experiment summary": "five paired experiments (minutes); tests/analysis/ run them small",
     "bench service": "PostgreSQL, minutes; tests/bench/test_service.py runs it small",
     "calibrate": "a fit (a minute); tests/sim/test_calibration.py runs the same command",
+    "bench study": "the default model and two clusters; tests/bench/test_study.py runs it small",
 }
 
 

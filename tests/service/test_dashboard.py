@@ -213,11 +213,14 @@ def test_the_model_page_draws_the_error_per_step_against_the_bound(browser, serv
         arg=str(health["samples"]),
     )
     traces = {t["name"]: t["points"] for t in w.traces("#mae-figure")}
-    assert traces["MAE over coaches and decks"] == len(health["mae_per_step_c"]) == 6
+    assert traces[f"active v{health['version']}"] == len(health["mae_per_step_c"]) == 6
     assert traces["bound 0.25 K"] == 2
     assert page.locator("#model-title").inner_text() == f"Model health: version {health['version']}"
     # the activated coaches that predicted (one in service only later in the day may not yet)
     assert page.locator("#model-coaches tbody tr").count() == len(health["coaches"]) >= 5
+    # the versions: the one active, its validation and online error
+    version = page.locator(f"#model-versions tr[data-version='{health['version']}']")
+    assert version.get_attribute("data-state") == "active"
     w.shot("dashboard-model")
     assert w.errors == []
     w.close()

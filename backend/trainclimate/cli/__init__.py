@@ -13,6 +13,7 @@ JSON keys are listed in the README and in ``docs/``.
 - :mod:`.predictor` — ``predictor evaluate|fit|default|study``
 - :mod:`.experiment` — ``experiment run|summary``
 - :mod:`.study` — ``study fleet``
+- :mod:`.model` — ``model retrain``
 - :mod:`.service` — ``serve``, ``token create``, ``gateway``
 - :mod:`.bench` — ``bench …``
 """
@@ -28,6 +29,7 @@ from trainclimate.cli import (
     calibrate,
     dataset,
     experiment,
+    model,
     predictor,
     service,
     simulate,
@@ -44,7 +46,7 @@ from trainclimate.sim.weather import WeatherError
 
 DESCRIPTION = "Data-driven predictive HVAC energy management for SBB Regio-Dosto coaches."
 #: The command groups, in the order ``--help`` lists them.
-GROUPS = (simulate, bench, dataset, calibrate, predictor, experiment, study, service)
+GROUPS = (simulate, bench, dataset, calibrate, predictor, experiment, study, model, service)
 #: Errors that are the user's input, not a bug: exit 2 with their first line.
 USER_ERRORS = (
     UsageError,

@@ -197,9 +197,12 @@ class ClosedLoop:
             raise ValueError(f"event masks must have the shape (steps, coaches) = {shape}")
 
     def _forecaster(self, kind: str, coach: int, seed: int) -> Forecaster:
+        d_true = self.d_true  # not ``self``: a loop → forecaster → loop cycle would keep the
+        # simulator's arrays alive until the garbage collector's next full pass
+
         def truth(tick: int, steps: int) -> np.ndarray:
-            idx = np.clip(np.arange(tick, tick + steps), 0, len(self.d_true) - 1)
-            return self.d_true[idx, coach]
+            idx = np.clip(np.arange(tick, tick + steps), 0, len(d_true) - 1)
+            return d_true[idx, coach]
 
         if kind == "perfect":
             return PerfectForecast(truth)

@@ -44,6 +44,7 @@ from trainclimate.service.api.hardening import (
 )
 from trainclimate.service.api.retry import RetryConflicts, database_error
 from trainclimate.service.preparation import ModelPreparation, has_model, register_predictor
+from trainclimate.service.retrain import RetrainJob
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.cache import ReadCache
@@ -83,6 +84,7 @@ async def lifespan(app: FastAPI):
     preparation.start()
     scheduler = Scheduler(db, settings)
     app.state.db, app.state.scheduler, app.state.preparation = db, scheduler, preparation
+    app.state.retrain = RetrainJob(db, settings.sampling_min)
     app.state.mqtt = mqtt_bridge(db, settings)
     if app.state.mqtt is not None:
         scheduler.listeners.append(app.state.mqtt.publish_setpoints)

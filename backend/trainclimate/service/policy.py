@@ -92,19 +92,45 @@ def decide(
         return Decision(t_rule, t_rule, "rule", "no_model", detail)
     ctl = controller()
     T = ctl.horizon
-    d_now = samples.d_now if samples.d_now is not None else np.full(5, np.nan)
-    d = np.vstack([samples.d_past, d_now]) if len(samples.d_past) else d_now[None, :]
+    d, d_future = disturbances(samples, T)
     result = ctl.step(
         now_s=tick.timestamp(),
         sample_times_s=samples.times_s,
         y=samples.y,
         u=samples.u,
-        d=d[-len(samples.times_s) :],
-        d_future=np.tile(d_now, (T, 1)),  # persistence: no external forecast yet
+        d=d,
+        d_future=d_future,
         t_rule=np.full(T + 1, t_rule),
         u_prev=samples.u_prev if np.isfinite(samples.u_prev) else t_rule,
     )
     return _from_step(result)
+
+
+def disturbances(samples: Samples, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+    """The controller's disturbances at the tick: d at the samples (m, 5), the last one the
+    current interval's, and the forecast (``horizon``, 5) — the current interval's persisted (no
+    external forecast yet)."""
+    d_now = samples.d_now if samples.d_now is not None else np.full(5, np.nan)
+    d = np.vstack([samples.d_past, d_now]) if len(samples.d_past) else d_now[None, :]
+    return d[-len(samples.times_s) :], np.tile(d_now, (horizon, 1))
+
+
+def shadow_prediction(predictor, samples: Samples, predicted: dict | None) -> np.ndarray | None:
+    """What ``predictor`` (a candidate model) predicts from the samples the active model's
+    controller used and the setpoints it planned, u(0|t) … u(T|t): y(1|t) … y(T|t), (T, 3) in °C
+    — the same arithmetic as the active model's own stored prediction. None when there is no
+    plan, the candidate's ρ, T differ from the plan's, or the samples are too few or not finite."""
+    u_plan = np.asarray((predicted or {}).get("u_plan_c", []), float)
+    rho, T = predictor.rho, predictor.horizon
+    if u_plan.shape != (T + 1,) or len(samples.times_s) < rho:
+        return None
+    d, d_future = disturbances(samples, T)
+    u_past = np.append(np.asarray(samples.u, float)[len(samples.u) - (rho - 1) :], u_plan[0])
+    try:
+        y = predictor.predict(samples.y[-rho:], u_past, d[-rho:], u_plan[1:], d_future)
+    except ValueError:
+        return None
+    return y if np.all(np.isfinite(y)) else None
 
 
 def _from_step(result: StepResult) -> Decision:

@@ -58,7 +58,7 @@ def register_predictor(session, predictor, note: str) -> None:
             sampling_min=predictor.sampling_min,
             artifact=predictor_bytes(predictor, validation),
             info={**info, "source": note},
-            active=True,
+            state="active",
         )
     )
 

@@ -41,16 +41,17 @@ def check(
             ready.migrations = session.execute(
                 text("SELECT version_num FROM alembic_version")
             ).scalar()
-            ready.model_version = session.scalar(
-                select(PredictorModel.version).where(PredictorModel.active.is_(True))
-            )
+            if ready.migrations == head:  # (an older schema may lack the columns asked here)
+                ready.model_version = session.scalar(
+                    select(PredictorModel.version).where(PredictorModel.state == "active")
+                )
     except SQLAlchemyError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         ready.reasons.append(f"database: {first}")
     else:
         if ready.migrations != head:
             ready.reasons.append(f"migrations at {ready.migrations}, not at the newest {head}")
-        if ready.model_version is None:
+        elif ready.model_version is None:
             status = preparation.status
             if status.state == "running":
                 ready.under_rule = True  # knowingly: the coaches run under T_rule meanwhile

@@ -17,6 +17,12 @@ override, stale, inactive, not in regular mode, no model, else the DDPC step); t
 supplies its inputs — the samples from the stored telemetry, the override in force, the coach's
 controller, kept here between ticks — and stores what it decides. One coach's failure never stops
 the others: its decision becomes a fallback.
+
+Candidate models run in the active model's shadow: for every DDPC setpoint, each candidate
+predicts from the same samples and the setpoints the active model planned
+(:func:`~trainclimate.service.policy.shadow_prediction`), and its prediction is stored beside the
+setpoint (``shadow_predictions``) in the same transaction. A candidate never decides a setpoint;
+its failure is logged and costs only its prediction.
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ from trainclimate.service.store.models import (
     Override,
     PredictorModel,
     Setpoint,
+    ShadowPrediction,
     Telemetry,
 )
 from trainclimate.service.store.telemetry import Samples, controller_samples, load_rows
@@ -76,6 +83,8 @@ class Scheduler:
         self._controllers: dict[str, DDPCController] = {}
         self._predictor = None
         self._model_id: int | None = None
+        #: the candidate models predicting in the shadow, by id
+        self._candidates: dict[int, object] = {}
         self._lock = threading.Lock()
         #: called as ``listener(fleet, rows)`` with the setpoint rows of each batch of ticks once
         #: they are committed (the MQTT feed publishes them); a listener's failure is logged
@@ -88,16 +97,55 @@ class Scheduler:
 
     # --- the model -------------------------------------------------------------------------
     def refresh_model(self, session: Session) -> None:
-        """Use the active predictor model (rebuilding the controllers when it changed)."""
-        model = session.scalar(select(PredictorModel).where(PredictorModel.active.is_(True)))
-        model_id = model.id if model is not None else None
-        if model_id == self._model_id:
+        """Use the active predictor model (rebuilding the controllers once when it changed) and
+        the current candidates (each loaded once)."""
+        self._refresh_candidates(session)
+        active_id = session.scalar(
+            select(PredictorModel.id).where(PredictorModel.state == "active")
+        )
+        if active_id == self._model_id:
             return
+        model = session.get(PredictorModel, active_id) if active_id is not None else None
         with self._lock:
             self._predictor = load_predictor_bytes(model.artifact) if model is not None else None
-            self._model_id = model_id
+            self._model_id = active_id
             self._controllers.clear()
         log.info("controller model: %s", f"version {model.version}" if model else "none")
+
+    def _refresh_candidates(self, session: Session) -> None:
+        ids = set(
+            session.scalars(select(PredictorModel.id).where(PredictorModel.state == "candidate"))
+        )
+        for gone in set(self._candidates) - ids:
+            del self._candidates[gone]
+        for new in ids - set(self._candidates):
+            model = session.get(PredictorModel, new)
+            try:
+                self._candidates[new] = load_predictor_bytes(model.artifact)
+            except Exception:  # an unreadable candidate predicts nothing; the layer runs on
+                log.exception("candidate model version %s cannot be loaded", model.version)
+                self._candidates[new] = None
+            log.info("candidate model version %s predicts in the shadow", model.version)
+
+    def shadow_rows(self, coach_id: str, tick: datetime, samples, decision: Decision) -> list:
+        """The candidates' predictions beside a DDPC decision, as ``shadow_predictions`` rows."""
+        if decision.source != "ddpc":
+            return []
+        rows = []
+        for model_id, predictor in self._candidates.items():
+            if predictor is None:
+                continue
+            try:
+                y = policy.shadow_prediction(predictor, samples, decision.predicted)
+            except Exception:  # a candidate's failure never touches the setpoint
+                log.exception("candidate %s failed at %s for %s", model_id, tick, coach_id)
+                continue
+            if y is not None:
+                rows.append(
+                    {"model_id": model_id, "coach_id": coach_id, "tick": tick,
+                     "y_pred_c": y.tolist()}
+                )  # fmt: skip
+        return rows
 
     def controller(self, coach_id: str) -> DDPCController:
         """The coach's controller, built on first use for the active model (kept between ticks:
@@ -193,7 +241,7 @@ class Scheduler:
             ids = [c.id for c in coaches]
             telemetry = load_rows(session, ids, tick - window, tick)
             overrides = active_overrides(session, ids, tick)
-            rows = []
+            rows, shadows = [], []
             behind = [
                 c.id
                 for c in coaches
@@ -217,9 +265,13 @@ class Scheduler:
                 except Exception as exc:  # one coach's failure never stops the others
                     log.exception("tick %s for coach %s failed", tick, coach.id)
                     decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
+                else:
+                    shadows += self.shadow_rows(coach.id, tick, samples, decision)
                 rows.append(_row(coach.id, tick, decision, self._model_id, self.replica))
                 coach.last_tick = tick
             session.execute(Setpoint.__table__.insert(), rows)
+            if shadows:
+                session.execute(ShadowPrediction.__table__.insert(), shadows)
         for listener in self.listeners:
             try:
                 listener(fleet, rows)

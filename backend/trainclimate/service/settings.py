@@ -41,6 +41,8 @@ class Settings(BaseSettings):
     file for all its coaches, e.g. a calibrated twin); ``speedup`` how many times faster than
     real time the demo fleet's clock runs; ``sampling_min`` the controller's period;
     ``stale_periods`` after how many periods without telemetry a coach is stale;
+    ``drift_factor`` how many times its validation MAE the active model's online MAE may reach
+    before the model health flags drift;
     ``cors_origins`` other origins allowed to call the API (default none: the dashboard is served
     by the same origin); ``predictor_path`` a model file (default: the cached default model);
     ``max_body_bytes`` the largest request body accepted (larger: 413); after
@@ -71,6 +73,7 @@ class Settings(BaseSettings):
     demo_coach_params: Path | None = None
     sampling_min: float = 5.0
     stale_periods: int = STALE_PERIODS
+    drift_factor: float = Field(default=1.5, gt=1.0)
     cors_origins: list[str] = Field(default_factory=list)
     predictor_path: Path | None = None
     scheduler_interval_s: float = 0.5

@@ -21,13 +21,14 @@ regular-mode steps.
 
 from __future__ import annotations
 
+import resource
 import time
 
 import numpy as np
 import pandas as pd
+import psutil
 
 from trainclimate.analysis.kpi import violation_k
-from trainclimate.bench.common import peak_rss_mb
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import hvac
@@ -116,8 +117,8 @@ def run_chunk(
         ``day`` (local date), ``parked``, ``situation``, ``t_amb_mean_c`` (the coach-day's
         mean, °C), ``hours`` and ``regular_hours`` (h), and per controller X ``energy_X_kwh``
         (the HVAC units), ``energy_whole_X_kwh`` (with floor and wall heating) and
-        ``discomfort_X_kh`` (K·h). ``attrs`` carries the chunk's timings (s) and the DDPC
-        layer's ticks by reason, and the worker's peak resident memory after it (MB).
+        ``discomfort_X_kh`` (K·h). ``attrs`` carries the chunk's timings (s), the DDPC
+        layer's ticks by reason, and the worker's peak and current resident memory (MB).
     """
     coaches = range(chunk.coach_lo, chunk.coach_hi)
     params = [spec.params_of(c) for c in coaches]
@@ -187,6 +188,7 @@ def run_chunk(
         "ddpc_controller_s": step_s,
         "ddpc_ticks": reasons,
         "coach_days": chunk.coach_days,
-        "worker_peak_rss_mb": peak_rss_mb(),
+        "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "worker_rss_mb": psutil.Process().memory_info().rss / 2**20,
     }
     return frame

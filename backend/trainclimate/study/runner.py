@@ -60,7 +60,7 @@ class StudyRun:
     timings : dict
         Summed over the computed chunks: seconds per controller's runs, of which the DDPC
         controller's own steps, the DDPC ticks by reason, and each chunk's worker peak resident
-        memory (MB) in the order they completed.
+        memory and its resident memory after the chunk (MB), in the order they completed.
     """
 
     chunks: int
@@ -239,6 +239,7 @@ def run_study(
             "ddpc_controller_s": 0.0,
             "ddpc_ticks": {},
             "worker_peak_rss_mb": [],
+            "worker_rss_mb": [],
         }
         for future in as_completed(futures):
             chunk = futures[future]
@@ -276,3 +277,4 @@ def _add_timings(total: dict, attrs: dict) -> None:
     for reason, n in attrs.get("ddpc_ticks", {}).items():
         total["ddpc_ticks"][reason] = total["ddpc_ticks"].get(reason, 0) + n
     total["worker_peak_rss_mb"].append(attrs.get("worker_peak_rss_mb"))
+    total["worker_rss_mb"].append(attrs.get("worker_rss_mb"))

@@ -312,7 +312,7 @@ def test_models(client, tokens, settings):
                     sampling_min=v1.sampling_min,
                     artifact=v1.artifact,
                     info={"note": "retrained"},
-                    active=False,
+                    state="candidate",
                 )
             )
     finally:

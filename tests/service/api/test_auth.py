@@ -43,6 +43,8 @@ ROUTES = [
     ("GET", "/fleet/summary", "viewer"),
     ("POST", "/telemetry", "operator"),
     ("GET", "/models", "viewer"),
+    ("POST", "/models/retrain", "admin"),
+    ("GET", "/models/retrain", "viewer"),
     ("POST", "/models/{version}/activate", "admin"),
     ("GET", "/models/active/health", "viewer"),
     ("GET", "/models/{version}/health", "viewer"),
@@ -110,7 +112,7 @@ def test_every_protected_route_checks_token_and_role(client, tokens):
             else:  # let in: whatever the route then says about the request itself
                 assert reply.status_code not in (401, 403, 500), (method, path, role, reply.text)
             checked += 1
-    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 250
+    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 270
 
 
 def test_health_and_readiness_need_no_token(client):
@@ -122,7 +124,7 @@ def test_health_and_readiness_need_no_token(client):
     body = ready.json()
     assert {k: body[k] for k in ("status", "migrations", "model_version", "under_rule")} == {
         "status": "ready",
-        "migrations": "0006",
+        "migrations": "0007",
         "model_version": 1,
         "under_rule": False,
     }

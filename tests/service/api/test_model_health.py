@@ -74,7 +74,7 @@ def add_model(session, version: int) -> PredictorModel:
         horizon=v1.horizon,
         sampling_min=v1.sampling_min,
         artifact=v1.artifact,
-        active=False,
+        state="candidate",
     )
     session.add(model)
     session.flush()
@@ -193,6 +193,10 @@ def test_a_model_over_the_bound_and_one_without_predictions(client, tokens, flee
     assert h["samples_per_step"] == [6, 6, 6, 6, 3, 0]  # targets 100, 105 … 125, 130
     assert h["mae_per_step_c"] == pytest.approx([0.3, 0.6, 0.9, 1.2, 1.5, None])
     assert h["exceeds_bound"] is True and BOUND_C < 0.3
+    # its online MAE (0.9 °C over the steps) is drift against the bound (it records no validation)
+    assert (
+        h["drift"] is True and h["drift_reason"] == "online MAE 0.900 °C exceeds the bound 0.25 °C"
+    )
     assert h["coaches"] == [
         {"coach_id": "H-B", "first_step_mae_c": pytest.approx(0.3), "samples": 27}
     ]
@@ -209,6 +213,12 @@ def test_a_model_over_the_bound_and_one_without_predictions(client, tokens, flee
         "mae_per_step_c": [],
         "coaches": [],
         "exceeds_bound": False,
+        "state": "candidate",
+        "beside": None,
+        "validation_mae_per_step_c": None,
+        "drift_factor": 1.5,
+        "drift": False,
+        "drift_reason": None,
     }
 
 
@@ -232,7 +242,7 @@ def test_refusals(client, tokens, settings, db):
         assert refused.json() == {"detail": "this needs the viewer role; the token is gateway"}
     # no active model
     with db.transaction() as s:
-        s.execute(update(PredictorModel).values(active=False))
+        s.execute(update(PredictorModel).values(state="retired"))
     none = health(client, viewer, "active")
     assert none.status_code == 404 and none.json() == {"detail": "no active model"}
 
@@ -248,7 +258,7 @@ def test_the_demo_fleets_predictions(client, tokens, db, settings):
         fleet.advance()
     h = client.get(f"{API}/models/active/health", headers=tokens["viewer"]).json()
     with db.transaction() as s:
-        model = s.scalar(select(PredictorModel).where(PredictorModel.active.is_(True)))
+        model = s.scalar(select(PredictorModel).where(PredictorModel.state == "active"))
         predicted = [
             (sp.coach_id, sp.tick, sp.predicted["y_pred_c"])
             for sp in s.scalars(select(Setpoint).where(Setpoint.model_id == model.id))

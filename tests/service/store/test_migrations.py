@@ -30,6 +30,7 @@ from trainclimate.service.store.tokens import create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 TABLES = {
+    "shadow_predictions",
     "trains",
     "coaches",
     "fleet_clocks",
@@ -89,7 +90,7 @@ def fill(url: str) -> None:
 
 def test_migrate_up_down_up(db_url):
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0006")
+    assert schema(db_url) == (TABLES, "0007")
     assert set(Base.metadata.tables) == TABLES
     assert differences(db_url) == []
     fill(db_url)
@@ -97,7 +98,7 @@ def test_migrate_up_down_up(db_url):
     downgrade(db_url)
     assert schema(db_url) == (set(), None)
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0006")
+    assert schema(db_url) == (TABLES, "0007")
     assert differences(db_url) == []
 
 
@@ -121,12 +122,37 @@ def alembic(db_url: str, tmp_path: Path, *args: str) -> subprocess.CompletedProc
 def test_alembic_command_line(db_url, tmp_path):
     assert ALEMBIC.exists(), f"no alembic script next to {sys.executable}"
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0006")
+    assert schema(db_url) == (TABLES, "0007")
     # `check` autogenerates against the models and fails on any difference
     assert "No new upgrade operations detected" in alembic(db_url, tmp_path, "check").stdout
     fill(db_url)
     alembic(db_url, tmp_path, "downgrade", "base")
     assert schema(db_url) == (set(), None)
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0006")
+    assert schema(db_url) == (TABLES, "0007")
     assert differences(db_url) == []
+
+
+def test_the_active_flag_becomes_a_state(db_url):
+    """0007 turns 0006's ``active`` flag into ``state`` (active or retired) and back."""
+    from sqlalchemy import create_engine, text
+
+    migrate(db_url, "0006")
+    engine = create_engine(db_url)
+    insert = text(
+        "INSERT INTO predictor_models (version, method, rho, horizon, sampling_min, artifact,"
+        " info, active, created_at) VALUES (:v, 'transient', 12, 6, 5, :a, '{}', :on, :t)"
+    )
+    now = datetime(2024, 11, 28, tzinfo=UTC)
+    with engine.begin() as c:
+        c.execute(insert, [{"v": 1, "a": b"x", "on": False, "t": now},
+                           {"v": 2, "a": b"y", "on": True, "t": now}])  # fmt: skip
+    migrate(db_url)
+    with engine.begin() as c:
+        rows = c.execute(text("SELECT version, state FROM predictor_models ORDER BY version"))
+        assert rows.all() == [(1, "retired"), (2, "active")]
+    downgrade(db_url, "0006")
+    with engine.begin() as c:
+        rows = c.execute(text("SELECT version, active FROM predictor_models ORDER BY version"))
+        assert [(v, bool(a)) for v, a in rows] == [(1, False), (2, True)]
+    engine.dispose()

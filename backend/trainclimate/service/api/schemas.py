@@ -404,9 +404,18 @@ class ModelOut(BaseModel):
     rho: int
     horizon: int
     sampling_min: float | None
-    active: bool
+    state: str = Field(description="active (the controllers use it), candidate (predicting in "
+                       "its shadow) or retired")  # fmt: skip
+    active: bool = Field(description="state is active")
     created_at: datetime
-    info: dict = Field(description="training data hash, validation MAE …")
+    validation_mae_per_step_c: list[float] | None = Field(
+        description="the validation MAE per step recorded with the model, °C"
+    )
+    online_mae_per_step_c: list[float | None] = Field(
+        description="its predictions' MAE per step over the 24 h up to its newest (GET "
+        "/models/{version}/health), °C; empty without predictions"
+    )
+    info: dict = Field(description="training window and data hash, validation …")
 
 
 class AuditOut(BaseModel):
@@ -488,6 +497,30 @@ class CoachHealth(BaseModel):
     samples: int = Field(description="its (prediction, step, deck) triples with an actual")
 
 
+class RetrainIn(Strict):
+    reason: str = Field(min_length=1, max_length=500, examples=["the winter's first month"])
+    days: float | None = Field(default=None, gt=0, le=3650, description="the last N days")
+    since: datetime | None = Field(default=None, description="telemetry from this time")
+    coaches: CoachIds | None = Field(default=None, max_length=10_000)
+    force: bool = Field(default=False, description="register even a fit worse than the active")
+
+
+class RetrainStatus(BaseModel):
+    state: str = Field(description="idle, running, done or failed")
+    stage: str
+    percent: float
+    detail: str = Field(description="done: what was registered; failed: why nothing was")
+    result: dict | None = Field(description="done: version, state, validation_mae_per_step_c …")
+    requested_by: str | None
+    reason: str | None
+
+
+class ShadowBeside(BaseModel):
+    mae_per_step_c: list[float | None] = Field(description="per step 1 … T, °C")
+    samples: int
+    predictions: int
+
+
 class ModelHealth(BaseModel):
     """A predictor model's stored predictions against the telemetry that followed them: the
     predictions issued in (start, end], the ``hours`` up to the model's newest prediction tick
@@ -511,3 +544,17 @@ class ModelHealth(BaseModel):
     )
     coaches: list[CoachHealth]
     exceeds_bound: bool = Field(description="the first-step MAE over all coaches exceeds bound_c")
+    state: str = Field(description="active, candidate or retired")
+    beside: ShadowBeside | None = Field(
+        description="a candidate's: the issued setpoints' own predictions on the same coaches "
+        "and ticks (the active model's at the time)"
+    )
+    validation_mae_per_step_c: list[float] | None = Field(
+        description="the validation MAE per step recorded with the model, °C"
+    )
+    drift_factor: float = Field(description="the setting drift_factor")
+    drift: bool = Field(
+        description="the online MAE (mean over the steps) exceeds drift_factor × the validation "
+        "MAE, or bound_c"
+    )
+    drift_reason: str | None = Field(description="why drift is flagged, in words")

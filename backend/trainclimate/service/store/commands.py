@@ -185,13 +185,24 @@ def set_controller(session: Session, who: Principal, coach_id: str, active: bool
 
 
 def activate_model(session: Session, who: Principal, version: int, reason: str) -> PredictorModel:
-    """Make model ``version`` the one every controller uses."""
-    model = session.scalar(select(PredictorModel).where(PredictorModel.version == version))
+    """Make model ``version`` the one every controller uses (from the next tick) and retire the
+    one it replaces, in one transaction; audited with both versions. Activating the active
+    version changes nothing but the record; a retired one is how to roll back."""
+    model = session.scalar(
+        select(PredictorModel).where(PredictorModel.version == version).with_for_update()
+    )
     if model is None:
         raise NotFoundError(f"no model version {version}")
-    session.execute(update(PredictorModel).values(active=False))
-    model.active = True
-    audit(session, who, "model.activate", f"model:{version}", reason)
+    previous = session.scalar(
+        select(PredictorModel.version).where(PredictorModel.state == "active")
+    )
+    if previous != version:
+        session.execute(
+            update(PredictorModel).where(PredictorModel.state == "active").values(state="retired")
+        )
+        session.flush()  # the one-active index: the old version leaves before the new arrives
+        model.state = "active"
+    audit(session, who, "model.activate", f"model:{version}", reason, previous=previous)
     return model
 
 

@@ -32,6 +32,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -190,11 +191,26 @@ class Override(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+#: A model version's states: the one the controllers use, one predicting in its shadow, one
+#: withdrawn.
+MODEL_STATES = ("active", "candidate", "retired")
+
+
 class PredictorModel(Base):
     """A predictor model version: its method, ρ, horizon, sampling period (min), the model
-    file's bytes, training and validation info, and whether it is the active one."""
+    file's bytes, training and validation info, and its state (:data:`MODEL_STATES`; at most one
+    ``active``, which a unique partial index enforces)."""
 
     __tablename__ = "predictor_models"
+    __table_args__ = (
+        Index(
+            "ix_predictor_models_one_active",
+            "state",
+            unique=True,
+            postgresql_where=text("state = 'active'"),
+            sqlite_where=text("state = 'active'"),
+        ),
+    )
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     version: Mapped[int] = mapped_column(Integer, unique=True)
     method: Mapped[str] = mapped_column(String(32))
@@ -203,8 +219,30 @@ class PredictorModel(Base):
     sampling_min: Mapped[float | None] = mapped_column(Float)
     artifact: Mapped[bytes] = mapped_column(LargeBinary)
     info: Mapped[dict] = mapped_column(JSON, default=dict)
-    active: Mapped[bool] = mapped_column(Boolean, default=False)
+    state: Mapped[str] = mapped_column(String(16), default="retired", server_default="retired")
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+    @property
+    def active(self) -> bool:
+        """Whether the controllers use this version."""
+        return self.state == "active"
+
+
+class ShadowPrediction(Base):
+    """A candidate model's prediction at one coach's tick, made beside the active model from the
+    same samples and the active model's planned setpoints: y(1|t) … y(T|t), T × 3 (up, mid, low
+    deck, °C). It never sets a setpoint."""
+
+    __tablename__ = "shadow_predictions"
+    __table_args__ = (
+        UniqueConstraint("model_id", "coach_id", "tick", name="uq_shadow_model_coach_tick"),
+        Index("ix_shadow_model_tick", "model_id", "tick"),
+    )
+    id: Mapped[int] = mapped_column(BigKey, primary_key=True, autoincrement=True)
+    model_id: Mapped[int] = mapped_column(ForeignKey("predictor_models.id"))
+    coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"))
+    tick: Mapped[datetime] = mapped_column(UTCDateTime)
+    y_pred_c: Mapped[list] = mapped_column(JSON)
 
 
 class User(Base):
