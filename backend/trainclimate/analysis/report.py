@@ -272,14 +272,18 @@ def write_simulation_report(
         for fig in figures:
             parts.append(fig.to_html(full_html=False, include_plotlyjs=first))
             first = False
-    page = (
-        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>trainclimate report</title>"
+    path.write_text(html_page("trainclimate report", "\n".join(parts)), encoding="utf-8")
+    return path
+
+
+def html_page(title: str, body: str) -> str:
+    """A self-contained HTML page: ``title`` (escaped here) and ``body`` (HTML)."""
+    return (
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
         "<style>body{font-family:sans-serif;max-width:1400px;margin:auto}</style></head><body>"
-        + "\n".join(parts)
+        + body
         + "</body></html>"
     )
-    path.write_text(page, encoding="utf-8")
-    return path
 
 
 def experiment_figure(pair, title: str = "") -> go.Figure:
@@ -483,15 +487,12 @@ def write_experiment_report(pair, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     data = pair.to_dict()
     scenario = pair.scenario
-    page = (
-        "<!DOCTYPE html><html><head><meta charset='utf-8'>"
-        f"<title>{html.escape(scenario.name)} — paired experiment</title>"
-        "<style>body{font-family:sans-serif;max-width:1400px;margin:auto}</style></head><body>"
+    page = html_page(
+        f"{scenario.name} — paired experiment",
         f"<h1>{html.escape(scenario.name)}: activated vs deactivated</h1>"
         f"<p>{html.escape(scenario.description)}. {html.escape(pair.setup.note)}</p>"
         + summary_table_html([data])
-        + experiment_figure(pair).to_html(full_html=False, include_plotlyjs=True)
-        + "</body></html>"
+        + experiment_figure(pair).to_html(full_html=False, include_plotlyjs=True),
     )
     path.write_text(page, encoding="utf-8")
     return path
@@ -567,12 +568,9 @@ def write_summary(rows: list[dict], out: str | Path) -> dict[str, Path]:
         for r in rows
         if "html" in r
     )
-    page = (
-        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>paired experiments</title>"
-        "<style>body{font-family:sans-serif;max-width:1400px;margin:auto}</style></head><body>"
-        "<h1>Paired experiments: summary</h1>"
-        + summary_table_html(rows)
-        + f"<ul>{links}</ul></body></html>"
+    page = html_page(
+        "paired experiments",
+        "<h1>Paired experiments: summary</h1>" + summary_table_html(rows) + f"<ul>{links}</ul>",
     )
     page_path = out / "summary.html"
     page_path.write_text(page, encoding="utf-8")

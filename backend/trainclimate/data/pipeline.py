@@ -419,7 +419,8 @@ def segment(
     return pieces
 
 
-def _trajectory(frame: pd.DataFrame, meta: dict, sampling_min: int) -> Trajectory:
+def piece_trajectory(frame: pd.DataFrame, meta: dict, sampling_min: int) -> Trajectory:
+    """A down-sampled piece as a :class:`Trajectory` labelled with ``meta``."""
     return Trajectory(
         time=pd.DatetimeIndex(frame.index),
         y=frame[list(Y_NAMES)].to_numpy(float),
@@ -499,5 +500,5 @@ def process_coach_day(
         for step in settings.sampling_min:
             sampled = piece if step == 1 else downsample(piece, step)
             if step == 1 or len(sampled) >= settings.min_points:
-                out[step].append(_trajectory(sampled, meta, step))
+                out[step].append(piece_trajectory(sampled, meta, step))
     return out, counts

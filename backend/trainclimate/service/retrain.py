@@ -38,6 +38,7 @@ from trainclimate.data.pipeline import (
     Counts,
     PipelineSettings,
     downsample,
+    piece_trajectory,
     segment,
 )
 from trainclimate.data.trajectory import D_NAMES, U_NAMES, Y_NAMES, Trajectory
@@ -172,20 +173,8 @@ def coach_trajectories(
         block = downsample(piece, sampling_min)
         if len(block) < 2:
             continue
-        out.append(
-            Trajectory(
-                time=pd.DatetimeIndex(block.index),
-                y=block[list(Y_NAMES)].to_numpy(float),
-                u=block[list(U_NAMES)].to_numpy(float),
-                d=block[list(D_NAMES)].to_numpy(float),
-                p_kw=block[POWER].to_numpy(float),
-                standing=block[STANDING].to_numpy(float),
-                sampling_min=sampling_min,
-                campaign="service",
-                train="",
-                coach=coach_id,
-            )
-        )
+        meta = {"campaign": "service", "train": "", "coach": coach_id}
+        out.append(piece_trajectory(block, meta, sampling_min))
     return out
 
 

@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
-from trainclimate.data.fleetlogs import LOCAL_TZ, draw_service_day, local_hours
+from trainclimate.data.fleetlogs import draw_service_day, local_hours
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
 from trainclimate.sim.routes import LINES, service_day, stationary
@@ -304,17 +304,3 @@ def day_environment(
         mode=np.column_stack(modes),
     )
     return env, plans
-
-
-__all__ = [
-    "LOCAL_TZ",
-    "STUDY_CONTROLLERS",
-    "Chunk",
-    "CoachDay",
-    "StudyError",
-    "StudySpec",
-    "check_weather",
-    "day_environment",
-    "plan_coach_day",
-    "study_weather",
-]

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 
-from trainclimate.analysis.report import fmt_num
+from trainclimate.analysis.report import fmt_num, html_page
 from trainclimate.study.summary import by_coach_day
 
 
@@ -124,11 +124,6 @@ def write_study_report(summary: dict, frame: pd.DataFrame, path: str | Path) -> 
     parts = [head] + [
         fig.to_html(full_html=False, include_plotlyjs=(i == 0)) for i, fig in enumerate(figures)
     ]
-    page = (
-        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>trainclimate fleet study</title>"
-        "<style>body{font-family:sans-serif;max-width:1400px;margin:auto}</style></head><body>"
-        + "\n".join(parts)
-        + "</body></html>"
-    )
+    page = html_page("trainclimate fleet study", "\n".join(parts))
     path.write_text(page, encoding="utf-8")
     return path

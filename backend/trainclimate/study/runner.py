@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -203,8 +204,6 @@ def run_study(
     ChunkError
         If chunks still failed after Dask's retries (the others are kept in ``out``).
     """
-    import time
-
     from distributed import as_completed
 
     check_scheduler(scheduler)
