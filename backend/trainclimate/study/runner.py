@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -151,11 +152,21 @@ def _client(scheduler: str, workers: int | None):
             dashboard_address=":0",
             silence_logs=logging.WARNING,
         )
-        return Client(cluster), cluster
+        client = Client(cluster)
+        client.run(_stdout_to_stderr)
+        return client, cluster
     try:
         return Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s"), None
     except (OSError, TimeoutError) as exc:
         raise StudyError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+
+
+def _stdout_to_stderr() -> None:
+    """Point a local worker's standard output (the file descriptor, so C libraries' too) at its
+    standard error: OSQP now and then prints a line from C, which must not mix with the
+    command's JSON on the terminal both share."""
+    sys.stdout.flush()
+    os.dup2(2, 1)
 
 
 def _describe(spec: StudySpec, chunk: Chunk) -> str:
