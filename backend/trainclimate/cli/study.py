@@ -15,6 +15,7 @@ from trainclimate.cli.common import (
     add_model_options,
     emit,
     out_dir,
+    out_file,
     predictor_from,
     progress_bar,
 )
@@ -118,6 +119,9 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
     except StudyError as exc:
         raise UsageError(str(exc)) from None
     out = out_dir(args.out, "the study's results")
+    html = None
+    if args.html is not None:  # checked before any work, its directory created
+        html = out_file(args.html, "the study's report") if args.html else out / "report.html"
     predictor = predictor_from(args)
     spec = dataclasses.replace(spec, model=_file_id(args.predictor or default_model_path()))
     with progress_bar(spec.coach_days, "study fleet", "coach-day") as bar:
@@ -168,9 +172,8 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
         out=str(out),
     )
     (out / "summary.json").write_text(json.dumps(data, indent=1) + "\n")
-    if args.html is not None:
-        path = Path(args.html) if args.html else out / "report.html"
-        data["html"] = str(write_study_report(data, frame, path).resolve())
+    if html is not None:
+        data["html"] = str(write_study_report(data, frame, html).resolve())
     emit(args, data, _text)
 
 
