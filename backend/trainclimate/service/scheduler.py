@@ -116,16 +116,18 @@ class Scheduler:
         ids = set(
             session.scalars(select(PredictorModel.id).where(PredictorModel.state == "candidate"))
         )
-        for gone in set(self._candidates) - ids:
-            del self._candidates[gone]
-        for new in ids - set(self._candidates):
+        if ids == set(self._candidates):
+            return
+        candidates = {i: p for i, p in self._candidates.items() if i in ids}
+        for new in ids - set(candidates):
             model = session.get(PredictorModel, new)
             try:
-                self._candidates[new] = load_predictor_bytes(model.artifact)
+                candidates[new] = load_predictor_bytes(model.artifact)
             except Exception:  # an unreadable candidate predicts nothing; the layer runs on
                 log.exception("candidate model version %s cannot be loaded", model.version)
-                self._candidates[new] = None
+                candidates[new] = None
             log.info("candidate model version %s predicts in the shadow", model.version)
+        self._candidates = candidates  # replaced whole: a tick in another thread reads either
 
     def shadow_rows(self, coach_id: str, tick: datetime, samples, decision: Decision) -> list:
         """The candidates' predictions beside a DDPC decision, as ``shadow_predictions`` rows."""
