@@ -105,6 +105,47 @@ class Environment:
         )
 
     @classmethod
+    def of_operations(
+        cls, times, t_amb_c, ghi_w_m2, sun: pd.DataFrame, operations: list, mode: np.ndarray
+    ) -> Environment:
+        """One weather and sun for every coach, each coach its own operation.
+
+        Parameters
+        ----------
+        times : pandas.DatetimeIndex
+            The grid (timezone-aware).
+        t_amb_c, ghi_w_m2 : array-like of shape (S,)
+            Ambient temperature (°C) and global horizontal irradiance (W/m²).
+        sun : pandas.DataFrame
+            ``zenith_deg`` and ``azimuth_deg`` on the grid (:func:`~trainclimate.sim.solar.
+            solar_position`). [°]
+        operations : list of OperationSeries
+            One per coach (:mod:`trainclimate.sim.routes`): heading, speed, occupancy, doors.
+        mode : numpy.ndarray of shape (S, N)
+            The HVAC mode of each coach.
+
+        Returns
+        -------
+        Environment
+        """
+
+        def col(name: str) -> np.ndarray:
+            return np.column_stack([getattr(o, name) for o in operations])
+
+        return cls(
+            time=times,
+            t_amb_c=np.asarray(t_amb_c)[:, None],
+            ghi_w_m2=np.asarray(ghi_w_m2)[:, None],
+            zenith_deg=sun["zenith_deg"].to_numpy()[:, None],
+            azimuth_deg=sun["azimuth_deg"].to_numpy()[:, None],
+            heading_deg=col("heading_deg"),
+            speed_kmh=col("speed_kmh"),
+            occupancy_pct=col("occupancy_pct"),
+            door_open=col("doors_open").astype(float),
+            mode=mode,
+        )
+
+    @classmethod
     def side_by_side(cls, envs: list[Environment]) -> Environment:
         """Join independent environments as the columns of one.
 

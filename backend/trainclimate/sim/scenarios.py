@@ -385,22 +385,10 @@ def build(
                 start_at_terminus=0 if i % 2 == 0 else -1,
             )
         )
-    col = lambda name: np.column_stack([getattr(o, name) for o in ops])  # noqa: E731
     if scenario.parked:
         mode = np.full((len(times), n_coaches), MODE_REGULAR, dtype=np.int8)
     else:
         mode = np.column_stack([mode_from_operation(o.operation) for o in ops])
-    env = Environment(
-        time=times,
-        t_amb_c=np.asarray(t_amb)[:, None],
-        ghi_w_m2=np.asarray(ghi)[:, None],
-        zenith_deg=sun["zenith_deg"].to_numpy()[:, None],
-        azimuth_deg=sun["azimuth_deg"].to_numpy()[:, None],
-        heading_deg=col("heading_deg"),
-        speed_kmh=col("speed_kmh"),
-        occupancy_pct=col("occupancy_pct"),
-        door_open=col("doors_open").astype(float),
-        mode=mode,
-    )
+    env = Environment.of_operations(times, t_amb, ghi, sun, ops, mode)
     params = coach_params(base_params or CoachParams(), n_coaches, scenario.seed)
     return env, params

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -286,21 +286,7 @@ def day_environment(
                 start_at_terminus=plan.seed % 2,
             )
             modes.append(mode_from_operation(op.operation))
-        ops.append(op)
+        scaled = np.clip(op.occupancy_pct * spec.occupancy_scale, 0.0, 150.0)
+        ops.append(replace(op, occupancy_pct=scaled))
 
-    def col(name: str) -> np.ndarray:
-        return np.column_stack([getattr(o, name) for o in ops])
-
-    env = Environment(
-        time=times,
-        t_amb_c=np.asarray(t_amb)[:, None],
-        ghi_w_m2=np.asarray(ghi)[:, None],
-        zenith_deg=sun["zenith_deg"].to_numpy()[:, None],
-        azimuth_deg=sun["azimuth_deg"].to_numpy()[:, None],
-        heading_deg=col("heading_deg"),
-        speed_kmh=col("speed_kmh"),
-        occupancy_pct=np.clip(col("occupancy_pct") * spec.occupancy_scale, 0.0, 150.0),
-        door_open=col("doors_open").astype(float),
-        mode=np.column_stack(modes),
-    )
-    return env, plans
+    return Environment.of_operations(times, t_amb, ghi, sun, ops, np.column_stack(modes)), plans

@@ -31,10 +31,16 @@ Hours = Annotated[float, Query(gt=0, le=744, description="the window, h")]
 
 @router.get("/models", response_model=list[schemas.ModelOut], tags=["models"], responses=AUTH)
 def list_models(request: Request, s: DB, _: Viewer) -> list:
-    """The predictor model versions: state, validation MAE and online MAE (last 24 h)."""
+    """The predictor model versions: state, validation MAE and, for the active model and the
+    candidates, the online MAE (last 24 h)."""
     period = settings(request).sampling_min
     return [
-        _model(m, model_health.model_health(s, m, 24.0, period)["mae_per_step_c"])
+        _model(
+            m,
+            model_health.model_health(s, m, 24.0, period)["mae_per_step_c"]
+            if m.state != "retired"  # (the overview lists the models at every refresh)
+            else [],
+        )
         for m in s.scalars(select(PredictorModel).order_by(PredictorModel.version))
     ]
 

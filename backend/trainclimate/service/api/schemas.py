@@ -412,8 +412,9 @@ class ModelOut(BaseModel):
         description="the validation MAE per step recorded with the model, °C"
     )
     online_mae_per_step_c: list[float | None] = Field(
-        description="its predictions' MAE per step over the 24 h up to its newest (GET "
-        "/models/{version}/health), °C; empty without predictions"
+        description="the active model's and a candidate's: its predictions' MAE per step over "
+        "the 24 h up to its newest (GET /models/{version}/health), °C; empty without predictions "
+        "and for a retired model (ask its health)"
     )
     info: dict = Field(description="training window and data hash, validation …")
 

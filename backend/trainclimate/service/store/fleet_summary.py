@@ -16,7 +16,6 @@ its rows in the counted range and its overrides are unchanged (:func:`_pair_stat
 
 from __future__ import annotations
 
-from collections import Counter
 from datetime import datetime, timedelta
 
 import numpy as np
@@ -41,6 +40,11 @@ from sqlalchemy.sql.expression import ColumnElement, FunctionElement
 
 from trainclimate.analysis.savings import PairTotals
 from trainclimate.service.store import queries
+from trainclimate.service.store.attention import (
+    VIOLATION_LOOKBACK_MIN,
+    attention,
+    coaches_by_status,
+)
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.models import (
     Coach,
@@ -52,11 +56,6 @@ from trainclimate.service.store.models import (
 )
 from trainclimate.sim.power import HEADLINE_METER, METERS
 
-#: A coach whose decks have been outside the comfort band this long, without a break, needs
-#: attention. [min]
-VIOLATION_ATTENTION_MIN = 30.0
-#: How far back a coach's comfort is read for the attention list. [min]
-VIOLATION_LOOKBACK_MIN = 120.0
 DECKS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
 ID, TIME = Telemetry.coach_id.type, UTCDateTime()
 
@@ -540,7 +539,7 @@ def comfort_violations(
     session: Session, ends: dict[str, datetime], t_max_k: float = queries.COMFORT_BAND_K
 ) -> dict[str, float]:
     """How long each coach's decks have been outside the comfort band without a break, up to
-    its newest row, over the :data:`VIOLATION_LOOKBACK_MIN` before ``ends[coach]``.
+    its newest row, over the :data:`.attention.VIOLATION_LOOKBACK_MIN` before ``ends[coach]``.
 
     A row is within comfort when every deck is within T_rule ± T_max or the coach is not in
     regular mode (the band applies in regular mode only).
@@ -577,53 +576,3 @@ def comfort_violations(
         if last_ok != newest:
             out[cid] = ((newest - (last_ok or lo)).total_seconds()) / 60.0
     return out
-
-
-def attention(views: list[dict], violating_min: dict[str, float]) -> list[dict]:
-    """The coaches that need an operator's attention, from their views (as the fleet list shows
-    them) and :func:`comfort_violations`: stale (no telemetry), in fallback (with the reason),
-    overridden, or outside the comfort band for longer than :data:`VIOLATION_ATTENTION_MIN`.
-
-    Returns
-    -------
-    list of dict
-        One entry per coach and concern: ``coach_id``, ``train_id``, ``kind`` (``stale``,
-        ``fallback``, ``override``, ``comfort``), ``status``, ``reason`` (the setpoint's reason
-        code, or None) and ``detail`` in words; stale first, then fallback, override, comfort.
-    """
-    out = []
-    for v in views:
-        base = {
-            "coach_id": v["id"],
-            "train_id": v["train_id"],
-            "status": v["status"],
-            "reason": v["reason"],
-        }
-        if v["status"] == "stale":
-            out.append({**base, "kind": "stale", "detail": "no telemetry in time"})
-        elif v["status"] == "fallback":
-            out.append(
-                {**base, "kind": "fallback", "detail": f"rule-based setpoint: {v['reason']}"}
-            )
-        elif v["status"] == "override":
-            # the newest tick issued an override's T_ref; it may have been cancelled since
-            until = v["override_until"]
-            when = f" until {until:%Y-%m-%d %H:%M} UTC" if until is not None else ""
-            out.append({**base, "kind": "override", "detail": f"operator's setpoint{when}"})
-        minutes = violating_min.get(v["id"], 0.0)
-        if minutes > VIOLATION_ATTENTION_MIN:
-            more = "more than " if minutes >= VIOLATION_LOOKBACK_MIN else ""
-            out.append(
-                {
-                    **base,
-                    "kind": "comfort",
-                    "detail": f"outside the comfort band for {more}{minutes:.0f} min",
-                }
-            )
-    order = {"stale": 0, "fallback": 1, "override": 2, "comfort": 3}
-    return sorted(out, key=lambda e: (order[e["kind"]], e["coach_id"]))
-
-
-def coaches_by_status(views: list[dict]) -> dict[str, int]:
-    """Status → how many coaches have it (as the fleet list shows them)."""
-    return dict(sorted(Counter(v["status"] for v in views).items()))
