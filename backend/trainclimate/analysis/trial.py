@@ -1,0 +1,471 @@
+"""Trials on a pair of coaches: which coach runs the layer on which day, and savings that cancel
+the coaches' own difference and say how sure they are.
+
+Two coaches of one train are never the same coach: their envelopes, HVAC units and sensors differ
+by as much as the layer saves (±10–15 % in energy). A pair with one coach always activated
+measures the layer *and* the coaches (its figure is confounded); the paper names a methodology
+accounting for the variability between coaches as its first future work. This module is that
+methodology, shared by the simulator's ground-truth trials and the service.
+
+**Plans** (:data:`PLANS`). A *service day* runs from the switch hour (local time, Europe/Zurich,
+default 03:00, when the trains stand in the depot) to the next day's. Coach 0 and coach 1 are the
+train's two coaches in a fixed order (the service orders them by id).
+
+- ``fixed``: one coach always activated (the operator's choice).
+- ``alternate``: coach 0 on even day numbers (proleptic Gregorian ordinal), coach 1 on odd ones.
+- ``randomized``: in blocks of two consecutive days (ordinals 2k, 2k + 1), each coach gets one
+  day, the order drawn from the seed and the block (balanced, reproducible).
+- ``reference``: neither coach activated: both on T_rule, which measures the coaches' own ratio.
+
+**Estimators.** Per service day *d*, the energies E0(d), E1(d) of the two coaches over the
+windows counted for both, and which coach was activated. With a multiplicative model
+E_c(d) = a_c · b_d · (1 − s)^[c activated on d] (coach level a_c, day level b_d — weather,
+operation — and the saving s), the log-ratio x(d) = ln(E0(d) / E1(d)) = ln(a0/a1) ± ln(1 − s):
+the day level cancels within each day, the coach level between days:
+
+- ``crossover`` (both coaches have activated days): ln(1 − s) = (mean x | coach 0 on −
+  mean x | coach 1 on) / 2;
+- ``fixed_reference`` (one coach activated, plus reference days): ln(1 − s) = ±(mean x | on −
+  mean x | reference);
+- ``fixed_naive`` (one coach activated, no reference): 1 − ΣE_act / ΣE_deact, the coaches'
+  difference included — reported without an interval, labelled as confounded.
+
+The 95 % interval is a bootstrap over service days — the day is the independent unit, windows
+within a day are not — each group of days resampled on its own by scipy.stats.bootstrap. It is a
+bootstrap-t interval: the resampled statistic is the estimate studentized by its standard error,
+which keeps its coverage near 95 % with the week or two of days a trial has (a percentile or BCa
+interval of the estimate itself covers about 90 % with seven days a group).
+``days_to_target`` scales the interval's half-width as 1/√days to a target half-width;
+``meets_guideline_14`` is ASHRAE Guideline 14's criterion (the savings' uncertainty at 68 %
+confidence below 50 % of the savings). Trains pool into a fleet figure by a random-effects
+meta-analysis (DerSimonian and Laird).
+
+References
+----------
+.. [1] Aboudonia et al., A Data-driven Predictive Control Architecture for Train Thermal Energy
+   Management, Section VI (future work).
+.. [2] B. Jones and M. G. Kenward, Design and Analysis of Cross-Over Trials, 3rd ed., CRC, 2014.
+.. [3] B. Efron and R. J. Tibshirani, An Introduction to the Bootstrap, Chapman & Hall, 1993,
+   ch. 12 (bootstrap-t).
+.. [4] ASHRAE Guideline 14-2014, Measurement of Energy, Demand, and Water Savings, §4.2 and
+   Annex B (savings uncertainty).
+.. [5] R. DerSimonian and N. Laird, Meta-analysis in clinical trials, Controlled Clinical Trials
+   7 (1986) 177–188.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from datetime import date
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+#: The trial plans a train can run.
+PLANS = ("fixed", "alternate", "randomized", "reference")
+#: Local hour at which a service day starts (the trains stand in the depot). [h]
+DEFAULT_SWITCH_HOUR = 3
+#: Where service days are counted.
+LOCAL_TZ = "Europe/Zurich"
+#: The estimators, by what the days allow.
+ESTIMATORS = ("crossover", "fixed_reference", "fixed_naive")
+#: Days of a group a bootstrap needs at least.
+MIN_GROUP_DAYS = 3
+#: Default target half-width of the 95 % interval for ``days_to_target``. [percentage points]
+TARGET_HALF_WIDTH_PCT = 2.0
+#: Neither coach activated (a ``reference`` day), in the ``activated`` arrays.
+NEITHER = -1
+
+
+def service_day(time: pd.Timestamp, switch_hour: int = DEFAULT_SWITCH_HOUR) -> date:
+    """The service day ``time`` belongs to: the local (Europe/Zurich) date of ``time`` less
+    ``switch_hour`` hours.
+
+    Parameters
+    ----------
+    time : pandas.Timestamp
+        Timezone-aware.
+    switch_hour : int, default 3
+        Local hour at which a service day starts, 0–23. [h]
+
+    Returns
+    -------
+    datetime.date
+    """
+    local = pd.Timestamp(time).tz_convert(LOCAL_TZ)
+    return (local - pd.Timedelta(hours=switch_hour)).date()
+
+
+def service_days(times: pd.DatetimeIndex, switch_hour: int = DEFAULT_SWITCH_HOUR) -> np.ndarray:
+    """:func:`service_day` of every time, as day ordinals (``date.toordinal()``), shape (n,)."""
+    local = pd.DatetimeIndex(times).tz_convert(LOCAL_TZ) - pd.Timedelta(hours=switch_hour)
+    days = local.tz_localize(None).normalize()
+    return np.asarray([d.toordinal() for d in days.date], dtype=np.int64)
+
+
+def day_start(day: date, switch_hour: int = DEFAULT_SWITCH_HOUR) -> pd.Timestamp:
+    """When service day ``day`` starts: ``switch_hour`` local time on that date, in UTC (on a
+    daylight-saving change the hour as the local clock reads it)."""
+    local = pd.Timestamp(year=day.year, month=day.month, day=day.day, hour=switch_hour).tz_localize(
+        LOCAL_TZ, nonexistent="shift_forward", ambiguous=False
+    )
+    return local.tz_convert("UTC")
+
+
+def activated(plan: str, day: date | int, seed: int = 0, fixed: int = 0) -> int:
+    """Which coach of the pair runs the layer on service day ``day`` under ``plan``.
+
+    Parameters
+    ----------
+    plan : str
+        One of :data:`PLANS`.
+    day : datetime.date or int
+        The service day, or its ordinal.
+    seed : int, default 0
+        The ``randomized`` plan's seed.
+    fixed : int, default 0
+        The ``fixed`` plan's activated coach.
+
+    Returns
+    -------
+    int
+        0 or 1, or :data:`NEITHER` on a ``reference`` day.
+
+    Raises
+    ------
+    ValueError
+        For an unknown plan or a coach other than 0 or 1.
+    """
+    n = day if isinstance(day, int) else day.toordinal()
+    if plan == "fixed":
+        if fixed not in (0, 1):
+            raise ValueError("the fixed plan's coach is 0 or 1")
+        return fixed
+    if plan == "alternate":
+        return n % 2
+    if plan == "randomized":
+        first = int(np.random.default_rng([int(seed), n // 2]).integers(2))
+        return first if n % 2 == 0 else 1 - first
+    if plan == "reference":
+        return NEITHER
+    raise ValueError(f"unknown plan {plan!r}: expected one of {', '.join(PLANS)}")
+
+
+@dataclass
+class TrialDays:
+    """A pair's energy per service day over the windows counted for both coaches.
+
+    Attributes
+    ----------
+    day : numpy.ndarray of int, shape (n,)
+        Service days (ordinals), ascending.
+    energy_kwh : numpy.ndarray of shape (n, 2)
+        Energy of coach 0 and coach 1. [kWh]
+    activated : numpy.ndarray of int, shape (n,)
+        0, 1, or :data:`NEITHER`.
+    windows : numpy.ndarray of int, shape (n,)
+        Windows counted that day.
+    dropped : dict
+        Days not used, by reason → count.
+    """
+
+    day: np.ndarray
+    energy_kwh: np.ndarray
+    activated: np.ndarray
+    windows: np.ndarray
+    dropped: dict = field(default_factory=dict)
+
+
+def daily(
+    day: np.ndarray,
+    energy_kwh: np.ndarray,
+    activated: np.ndarray,
+    counted: np.ndarray,
+    min_windows: int = 4,
+) -> TrialDays:
+    """Windows summed into service days.
+
+    Parameters
+    ----------
+    day : numpy.ndarray of int, shape (W,)
+        Each window's service day (:func:`service_days` of its start).
+    energy_kwh : numpy.ndarray of shape (W, 2)
+        Each coach's energy per window. [kWh]
+    activated : numpy.ndarray of int, shape (W,)
+        The coach running the layer in each window (0, 1, :data:`NEITHER`).
+    counted : numpy.ndarray of bool, shape (W,)
+        Windows that count (both coaches clean, the activated one under the layer).
+    min_windows : int, default 4
+        Fewer counted windows make no day (dropped as ``too_few_windows``).
+
+    Returns
+    -------
+    TrialDays
+        A day whose counted windows do not all have one activated coach (a plan changed within
+        it) is dropped as ``mixed_activation``; a day where a coach used no energy as
+        ``no_energy``.
+    """
+    day = np.asarray(day, np.int64)
+    energy = np.asarray(energy_kwh, float).reshape(len(day), 2)
+    act = np.asarray(activated, np.int64)
+    keep = np.asarray(counted, bool)
+    days, e, a, w, dropped = [], [], [], [], {}
+    for d in np.unique(day[keep]):
+        sel = keep & (day == d)
+        labels = np.unique(act[sel])
+        total = energy[sel].sum(axis=0)
+        reason = None
+        if sel.sum() < min_windows:
+            reason = "too_few_windows"
+        elif len(labels) > 1:
+            reason = "mixed_activation"
+        elif not np.all(total > 0):
+            reason = "no_energy"
+        if reason:
+            dropped[reason] = dropped.get(reason, 0) + 1
+            continue
+        days.append(d)
+        e.append(total)
+        a.append(labels[0])
+        w.append(int(sel.sum()))
+    return TrialDays(
+        day=np.asarray(days, np.int64),
+        energy_kwh=np.asarray(e, float).reshape(len(days), 2),
+        activated=np.asarray(a, np.int64),
+        windows=np.asarray(w, np.int64),
+        dropped=dropped,
+    )
+
+
+@dataclass
+class TrialEstimate:
+    """A pair's (or a fleet's) savings with their uncertainty; :meth:`to_dict` is what the API and
+    the CLI print.
+
+    Attributes
+    ----------
+    estimator : str or None
+        One of :data:`ESTIMATORS`; None without any day.
+    savings_pct : float or None
+        The estimate. [%]
+    savings_ci95_pct : list of float or None
+        [low, high], 95 % interval; None with ``ci_reason``. [%]
+    ci_reason : str or None
+        Why there is no interval.
+    naive_savings_pct : float or None
+        1 − ΣE_act / ΣE_deact over the activated days, the coaches' difference included. [%]
+    days : dict
+        Days used: ``coach_0``, ``coach_1`` (activated), ``reference``; ``dropped`` by reason.
+    standard_error_pct : float or None
+        The bootstrap's standard error of the estimate. [percentage points]
+    days_to_target : int or None
+        Further days for the half-width to reach the target at the observed spread.
+    meets_guideline_14 : bool or None
+        ASHRAE Guideline 14's criterion (uncertainty at 68 % below 50 % of the savings).
+    """
+
+    estimator: str | None
+    savings_pct: float | None
+    savings_ci95_pct: list[float] | None
+    ci_reason: str | None
+    naive_savings_pct: float | None
+    days: dict
+    standard_error_pct: float | None = None
+    days_to_target: int | None = None
+    meets_guideline_14: bool | None = None
+
+    @property
+    def distinguishable(self) -> bool | None:
+        """Whether the interval excludes 0 (None without an interval)."""
+        if self.savings_ci95_pct is None:
+            return None
+        low, high = self.savings_ci95_pct
+        return low > 0 or high < 0
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the attributes and ``distinguishable_from_zero``."""
+        return {
+            "estimator": self.estimator,
+            "savings_pct": self.savings_pct,
+            "savings_ci95_pct": self.savings_ci95_pct,
+            "savings_ci95_reason": self.ci_reason,
+            "naive_savings_pct": self.naive_savings_pct,
+            "days": self.days,
+            "standard_error_pct": self.standard_error_pct,
+            "days_to_target": self.days_to_target,
+            "meets_guideline_14": self.meets_guideline_14,
+            "distinguishable_from_zero": self.distinguishable,
+        }
+
+
+def _savings(log_ratio: np.ndarray) -> np.ndarray:
+    """100 (1 − exp(ln(1 − s))) [%]."""
+    return 100.0 * (1.0 - np.exp(log_ratio))
+
+
+def _naive(days: TrialDays) -> float | None:
+    on = days.activated != NEITHER
+    if not on.any():
+        return None
+    idx = np.flatnonzero(on)
+    act = days.energy_kwh[idx, days.activated[idx]].sum()
+    deact = days.energy_kwh[idx, 1 - days.activated[idx]].sum()
+    return float(100.0 * (1.0 - act / deact))
+
+
+def estimate(
+    days: TrialDays,
+    *,
+    target_half_width_pct: float = TARGET_HALF_WIDTH_PCT,
+    n_resamples: int = 4999,
+    seed: int = 0,
+) -> TrialEstimate:
+    """The savings of a pair over its service days, with a 95 % bootstrap interval (see the module
+    docstring for the estimators).
+
+    Parameters
+    ----------
+    days : TrialDays
+        From :func:`daily`.
+    target_half_width_pct : float, default 2.0
+        The half-width ``days_to_target`` aims at. [percentage points]
+    n_resamples : int, default 4999
+        Bootstrap resamples.
+    seed : int, default 0
+        The bootstrap's seed (the interval is reproducible).
+
+    Returns
+    -------
+    TrialEstimate
+        ``savings_ci95_pct`` is None, with ``ci_reason``, for a fixed plan without reference
+        days (confounded with the coaches), with fewer than :data:`MIN_GROUP_DAYS` days in a
+        group, or without day-to-day spread.
+    """
+    x = np.log(days.energy_kwh[:, 0] / days.energy_kwh[:, 1]) if len(days.day) else np.zeros(0)
+    groups = {g: x[days.activated == g] for g in (0, 1, NEITHER)}
+    counts = {
+        "coach_0": len(groups[0]),
+        "coach_1": len(groups[1]),
+        "reference": len(groups[NEITHER]),
+        "dropped": dict(days.dropped),
+    }
+    naive = _naive(days)
+    if len(groups[0]) and len(groups[1]):
+        estimator, samples, coef = "crossover", (groups[0], groups[1]), 0.5
+
+    elif (len(groups[0]) or len(groups[1])) and len(groups[NEITHER]):
+        on = 0 if len(groups[0]) else 1
+        coef = 1.0 if on == 0 else -1.0
+        estimator, samples = "fixed_reference", (groups[on], groups[NEITHER])
+
+    elif len(groups[0]) or len(groups[1]):
+        reason = "fixed plan: the saving is confounded with the coaches' own difference"
+        return TrialEstimate("fixed_naive", naive, None, reason, naive, counts)
+    else:
+        return TrialEstimate(None, None, None, "no comparable days yet", None, counts)
+
+    point = float(_savings(coef * (samples[0].mean() - samples[1].mean())))
+    if min(len(g) for g in samples) < MIN_GROUP_DAYS:
+        reason = f"fewer than {MIN_GROUP_DAYS} days in a group of the {estimator} estimate"
+        return TrialEstimate(estimator, point, None, reason, naive, counts)
+    theta, se = _effect(coef, *samples)
+    if not se > 0:
+        return TrialEstimate(estimator, point, None, "no day-to-day spread", naive, counts)
+
+    def pivot(a, b, axis=-1):
+        t, s = _effect(coef, a, b, axis=axis)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (t - theta) / s
+
+    with np.errstate(all="ignore"):  # a resample without spread studentizes to ±inf
+        res = stats.bootstrap(
+            samples,
+            pivot,
+            n_resamples=n_resamples,
+            method="percentile",
+            vectorized=True,
+            rng=np.random.default_rng(seed),
+        )
+    t_star = res.bootstrap_distribution
+    q = np.quantile(np.nan_to_num(t_star, nan=0.0), [0.025, 0.16, 0.84, 0.975])
+    if not np.all(np.isfinite(q)):
+        return TrialEstimate(estimator, point, None, "the bootstrap is degenerate", naive, counts)
+    # the interval of ln(1 − s) is θ − q·se; the savings fall as ln(1 − s) rises
+    low, high = (float(_savings(theta - q[i] * se)) for i in (0, 3))
+    low68, high68 = (float(_savings(theta - q[i] * se)) for i in (1, 2))
+    n = sum(len(g) for g in samples)
+    half = (high - low) / 2.0
+    return TrialEstimate(
+        estimator=estimator,
+        savings_pct=point,
+        savings_ci95_pct=[low, high],
+        ci_reason=None,
+        naive_savings_pct=naive,
+        days=counts,
+        standard_error_pct=float(100.0 * math.exp(theta) * se),
+        days_to_target=max(0, math.ceil(n * (half / target_half_width_pct) ** 2 - n)),
+        meets_guideline_14=bool((high68 - low68) / 2.0 < 0.5 * abs(point)),
+    )
+
+
+def _effect(coef: float, a: np.ndarray, b: np.ndarray, axis: int = -1) -> tuple:
+    """ln(1 − s) = coef (mean a − mean b) and its standard error |coef| √(var a/na + var b/nb)
+    (sample variances), along ``axis``."""
+    na, nb = a.shape[axis], b.shape[axis]
+    theta = coef * (np.mean(a, axis=axis) - np.mean(b, axis=axis))
+    var = np.var(a, axis=axis, ddof=1) / na + np.var(b, axis=axis, ddof=1) / nb
+    return theta, abs(coef) * np.sqrt(var)
+
+
+def pool(estimates: list[TrialEstimate]) -> dict:
+    """The fleet's savings from its trains' estimates: a random-effects meta-analysis
+    (DerSimonian and Laird) of those with an interval (``crossover`` and ``fixed_reference``);
+    ``fixed_naive`` trains are not pooled (confounded) and are counted apart.
+
+    Parameters
+    ----------
+    estimates : list of TrialEstimate
+
+    Returns
+    -------
+    dict
+        ``savings_pct``, ``savings_ci95_pct`` ([low, high] or None), ``savings_ci95_reason``,
+        ``standard_error_pct``, ``tau2`` (between-train variance, %²), ``trains_pooled``,
+        ``trains_confounded`` (fixed without reference), ``trains_without_interval``.
+    """
+    usable = [
+        e for e in estimates if e.savings_ci95_pct is not None and (e.standard_error_pct or 0) > 0
+    ]
+    out = {
+        "trains_pooled": len(usable),
+        "trains_confounded": sum(e.estimator == "fixed_naive" for e in estimates),
+        "trains_without_interval": sum(e.savings_ci95_pct is None for e in estimates),
+        "savings_pct": None,
+        "savings_ci95_pct": None,
+        "savings_ci95_reason": None,
+        "standard_error_pct": None,
+        "tau2": None,
+    }
+    if not usable:
+        out["savings_ci95_reason"] = "no train has an interval yet"
+        return out
+    y = np.array([e.savings_pct for e in usable])
+    v = np.array([e.standard_error_pct for e in usable]) ** 2
+    w = 1.0 / v
+    fixed = float(np.sum(w * y) / np.sum(w))
+    q = float(np.sum(w * (y - fixed) ** 2))
+    c = float(np.sum(w) - np.sum(w**2) / np.sum(w))
+    tau2 = max(0.0, (q - (len(y) - 1)) / c) if c > 0 else 0.0
+    w_star = 1.0 / (v + tau2)
+    mean = float(np.sum(w_star * y) / np.sum(w_star))
+    se = float(math.sqrt(1.0 / np.sum(w_star)))
+    z = float(stats.norm.ppf(0.975))
+    out.update(
+        savings_pct=mean,
+        savings_ci95_pct=[mean - z * se, mean + z * se],
+        standard_error_pct=se,
+        tau2=tau2,
+    )
+    return out
