@@ -1,0 +1,157 @@
+"""Trial plans and the savings estimators that cancel the coaches' own difference."""
+
+from datetime import date
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from trainclimate.analysis.trial import (
+    NEITHER,
+    TrialDays,
+    activated,
+    daily,
+    day_start,
+    estimate,
+    pool,
+    service_day,
+    service_days,
+)
+
+
+def test_a_service_day_starts_at_the_local_switch_hour():
+    # 02:59 local on 29 Nov is still the service day of 28 Nov; 03:00 starts the 29th
+    assert service_day(pd.Timestamp("2024-11-29 01:59", tz="UTC")) == date(2024, 11, 28)
+    assert service_day(pd.Timestamp("2024-11-29 02:00", tz="UTC")) == date(2024, 11, 29)
+    assert service_day(pd.Timestamp("2024-07-01 00:59", tz="UTC"), switch_hour=3) == date(
+        2024, 6, 30
+    )  # summer time: 03:00 local is 01:00 UTC
+    times = pd.date_range("2024-11-28 01:00", periods=4, freq="1h", tz="UTC")
+    assert list(service_days(times)) == [
+        date(2024, 11, 27).toordinal(),
+        date(2024, 11, 28).toordinal(),
+        date(2024, 11, 28).toordinal(),
+        date(2024, 11, 28).toordinal(),
+    ]
+    assert day_start(date(2024, 11, 28)) == pd.Timestamp("2024-11-28 02:00", tz="UTC")
+    # the day the clocks go back is 25 hours long; it still starts at 03:00 local
+    assert day_start(date(2024, 10, 27)) == pd.Timestamp("2024-10-27 02:00", tz="UTC")
+    assert day_start(date(2024, 10, 28)) == pd.Timestamp("2024-10-28 02:00", tz="UTC")
+
+
+def test_plans_assign_the_layer_by_day():
+    days = range(date(2024, 11, 1).toordinal(), date(2024, 11, 1).toordinal() + 40)
+    assert [activated("fixed", d, fixed=1) for d in days] == [1] * 40
+    alt = [activated("alternate", d) for d in days]
+    assert all(a != b for a, b in zip(alt, alt[1:], strict=False))
+    assert [activated("reference", d) for d in days] == [NEITHER] * 40
+    rnd = [activated("randomized", d, seed=7) for d in days]
+    start = days[0] + days[0] % 2  # blocks are ordinals 2k, 2k + 1
+    for k in range(start, days[-1], 2):
+        block = rnd[k - days[0] : k - days[0] + 2]
+        assert sorted(block) == [0, 1]  # balanced in every block of two
+    assert rnd == [activated("randomized", d, seed=7) for d in days]  # reproducible
+    assert rnd != [activated("randomized", d, seed=8) for d in days]
+    with pytest.raises(ValueError, match="unknown plan"):
+        activated("weekly", days[0])
+
+
+def _crossover(n_days, saving, coach_ratio, noise, seed, plan="alternate"):
+    """Days of a pair whose coach 0 uses ``coach_ratio`` times coach 1's energy, the layer saving
+    ``saving``, with a day level and log-normal noise."""
+    rng = np.random.default_rng(seed)
+    day = np.arange(n_days)
+    act = np.array([activated(plan, int(d), seed=seed) for d in day])
+    level = 100 * np.exp(rng.normal(0, 0.3, n_days))  # weather, operation: cancels in the ratio
+    x = np.log(coach_ratio) + np.select([act == 0, act == 1], [1, -1], 0) * np.log(1 - saving)
+    x = x + rng.normal(0, noise, n_days)
+    energy = np.c_[level * np.exp(x), level]
+    return TrialDays(day, energy, act, np.full(n_days, 40))
+
+
+def test_the_crossover_cancels_the_coaches_difference():
+    # coach 0 uses 12 % more than coach 1: the naive figure is far off, the crossover is not
+    days = _crossover(14, 0.06, 1.12, 1e-3, seed=1)
+    e = estimate(days)
+    assert e.estimator == "crossover"
+    assert e.savings_pct == pytest.approx(6.0, abs=0.1)
+    low, high = e.savings_ci95_pct
+    assert low < 6.0 < high and high - low < 0.5
+    assert e.days == {"coach_0": 7, "coach_1": 7, "reference": 0, "dropped": {}}
+    assert abs(e.naive_savings_pct - 6.0) > 0.3  # the naive pools unequal coaches
+    assert e.meets_guideline_14 is True
+    assert e.distinguishable is True
+
+
+def test_the_interval_covers_the_saving_at_its_confidence():
+    covered = 0
+    for seed in range(100):
+        e = estimate(_crossover(14, 0.06, 1.1, 0.04, seed), n_resamples=999, seed=seed)
+        low, high = e.savings_ci95_pct
+        covered += low <= 6.0 <= high
+    assert 90 <= covered <= 100  # nominal 95 %: a bootstrap-t keeps it with 7 days a group
+
+
+def test_days_to_target_follow_the_spread():
+    wide = estimate(_crossover(14, 0.06, 1.1, 0.06, 3))
+    narrow = estimate(_crossover(14, 0.06, 1.1, 0.01, 3))
+    assert narrow.days_to_target == 0
+    half = (wide.savings_ci95_pct[1] - wide.savings_ci95_pct[0]) / 2
+    assert half > 2.0
+    assert wide.days_to_target == pytest.approx(14 * (half / 2.0) ** 2 - 14, abs=1)
+
+
+def test_a_fixed_plan_is_confounded_unless_a_reference_period_corrects_it():
+    fixed = _crossover(10, 0.06, 1.12, 0.01, 2, plan="fixed")
+    e = estimate(fixed)
+    assert e.estimator == "fixed_naive"
+    assert e.savings_ci95_pct is None and "confounded" in e.ci_reason
+    assert e.savings_pct == e.naive_savings_pct
+    assert e.savings_pct == pytest.approx(100 * (1 - 0.94 * 1.12), abs=1.0)
+    ref = _crossover(8, 0.06, 1.12, 0.01, 3, plan="reference")
+    both = TrialDays(
+        np.r_[fixed.day, ref.day + 100],
+        np.r_[fixed.energy_kwh, ref.energy_kwh],
+        np.r_[fixed.activated, ref.activated],
+        np.r_[fixed.windows, ref.windows],
+    )
+    corrected = estimate(both)
+    assert corrected.estimator == "fixed_reference"
+    assert corrected.savings_pct == pytest.approx(6.0, abs=0.5)
+    assert corrected.savings_ci95_pct[0] < 6.0 < corrected.savings_ci95_pct[1]
+
+
+def test_too_few_days_give_no_interval_with_a_reason():
+    e = estimate(_crossover(4, 0.06, 1.1, 0.02, 1))
+    assert e.estimator == "crossover" and e.savings_pct is not None
+    assert e.savings_ci95_pct is None and "fewer than 3 days" in e.ci_reason
+    empty = estimate(TrialDays(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0, int), np.zeros(0)))
+    assert empty.estimator is None and empty.savings_pct is None
+    assert empty.ci_reason == "no comparable days yet"
+
+
+def test_windows_make_days_and_odd_days_are_dropped_with_their_reason():
+    day = np.repeat([10, 11, 12, 13], 6)
+    energy = np.ones((24, 2))
+    act = np.repeat([0, 1, 0, 1], 6)
+    act[18] = 0  # day 13 ran both ways
+    counted = np.ones(24, bool)
+    counted[6:9] = False  # day 11 keeps 3 windows
+    energy[12:18, 1] = 0.0  # coach 1 used nothing on day 12
+    d = daily(day, energy, act, counted, min_windows=4)
+    assert list(d.day) == [10]
+    assert d.dropped == {"too_few_windows": 1, "no_energy": 1, "mixed_activation": 1}
+    assert d.energy_kwh.tolist() == [[6.0, 6.0]] and list(d.windows) == [6]
+
+
+def test_trains_pool_into_the_fleet():
+    estimates = [estimate(_crossover(14, 0.06, r, 0.02, s)) for s, r in enumerate([1.1, 0.9, 1.0])]
+    confounded = estimate(_crossover(10, 0.06, 1.12, 0.01, 2, plan="fixed"))
+    fleet = pool([*estimates, confounded])
+    assert fleet["trains_pooled"] == 3 and fleet["trains_confounded"] == 1
+    low, high = fleet["savings_ci95_pct"]
+    assert low < fleet["savings_pct"] < high
+    assert fleet["savings_pct"] == pytest.approx(6.0, abs=0.5)
+    # pooling narrows the interval below any train's
+    assert high - low < min(e.savings_ci95_pct[1] - e.savings_ci95_pct[0] for e in estimates)
+    assert pool([confounded])["savings_ci95_pct"] is None
