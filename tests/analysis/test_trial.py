@@ -1,5 +1,6 @@
 """Trial plans and the savings estimators that cancel the coaches' own difference."""
 
+import itertools
 from datetime import date
 
 import numpy as np
@@ -43,7 +44,7 @@ def test_plans_assign_the_layer_by_day():
     days = range(date(2024, 11, 1).toordinal(), date(2024, 11, 1).toordinal() + 40)
     assert [activated("fixed", d, fixed=1) for d in days] == [1] * 40
     alt = [activated("alternate", d) for d in days]
-    assert all(a != b for a, b in zip(alt, alt[1:], strict=False))
+    assert all(a != b for a, b in itertools.pairwise(alt))
     assert [activated("reference", d) for d in days] == [NEITHER] * 40
     rnd = [activated("randomized", d, seed=7) for d in days]
     start = days[0] + days[0] % 2  # blocks are ordinals 2k, 2k + 1
