@@ -179,3 +179,38 @@ def count(url: str, model, **where) -> int:
             return s.scalar(q)
     finally:
         db.dispose()
+
+
+def decided(
+    client, coach_id: str, first: int, last: int, source: str = "ddpc", reason: str = "ok"
+) -> None:
+    """Setpoints of ``coach_id`` at the ticks at(first), at(first + 5), … ≤ at(last), as the
+    scheduler stores them (``ddpc``/``ok``; the layer off: ``rule``/``inactive``), where the coach
+    has none; the coach's last tick moved up to the newest, so the live loop does not issue them
+    again."""
+    from sqlalchemy import select
+
+    from trainclimate.service.store.models import Coach, Setpoint
+
+    ticks = [at(m) for m in range(first, last + 1, 5)]
+    with client.app.state.db.transaction() as s:
+        have = set(
+            s.scalars(
+                select(Setpoint.tick).where(Setpoint.coach_id == coach_id, Setpoint.tick.in_(ticks))
+            )
+        )
+        for tick in ticks:
+            if tick not in have:
+                s.add(
+                    Setpoint(
+                        coach_id=coach_id,
+                        tick=tick,
+                        t_rule_c=22.0,
+                        t_ref_c=22.0,
+                        source=source,
+                        reason=reason,
+                    )
+                )
+        coach = s.get(Coach, coach_id)
+        if coach.last_tick is None or coach.last_tick < ticks[-1]:
+            coach.last_tick = ticks[-1]

@@ -13,6 +13,7 @@ from service_support import (
     API,
     T0,
     at,
+    decided,
     flat_row,
     post_rows,
     register,
@@ -53,6 +54,9 @@ def _fleet(client, op) -> None:
         assert register(client, op, f"{train}-A", train, active=True).status_code == 201
         assert register(client, op, f"{train}-B", train, active=False).status_code == 201
     assert register(client, op, "L1-A", "L1", active=True).status_code == 201
+    for train in ("F1", "F2", "F3", "F4"):
+        decided(client, f"{train}-A", 0, 175)  # the layer ran on A, B was on T_rule
+        decided(client, f"{train}-B", 0, 175, "rule", "inactive")
     warm = {f"t_room_{d}_c": (lambda m: 24.0 if m >= 100 else None) for d in ("up", "mid", "low")}
     parts = {
         "F1-A": _rows(1, 180, power_kw=lambda m: 8.0),
@@ -246,7 +250,7 @@ def test_summary_kept_while_the_counted_windows_are_unchanged(client, tokens, mo
         return {t["id"]: t for t in reply.json()["trains"]}
 
     first = summary()
-    assert summary() == first and summed == [["F1", "F2", "F3", "F4"], []]  # then all kept
+    assert summary() == first and summed == [["F1", "F2", "F3", "F4"]]  # then all kept
     # F2-B's missing minutes arrive: F2 is summed afresh, its gap's window now counts
     gap = [flat_row(at(m)) for m in range(130, 141)]
     assert post_rows(client, op, "F2-B", gap).status_code == 200
@@ -270,6 +274,8 @@ def test_the_fleet_counts_the_hvac_units_when_every_train_splits_the_floor_off(c
     for train, (pa, pb) in {"S1": (6.0, 7.0), "S2": (5.0, 7.0)}.items():
         register(client, op, f"{train}-A", train, active=True)
         register(client, op, f"{train}-B", train, active=False)
+        decided(client, f"{train}-A", 0, 55)
+        decided(client, f"{train}-B", 0, 55, "rule", "inactive")
         post_rows(
             client,
             op,
@@ -294,6 +300,8 @@ def test_the_fleet_counts_the_hvac_units_when_every_train_splits_the_floor_off(c
     assert sum(w["energy_activated_kwh"] for w in s["windows"]) == pytest.approx(7.0)
     register(client, op, "S3-A", "S3", active=True)
     register(client, op, "S3-B", "S3", active=False)
+    decided(client, "S3-A", 0, 55)
+    decided(client, "S3-B", 0, 55, "rule", "inactive")
     post_rows(client, op, "S3-A", _rows(1, 60, power_kw=lambda m: 8.0))
     post_rows(client, op, "S3-B", _rows(1, 60))
     s = client.get(f"{API}/fleet/summary", params=params, headers=viewer).json()

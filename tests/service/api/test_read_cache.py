@@ -11,8 +11,9 @@ from datetime import datetime
 
 import pytest
 
-from service_support import API, T0, at, flat_rows, post_rows, register
+from service_support import API, T0, at, decided, flat_rows, post_rows, register
 from trainclimate.service.settings import Settings
+from trainclimate.service.store import comparison as pair_comparison
 from trainclimate.service.store import queries
 from trainclimate.service.store.cache import ReadCache
 
@@ -30,7 +31,7 @@ def settings(db_url, model_file) -> Settings:
 def computed(monkeypatch) -> dict[str, list]:
     """The coach views and comparisons computed (not served from the cache), as they happen."""
     calls: dict[str, list] = {"view": [], "comparison": []}
-    view, comparison = queries.coach_view, queries.comparison
+    view, comparison = queries.coach_view, pair_comparison.comparison
 
     def spy_view(session, coach, *args):
         calls["view"].append(coach.id)
@@ -41,7 +42,7 @@ def computed(monkeypatch) -> dict[str, list]:
         return comparison(session, train, *args)
 
     monkeypatch.setattr(queries, "coach_view", spy_view)
-    monkeypatch.setattr(queries, "comparison", spy_comparison)
+    monkeypatch.setattr(pair_comparison, "comparison", spy_comparison)
     return calls
 
 
@@ -68,6 +69,8 @@ def test_a_comparison_is_fresh_after_new_telemetry_and_overrides(client, tokens,
     path = f"{API}/trains/P/comparison"
     register(client, op, "P-A", "P", active=True)
     register(client, op, "P-B", "P", active=False)
+    decided(client, "P-A", 0, 115)
+    decided(client, "P-B", 0, 115, "rule", "inactive")
     post_rows(client, op, "P-A", flat_rows(1, 60, power_kw=8.0))
     post_rows(client, op, "P-B", flat_rows(1, 60))
 
@@ -105,10 +108,12 @@ def test_a_comparison_is_fresh_after_new_telemetry_and_overrides(client, tokens,
     assert get(client, path, viewer, wide) == fresh(client, path, viewer, wide) == before
     assert len(computed["comparison"]) == n + 5
 
-    # the pair itself: with the layer off on both coaches there is none to compare
+    # the pair's roles now: with the layer off on both coaches, the answer says so
     switch = {"active": False, "reason": "test"}
     assert client.put(f"{API}/coaches/P-A/controller", json=switch, headers=op).status_code == 200
-    assert client.get(path, headers=viewer, params=RANGE).status_code == 422
+    both_off = get(client, path, viewer, RANGE)
+    assert (both_off["activated"], both_off["deactivated"]) == (None, "P-A")
+    assert both_off["windows"] == later["windows"]  # what ran in the past is unchanged
 
 
 def test_a_coach_view_is_fresh_after_its_own_changes_only(client, tokens, computed):

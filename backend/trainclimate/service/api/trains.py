@@ -11,7 +11,7 @@ from sqlalchemy import select
 
 from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, Viewer
-from trainclimate.service.store import queries
+from trainclimate.service.store import comparison, queries
 from trainclimate.service.store.models import Train
 
 router = APIRouter()
@@ -62,10 +62,10 @@ def train_comparison(
     """Activated vs deactivated coach: energy and savings per window (30 min by default),
     overall savings, average hourly violation of both, excluded minutes."""
     train = queries.train_or_404(s, train_id)
-    act, _deact = queries.pair_of(train)
-    start, end = queries.time_range(s, act, start, end)
+    c0, _c1 = queries.pair_or_422(train)
+    start, end = queries.time_range(s, c0, start, end)
     return request.app.state.read_cache.get(
         ("comparison", train.id, start, end, window_min),
-        queries.comparison_state(s, train, start, end),
-        lambda: queries.comparison(s, train, start, end, window_min),
+        comparison.comparison_state(s, train, start, end, window_min),
+        lambda: comparison.comparison(s, train, start, end, window_min),
     )

@@ -1,17 +1,17 @@
 """The fleet at a glance: every train's activated-vs-deactivated savings and comfort over the last
 hours, pooled into the fleet's, the coaches by status, and the coaches that need attention.
 
-A train's numbers are those of its pair comparison (:func:`.queries.comparison`, i.e.
-:func:`trainclimate.analysis.savings.compare` on the stored 1-minute telemetry) over the same
-range: the same 30-minute windows (aligned to the clock, the first one after the pair's data or
-the range starts), the same windows excluded (a minute missing for either coach, a coach not
-connected, without its power or overridden), violation and discomfort over the same minutes (both
-coaches in regular mode, nothing affected). Here they are summed in the database, per train and
-window, in one statement over every train — the 24-h fleet view reads a few sums per window
-instead of 2 880 rows per train — and combined by the same
-:class:`~trainclimate.analysis.savings.PairTotals`; the fleet's figures pool its trains' (energy
-over energy, discomfort over hours counted). Each train's sums are kept in the read cache while
-its rows in the counted range and its overrides are unchanged (:func:`_pair_states`).
+A train's numbers are those of its pair comparison (:mod:`.comparison`) over the same range:
+the same 30-minute windows (aligned to the clock, the first one after the pair's data or the range
+starts), labelled and excluded the same way (:mod:`.pair_trial`: the coach that ran the layer,
+a minute missing, a link lost, an override, a tick that was not DDPC on the activated coach),
+violation and discomfort over the same minutes (both coaches in regular mode, nothing affected).
+Here the telemetry is summed in the database, per pair and window, in one statement over every
+train — the 24-h fleet view reads a few sums per window instead of 2 880 rows per train — and the
+setpoints counted per coach and window in another; the fleet's naive figures pool its trains'
+energies, its savings estimate their trial estimates (:func:`trainclimate.analysis.trial.pool`).
+Each pair's sums and counts are kept in the read cache while its rows and setpoints in the counted
+range and its overrides are unchanged (:func:`pair_states`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ from datetime import datetime, timedelta
 import numpy as np
 import pandas as pd
 from sqlalchemy import (
-    Integer,
     and_,
     case,
     false,
@@ -34,12 +33,12 @@ from sqlalchemy import (
     true,
     union_all,
 )
-from sqlalchemy.ext.compiler import compiles
 from sqlalchemy.orm import Session, selectinload
-from sqlalchemy.sql.expression import ColumnElement, FunctionElement
+from sqlalchemy.sql.expression import ColumnElement
 
+from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
-from trainclimate.service.store import queries
+from trainclimate.service.store import pair_trial, queries
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
     attention,
@@ -50,50 +49,17 @@ from trainclimate.service.store.models import (
     Coach,
     FleetClock,
     Override,
+    Setpoint,
     Telemetry,
     Train,
     UTCDateTime,
 )
+from trainclimate.service.store.pair_trial import energy_columns, figures, pair_result
+from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 from trainclimate.sim.power import HEADLINE_METER, METERS
 
 DECKS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
 ID, TIME = Telemetry.coach_id.type, UTCDateTime()
-
-
-class EpochSeconds(FunctionElement):
-    """A timestamp column as whole seconds since 1970-01-01 UTC (an integer, so that dividing it
-    by an integer floors on either database)."""
-
-    type = Integer()
-    inherit_cache = True
-
-
-@compiles(EpochSeconds)  # PostgreSQL, and any other SQL standard database
-def _epoch_pg(element, compiler, **kw):
-    # date_part gives a double precision (EXTRACT a numeric: slower to compute)
-    return f"CAST(FLOOR(date_part('epoch', {compiler.process(element.clauses, **kw)})) AS BIGINT)"
-
-
-@compiles(EpochSeconds, "sqlite")
-def _epoch_sqlite(element, compiler, **kw):
-    return f"CAST(strftime('%s', {compiler.process(element.clauses, **kw)}) AS INTEGER)"
-
-
-class OnMinute(FunctionElement):
-    """Whether a timestamp column falls on a whole minute (the comparison's 1-minute grid)."""
-
-    inherit_cache = True
-
-
-@compiles(OnMinute)  # PostgreSQL, and any other SQL standard database
-def _on_minute_pg(element, compiler, **kw):
-    col = compiler.process(element.clauses, **kw)
-    return f"(date_trunc('minute', {col}) = {col})"
-
-
-@compiles(OnMinute, "sqlite")
-def _on_minute_sqlite(element, compiler, **kw):
-    return f"(strftime('%f', {compiler.process(element.clauses, **kw)}) = '00.000')"
 
 
 def _violation(row, t_max_k: float) -> list[ColumnElement]:
@@ -151,7 +117,7 @@ def window_sums(
 
     Parameters
     ----------
-    pairs : list of (activated id, deactivated id, lo, hi)
+    pairs : list of (coach 0 id, coach 1 id, lo, hi)
         The pairs, each counted over the telemetry rows stamped in (lo, hi].
     window_min : float, default 30.0
         Window length. [min]
@@ -163,13 +129,14 @@ def window_sums(
     Returns
     -------
     dict
-        Activated coach id → window index (the window's start in window lengths since 1970) →
+        Coach 0's id → window index (the window's start in window lengths since 1970) →
         an array of :data:`SUMS`: the minutes both coaches have a row on the minute grid, those
         affected (either coach not connected, without power, or overridden), the energy of
         each coach [kWh], the minutes counted for comfort (nothing affected, both in regular
-        mode), the discomfort per deck of the activated and the deactivated coach over
-        those [K·h], each coach's energy on the HVAC units' meter (without the floor and wall
-        heating) [kWh] and the minutes where a coach's row does not split the floor heating off.
+        mode), the discomfort per deck of coach 0 and coach 1 over those [K·h], each coach's
+        energy on the HVAC units' meter (without the floor and wall heating) [kWh], the minutes
+        where a coach's row does not split the floor heating off, those where a coach's link
+        was lost and those overridden.
     """
     if not pairs:
         return {}
@@ -216,6 +183,8 @@ def window_sums(
             # rows off the minute grid do not count (the comparison reads the grid's minutes)
             OnMinute(a.c.time).label("grid"),
             affected.label("bad"),
+            or_(not_(a.c.connected), not_(b.c.connected)).label("lost"),
+            overridden.label("overridden"),
             and_(a.c.mode == "regular", b.c.mode == "regular").label("band"),
             func.coalesce(a.c.power_kw, 0.0).label("pa"),
             func.coalesce(b.c.power_kw, 0.0).label("pb"),
@@ -248,6 +217,8 @@ def window_sums(
         func.sum(case((m.c.grid, m.c.pa - m.c.fa), else_=0.0)) * kwh,
         func.sum(case((m.c.grid, m.c.pb - m.c.fb), else_=0.0)) * kwh,
         func.sum(case((and_(m.c.grid, m.c.unsplit), 1), else_=0)),
+        func.sum(case((and_(m.c.grid, m.c.lost), 1), else_=0)),
+        func.sum(case((and_(m.c.grid, m.c.overridden), 1), else_=0)),
     ]
     if postgresql:
         # without JIT compilation, which the plan's cost asks for and which took longer than
@@ -264,101 +235,6 @@ def window_sums(
     return out
 
 
-#: What :func:`window_sums` returns per window, in order.
-SUMS = (
-    "minutes",
-    "affected_minutes",
-    "energy_activated_kwh",
-    "energy_deactivated_kwh",
-    "counted_minutes",
-    *(f"discomfort_{d}_kh" for d in ("up", "mid", "low")),
-    *(f"baseline_discomfort_{d}_kh" for d in ("up", "mid", "low")),
-    "energy_activated_hvac_kwh",
-    "energy_deactivated_hvac_kwh",
-    "unsplit_minutes",
-)
-
-
-def pair_windows(
-    sums: dict[int, np.ndarray], first: pd.Timestamp, n_windows: int, window_min: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A pair's ``n_windows`` windows from ``first``, from its :func:`window_sums`: a window is
-    included when both coaches have every minute of it and none is affected.
-
-    Parameters
-    ----------
-    sums : dict
-        Window index → sums (:data:`SUMS`), as :func:`window_sums` gives them for the pair.
-    first : pandas.Timestamp
-        The first window's start.
-    n_windows : int
-        How many windows are counted.
-    window_min : float
-        Window length. [min]
-
-    Returns
-    -------
-    (numpy.ndarray, numpy.ndarray, numpy.ndarray)
-        The windows' indices (n,) (starts in window lengths since 1970), their sums
-        (n, len(SUMS)) — zeros where the pair has no row — and whether each is included (n,).
-    """
-    w0 = int(first.timestamp() // (window_min * 60))
-    index = np.arange(w0, w0 + n_windows)
-    grid = np.array([sums.get(w, np.zeros(len(SUMS))) for w in index]).reshape(-1, len(SUMS))
-    minutes, affected = grid[:, 0], grid[:, 1]
-    return index, grid, (minutes == round(window_min)) & (affected == 0)
-
-
-def pair_totals(
-    grid: np.ndarray, included: np.ndarray, window_min: float, meter: str = "hvac_and_floor"
-) -> PairTotals:
-    """A pair's totals on ``meter`` from its :func:`pair_windows`' sums and included windows."""
-    e_act, e_deact = grid[:, _energy_columns(meter)].T
-    counted = grid[:, 4]
-    return PairTotals(
-        energy_activated_kwh=float(e_act[included].sum()),
-        energy_deactivated_kwh=float(e_deact[included].sum()),
-        windows=len(grid),
-        excluded_windows=int(len(grid) - included.sum()),
-        window_min=window_min,
-        counted_hours=float(counted.sum() / 60.0),
-        discomfort_kh=grid[:, 5:8].sum(axis=0),
-        baseline_discomfort_kh=grid[:, 8:11].sum(axis=0),
-    )
-
-
-def split_everywhere(grid: np.ndarray, included: np.ndarray) -> bool:
-    """Whether every minute of the included windows splits the floor heating off (the HVAC
-    units' meter counts then)."""
-    return not np.any(grid[included, SUMS.index("unsplit_minutes")] > 0)
-
-
-def _energy_columns(meter: str) -> list[int]:
-    """The columns of :data:`SUMS` with the activated and the deactivated coach's energy on
-    ``meter``."""
-    suffix = "_kwh" if meter == "hvac_and_floor" else "_hvac_kwh"
-    return [SUMS.index(f"energy_{coach}{suffix}") for coach in ("activated", "deactivated")]
-
-
-def _totals_dict(by_meter: dict[str, PairTotals], meter: str) -> dict:
-    """The figures of ``meter``'s totals, and the savings on every meter (None for one that
-    does not count)."""
-    t = by_meter[meter]
-    return {
-        "meter": meter,
-        "savings_by_meter_pct": {
-            m: by_meter[m].savings_pct if m in by_meter else None for m in METERS
-        },
-        "savings_pct": t.savings_pct,
-        "energy_activated_kwh": t.energy_activated_kwh,
-        "energy_deactivated_kwh": t.energy_deactivated_kwh,
-        "avg_hourly_violation_activated_k": t.avg_hourly_violation_k,
-        "avg_hourly_violation_deactivated_k": t.baseline_violation_k,
-        "excluded_minutes": t.excluded_minutes,
-        "counted_hours": t.counted_hours,
-    }
-
-
 def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
     """Each coach's first and newest telemetry time: two index probes per coach, in one
     statement (one plan for all coaches)."""
@@ -373,15 +249,15 @@ def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
     return {cid: (t0, t1) for cid, t0, t1 in rows}
 
 
-def _pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
-    """What each pair's :func:`window_sums` over its range (lo, hi] are computed from: each
-    coach's number of rows in the range (telemetry is only ever inserted: a new row in the range
-    changes its count; rows after it, the current window's, do not) and the overrides of either
-    coach overlapping it, as they are (a cancellation changes them). One statement of index-only
-    counts."""
+def pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
+    """What each pair's :func:`window_sums` and setpoint counts over its range (lo, hi] are
+    computed from: each coach's number of telemetry rows and of setpoints in the range
+    (telemetry and setpoints are only ever inserted: a new one in the range changes its count;
+    those after it, the current window's, do not) and the overrides of either coach overlapping
+    it, as they are (a cancellation changes them). One statement of index-only counts."""
     if not pairs:
         return []
-    p = _literal_table("pairs", {"act": ID, "deact": ID, "lo": TIME, "hi": TIME}, pairs)
+    p = _literal_table("pairs", {"c0": ID, "c1": ID, "lo": TIME, "hi": TIME}, pairs)
 
     def rows_of(coach):
         return (
@@ -391,43 +267,65 @@ def _pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
             .scalar_subquery()
         )
 
-    counts = dict(
-        ((a, d), (n_a, n_d))
-        for a, d, n_a, n_d in session.execute(
-            select(p.c.act, p.c.deact, rows_of(p.c.act), rows_of(p.c.deact))
+    def ticks_of(coach):
+        return (
+            select(func.count())
+            .select_from(Setpoint)
+            .where(Setpoint.coach_id == coach, Setpoint.tick >= p.c.lo, Setpoint.tick < p.c.hi)
+            .scalar_subquery()
         )
-    )
+
+    counts = {
+        (c0, c1): tuple(n)
+        for c0, c1, *n in session.execute(
+            select(p.c.c0, p.c.c1, *(f(p.c[c]) for f in (rows_of, ticks_of) for c in ("c0", "c1")))
+        )
+    }
     states = []
-    for act, deact, lo, hi in pairs:
-        mine = tuple(
-            tuple(o) for o in overrides if o[1] in (act, deact) and o[2] < hi and o[3] > lo
-        )
-        states.append((*counts[act, deact], mine))
+    for c0, c1, lo, hi in pairs:
+        mine = tuple(tuple(o) for o in overrides if o[1] in (c0, c1) and o[2] < hi and o[3] > lo)
+        states.append((*counts[c0, c1], mine))
     return states
 
 
-def _cached_window_sums(
-    session: Session, pairs: list, window_min: float, cache: ReadCache | None
-) -> dict[str, dict[int, np.ndarray]]:
-    """:func:`window_sums` of ``pairs``, those whose state (:func:`_pair_states`) is unchanged
-    since they were computed taken from ``cache``, the others computed together and kept."""
+def pair_data(
+    session: Session, pairs: list, window_min: float, cache: ReadCache | None = None
+) -> dict[str, tuple[dict, dict]]:
+    """Each pair's :func:`window_sums` and both coaches' setpoint counts
+    (:func:`.pair_trial.setpoint_counts`), those whose state (:func:`pair_states`) is unchanged
+    since they were computed taken from ``cache``, the others computed together (and kept).
+
+    Returns
+    -------
+    dict
+        Coach 0's id → (window sums, coach id → setpoint counts).
+    """
     overrides = overrides_over(session, pairs)
-    if cache is None:
-        return window_sums(session, pairs, window_min, overrides=overrides)
-    keys = [("fleet-summary", *pair, window_min) for pair in pairs]
-    states = _pair_states(session, pairs, overrides)
-    sums, missing = {}, []
+    keys = [("pair-data", *pair, window_min) for pair in pairs]
+    states = pair_states(session, pairs, overrides) if cache is not None else [None] * len(pairs)
+    out, missing = {}, []
     for pair, key, state in zip(pairs, keys, states, strict=True):
-        kept = cache.lookup(key, state)
+        kept = cache.lookup(key, state) if cache is not None else None
         if kept is None:
             missing.append((pair, key, state))
         else:
-            sums[pair[0]] = kept
-    computed = window_sums(session, [m[0] for m in missing], window_min, overrides=overrides)
+            out[pair[0]] = kept
+    if not missing:
+        return out
+    todo = [m[0] for m in missing]
+    sums = window_sums(session, todo, window_min, overrides=overrides)
+    counts = pair_trial.setpoint_counts(
+        session,
+        sorted({c for pair in todo for c in pair[:2]}),
+        min(pair[2] for pair in todo),
+        max(pair[3] for pair in todo),
+        window_min,
+    )
     for pair, key, state in missing:
-        sums[pair[0]] = computed.get(pair[0], {})
-        cache.put(key, state, sums[pair[0]])
-    return sums
+        out[pair[0]] = (sums.get(pair[0], {}), {c: counts.get(c, {}) for c in pair[:2]})
+        if cache is not None:
+            cache.put(key, state, out[pair[0]])
+    return out
 
 
 def summary(
@@ -442,84 +340,111 @@ def summary(
     ``end`` (default: each train's fleet clock — the demo's simulated time, the live fleet's
     newest telemetry) and the fleet's, pooled; the coaches by status and those that need
     attention now, from their ``views`` (as the fleet list shows them,
-    :func:`.queries.coach_view`). Trains without both an activated and a deactivated coach are
-    left out. With ``cache``, each pair's window sums are kept there while its rows in the range
-    and its overrides are unchanged: the range ends at the last whole window, so rows arriving
-    in the current one leave it unchanged, and the dashboard's refreshes read a few index-only
-    counts instead of every row.
+    :func:`.queries.coach_view`). Trains without a pair of coaches are left out. Each train's
+    figures are its pair comparison's (:func:`pair_result`); the fleet's savings pool the
+    trains' estimates that have an interval (:func:`trial.pool`), and its naive figure the
+    trains' energies. With ``cache``, each pair's window sums and setpoint counts are kept
+    there while its rows and setpoints in the range and its overrides are unchanged: the range
+    ends at the last whole window, so data arriving in the current one leaves it unchanged, and
+    the dashboard's refreshes read a few index-only counts instead of every row.
 
     Returns
     -------
     dict
         ``hours``, ``window_min``, the fleet's ``meter`` (the HVAC units' when every train
-        splits the floor heating off, else the whole coach's), ``savings_pct`` [%] on it and
-        ``savings_by_meter_pct``, ``energy_activated_kwh`` and
-        ``energy_deactivated_kwh`` [kWh], ``avg_hourly_violation_activated_k`` and
-        ``avg_hourly_violation_deactivated_k`` [K], ``excluded_minutes`` [min],
-        ``counted_hours`` [h]; ``trains``: per train ``id``, ``name``, ``activated``,
-        ``deactivated``, ``start``, ``end`` and the same figures; ``windows``: per window
-        (oldest first) its ``start``, the energies of the trains that count it
-        (``energy_activated_kwh``, ``energy_deactivated_kwh``, kWh: they add up to the fleet's)
-        and how many ``trains`` do; ``coaches_by_status`` (:func:`coaches_by_status`) and
-        ``attention`` (:func:`attention`).
+        counts them, else the whole coach's), ``savings_pct`` [%] (the pooled estimate, else
+        the naive figure) with ``savings_ci95_pct``, ``savings_ci95_reason``, ``estimator``
+        (``random_effects`` or ``naive``), ``trains_pooled``, ``trains_confounded``,
+        ``naive_savings_pct`` and ``savings_by_meter_pct`` (energy over energy),
+        ``energy_activated_kwh`` and ``energy_deactivated_kwh`` [kWh],
+        ``avg_hourly_violation_activated_k`` and ``avg_hourly_violation_deactivated_k`` [K],
+        ``excluded_minutes`` [min], ``counted_windows``, ``counted_hours`` [h]; ``trains``: per
+        train ``id``, ``name``, ``coaches``, ``activated``, ``deactivated`` (now), ``start``,
+        ``end`` and its :func:`figures`; ``windows``: per window (oldest first) its ``start``,
+        the energies of the trains that count it (``energy_activated_kwh``,
+        ``energy_deactivated_kwh``, kWh: they add up to the fleet's) and how many ``trains``
+        do; ``coaches_by_status`` (:func:`coaches_by_status`) and ``attention``
+        (:func:`attention`).
     """
     trains = session.scalars(select(Train).options(selectinload(Train.coaches)).order_by(Train.id))
     paired = []
     for t in trains:
-        on = [c for c in t.coaches if c.ddpc_active]
-        off = [c for c in t.coaches if not c.ddpc_active]
-        if on and off:
-            paired.append((t, on[0], off[0]))
-    times = _coach_times(session, [c for _, act, deact in paired for c in (act, deact)])
+        pair = queries.pair_coaches(t)
+        if pair is not None:
+            paired.append((t, pair))
+    times = _coach_times(session, [c for _, pair in paired for c in pair])
     clocks = {c.name: c.time for c in session.scalars(select(FleetClock))}
     ranges, pairs = [], []
-    for t, act, deact in paired:
-        stop = end or clocks.get(act.fleet) or times[act.id][1]
+    for t, (c0, c1) in paired:
+        stop = end or clocks.get(c0.fleet) or times[c0.id][1]
         if stop is None:
             continue  # no data and no clock: nothing to count
-        firsts = [times[c.id][0] for c in (act, deact)]
+        firsts = [times[c.id][0] for c in (c0, c1)]
         earliest = min((f for f in firsts if f is not None), default=None)
         start = stop - timedelta(hours=hours)
         first, n = queries.counted_range(start, stop, earliest, window_min)
-        ranges.append((t, act, deact, first, n, stop))
+        ranges.append((t, c0, c1, first, n, stop))
         hi = first + pd.Timedelta(minutes=window_min * n)
-        pairs.append((act.id, deact.id, first.to_pydatetime(), hi.to_pydatetime()))
-    sums = _cached_window_sums(session, pairs, window_min, cache)
-    per_train = []
-    for t, act, deact, first, n, stop in ranges:
-        index, grid, included = pair_windows(sums.get(act.id, {}), first, n, window_min)
-        meters = METERS if split_everywhere(grid, included) else ("hvac_and_floor",)
-        totals = {m: pair_totals(grid, included, window_min, m) for m in meters}
-        per_train.append((t, act, deact, first, stop, index, grid, included, totals))
+        pairs.append((c0.id, c1.id, first.to_pydatetime(), hi.to_pydatetime()))
+    data = pair_data(session, pairs, window_min, cache)
+    results = []
+    for t, c0, c1, first, n, stop in ranges:
+        sums, counts = data.get(c0.id, ({}, {}))
+        result = pair_result((c0.id, c1.id), sums, counts, first, n, window_min)
+        results.append((t, c0, c1, first, stop, result))
     # the fleet's headline is the HVAC units' meter when every train has it
-    fleet_meters = [m for m in METERS if all(m in x[-1] for x in per_train)]
+    fleet_meters = [m for m in METERS if all(m in r[-1]["totals"] for r in results)]
     fleet_meter = HEADLINE_METER if HEADLINE_METER in fleet_meters else "hvac_and_floor"
-    energy = _energy_columns(fleet_meter)
     fleet = {m: PairTotals.empty(window_min) for m in fleet_meters}
     out_trains, windows = [], {}
-    for t, act, deact, first, stop, index, grid, included, totals in per_train:
-        fleet = {m: fleet[m] + totals[m] for m in fleet}
-        for w, e_act, e_deact in zip(index[included], *grid[included][:, energy].T, strict=True):
+    for t, c0, c1, first, stop, r in results:
+        fleet = {m: fleet[m] + r["totals"][m] for m in fleet}
+        e0, e1 = r["grid"][:, list(energy_columns(fleet_meter))].T
+        one = r["label"] == 1
+        for w, e_act, e_deact in zip(
+            r["index"][r["counted"]],
+            np.where(one, e1, e0)[r["counted"]],
+            np.where(one, e0, e1)[r["counted"]],
+            strict=True,
+        ):
             pooled = windows.setdefault(int(w), [0.0, 0.0, 0])
             pooled[0], pooled[1], pooled[2] = pooled[0] + e_act, pooled[1] + e_deact, pooled[2] + 1
         out_trains.append(
             {
                 "id": t.id,
                 "name": t.name,
-                "activated": act.id,
-                "deactivated": deact.id,
+                "coaches": [c0.id, c1.id],
+                "activated": next((c.id for c in (c0, c1) if c.ddpc_active), None),
+                "deactivated": next((c.id for c in (c0, c1) if not c.ddpc_active), None),
                 "start": first.to_pydatetime(),
                 "end": stop,
-                **_totals_dict(
-                    totals, HEADLINE_METER if HEADLINE_METER in totals else "hvac_and_floor"
-                ),
+                **figures(r, window_min),
             }
         )
+    totals = fleet[fleet_meter]
+    pooled = trial.pool([r[-1]["estimate"] for r in results])
+    naive = totals.savings_pct
     clocks_now = {v["id"]: v["clock"] for v in views if v["clock"] is not None}
     return {
         "hours": hours,
         "window_min": window_min,
-        **_totals_dict(fleet, fleet_meter),
+        "meter": fleet_meter,
+        "savings_pct": pooled["savings_pct"] if pooled["savings_pct"] is not None else naive,
+        "savings_ci95_pct": pooled["savings_ci95_pct"],
+        "savings_ci95_reason": pooled["savings_ci95_reason"],
+        "estimator": "random_effects" if pooled["savings_pct"] is not None else "naive",
+        "standard_error_pct": pooled["standard_error_pct"],
+        "trains_pooled": pooled["trains_pooled"],
+        "trains_confounded": pooled["trains_confounded"],
+        "naive_savings_pct": naive,
+        "savings_by_meter_pct": {m: fleet[m].savings_pct if m in fleet else None for m in METERS},
+        "energy_activated_kwh": totals.energy_activated_kwh,
+        "energy_deactivated_kwh": totals.energy_deactivated_kwh,
+        "avg_hourly_violation_activated_k": totals.avg_hourly_violation_k,
+        "avg_hourly_violation_deactivated_k": totals.baseline_violation_k,
+        "excluded_minutes": totals.excluded_minutes,
+        "counted_windows": sum(int(r[-1]["counted"].sum()) for r in results),
+        "counted_hours": totals.counted_hours,
         "trains": out_trains,
         "windows": [
             {

@@ -1,11 +1,9 @@
 """What the API reads: coaches with their status, time series, setpoints and pair comparisons.
 
-The comparison is :func:`trainclimate.analysis.savings.compare` on the stored 1-minute telemetry —
-the same function the experiment reports use.
+The pair comparison is in :mod:`.comparison`.
 
-:func:`coach_states` and :func:`comparison_state` read what a coach's view and a comparison are
-computed from, in a few index probes: the states their answers are kept under in
-:class:`~trainclimate.service.store.cache.ReadCache`.
+:func:`coach_states` reads what a coach's view is computed from, in a few index probes: the state
+its answer is kept under in :class:`~trainclimate.service.store.cache.ReadCache`.
 """
 
 from __future__ import annotations
@@ -17,7 +15,6 @@ import pandas as pd
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis.savings import CoachSeries, compare
 from trainclimate.control.ocp import OCPSettings
 from trainclimate.service.store import liveness
 from trainclimate.service.store.models import (
@@ -29,7 +26,6 @@ from trainclimate.service.store.models import (
     Train,
 )
 from trainclimate.service.store.telemetry import load_frame
-from trainclimate.sim.power import HEADLINE_METER, METERS
 from trainclimate.sim.setpoint import U_BAND_K
 
 #: The comfort bound the controller holds the decks to around T_rule (T_max of its problem). [K]
@@ -324,73 +320,28 @@ def setpoint_view(coach_id: str, sp, valid_for: timedelta) -> dict:
     }
 
 
-def pair_of(train: Train) -> tuple[Coach, Coach]:
-    """The train's activated and deactivated coach (the first of each)."""
+def pair_coaches(train: Train) -> tuple[Coach, Coach] | None:
+    """The train's pair, ordered by id (coach 0, coach 1): its first activated and first
+    deactivated coach, or — when no coach or every coach is activated (a reference day of a
+    trial) — its first two coaches; None with fewer than two coaches."""
     on = [c for c in train.coaches if c.ddpc_active]
     off = [c for c in train.coaches if not c.ddpc_active]
-    if not on or not off:
-        raise RequestError(f"train {train.id} has no pair of an activated and a deactivated coach")
-    return on[0], off[0]
+    if on and off:
+        pair = [on[0], off[0]]
+    elif len(train.coaches) >= 2:
+        pair = list(train.coaches[:2])
+    else:
+        return None
+    c0, c1 = sorted(pair, key=lambda c: c.id)
+    return c0, c1
 
 
-def comparison_state(session: Session, train: Train, start: datetime, end: datetime) -> tuple:
-    """What :func:`comparison` of ``train`` over (start, end] is computed from, besides the
-    parameters: the pair, each coach's first telemetry time and its number of rows in
-    (start, end] (rows are only inserted: a new one changes the count), and the overrides of
-    either coach that overlap the range as they are (cancelled or not)."""
-    pair = pair_of(train)
-    firsts = [
-        select(func.min(Telemetry.time)).where(Telemetry.coach_id == c.id).scalar_subquery()
-        for c in pair
-    ]
-    counts = [
-        select(func.count())
-        .select_from(Telemetry)
-        .where(Telemetry.coach_id == c.id, Telemetry.time > start, Telemetry.time <= end)
-        .scalar_subquery()
-        for c in pair
-    ]
-    telemetry = session.execute(select(*firsts, *counts)).one()
-    overrides = session.execute(
-        select(Override.id, Override.starts_at, Override.ends_at, Override.cancelled_at)
-        .where(Override.coach_id.in_([c.id for c in pair]))
-        .where(Override.starts_at < end, Override.ends_at > start)
-        .order_by(Override.id)
-    ).all()
-    return (*(c.id for c in pair), tuple(telemetry), tuple(tuple(o) for o in overrides))
-
-
-def _series(
-    session: Session, coach: Coach, grid: pd.DatetimeIndex, start, end
-) -> dict[str, CoachSeries]:
-    """The coach's series on each meter (:data:`~trainclimate.sim.power.METERS`): the whole
-    coach's power, and the HVAC units' — the power less the floor and wall heating, NaN (so
-    affected) in a minute whose row does not split it."""
-    frame = load_frame(session, coach.id, start, end).reindex(grid)
-    overridden = np.zeros(len(grid), bool)
-    for o in session.scalars(
-        select(Override).where(
-            Override.coach_id == coach.id, Override.starts_at < end, Override.ends_at > start
-        )
-    ):
-        stop = o.cancelled_at or o.ends_at
-        overridden |= (grid > o.starts_at) & (grid <= stop)
-    connected = frame["connected"].astype("boolean").fillna(False).to_numpy(bool)
-    # a row stamped t covers the minute (t − 1 min, t]: the analysis takes each sample's start
-    power = frame["power_kw"].to_numpy(float)
-    return {
-        meter: CoachSeries(
-            time=grid - pd.Timedelta(minutes=1),
-            power_kw=power
-            if meter == "hvac_and_floor"
-            else power - frame["floor_power_kw"].to_numpy(float),
-            t_room_c=frame[["t_room_up_c", "t_room_mid_c", "t_room_low_c"]].to_numpy(float),
-            t_rule_c=frame["t_rule_c"].to_numpy(float),
-            affected=~connected | overridden,
-            in_band=(frame["mode"] == "regular").to_numpy(bool),
-        )
-        for meter in METERS
-    }
+def pair_or_422(train: Train) -> tuple[Coach, Coach]:
+    """:func:`pair_coaches`, or :class:`RequestError` when the train has none."""
+    pair = pair_coaches(train)
+    if pair is None:
+        raise RequestError(f"train {train.id} has no pair of coaches to compare")
+    return pair
 
 
 def counted_range(
@@ -420,60 +371,6 @@ def counted_range(
     window = pd.Timedelta(minutes=window_min)
     first = pd.Timestamp(start).ceil(window)
     return first, max(0, int((pd.Timestamp(end) - first) // window))
-
-
-def comparison(
-    session: Session, train: Train, start: datetime, end: datetime, window_min: float = 30.0
-) -> dict:
-    """30-minute savings and the summary of the train's pair over (start, end]."""
-    act, deact = pair_of(train)
-    # each coach's first row on its own: one index probe each (a min over both coaches at once
-    # reads every index entry of both)
-    firsts = [
-        session.scalar(select(func.min(Telemetry.time)).where(Telemetry.coach_id == c.id))
-        for c in (act, deact)
-    ]
-    first, _ = counted_range(start, end, min((t for t in firsts if t), default=None), window_min)
-    grid = pd.date_range(first + pd.Timedelta(minutes=1), pd.Timestamp(end), freq="1min")
-    if len(grid) < 2:
-        raise RequestError("the range is shorter than two minutes")
-    a = _series(session, act, grid, start, end)
-    b = _series(session, deact, grid, start, end)
-    by_meter = {m: compare(a[m], b[m], start=first, window_min=window_min) for m in METERS}
-    # the HVAC units' meter counts only where every window the whole coach's counts splits the
-    # floor heating off (a feed without the split: the whole coach's is the headline)
-    split = not np.any(by_meter["hvac"].excluded & ~by_meter["hvac_and_floor"].excluded)
-    meter = HEADLINE_METER if split else "hvac_and_floor"
-    c = by_meter[meter]
-    return {
-        "train_id": train.id,
-        "activated": act.id,
-        "deactivated": deact.id,
-        "start": first.to_pydatetime(),
-        "end": pd.Timestamp(end).to_pydatetime(),
-        "window_min": window_min,
-        "windows": [
-            {
-                "start": w.to_pydatetime(),
-                "energy_activated_kwh": float(c.energy_activated_kwh[i]),
-                "energy_deactivated_kwh": float(c.energy_deactivated_kwh[i]),
-                "savings_pct": c.savings_30min_pct[i],
-                "excluded": bool(c.excluded[i]),
-            }
-            for i, w in enumerate(c.window_start)
-        ],
-        "meter": meter,
-        "savings_pct": c.savings_pct,
-        "savings_by_meter_pct": {
-            m: x.savings_pct if split or m == "hvac_and_floor" else None
-            for m, x in by_meter.items()
-        },
-        "energy_activated_kwh": c.energy_activated_total_kwh,
-        "energy_deactivated_kwh": c.energy_deactivated_total_kwh,
-        "avg_hourly_violation_k": c.avg_hourly_violation_k,
-        "baseline_violation_k": c.baseline_violation_k,
-        "excluded_minutes": c.excluded_minutes,
-    }
 
 
 def replicas(session: Session, since: datetime) -> list[dict]:
