@@ -27,9 +27,11 @@ def get_fleet_summary(
         AwareDatetime | None, Query(description="default: each train's fleet clock")
     ] = None,
 ) -> dict:
-    """Fleet savings and comfort over the last ``hours`` (30-minute windows excluded as in the
-    pair comparison), per train; the coaches by status; the coaches stale, in fallback,
-    overridden or outside the comfort band for more than 30 min."""
+    """Fleet savings and comfort over the last ``hours``, per train as its pair comparison gives
+    them (windows counted only where one coach ran the layer and the other T_rule; each train's
+    trial estimate with its 95 % interval), pooled over the trains with an interval (random
+    effects) beside the naive energy-over-energy figure; the coaches by status; the coaches
+    stale, in fallback, overridden or outside the comfort band for more than 30 min."""
     if end is not None:
         queries.checked_range(end, None, timedelta(hours=hours))  # the API's bounds
     live = queries.live_clock(s)

@@ -59,8 +59,12 @@ def train_comparison(
     end: AwareDatetime | None = None,
     window_min: Annotated[float, Query(gt=0, le=24 * 60)] = 30.0,
 ) -> dict:
-    """Activated vs deactivated coach: energy and savings per window (30 min by default),
-    overall savings, average hourly violation of both, excluded minutes."""
+    """The train's pair: per window (30 min by default) the coach that ran the layer, the
+    energies and the saving, or why the window does not count; the totals over the counted
+    windows; the trial estimate over the range's service days — crossover when each coach had
+    activated days (the coaches' own difference cancels), corrected by reference days, or the
+    naive figure labelled as confounded — with its 95 % bootstrap interval, the days still
+    needed for ±2 points and ASHRAE Guideline 14's criterion."""
     train = queries.train_or_404(s, train_id)
     c0, _c1 = queries.pair_or_422(train)
     start, end = queries.time_range(s, c0, start, end)
