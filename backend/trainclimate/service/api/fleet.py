@@ -28,8 +28,8 @@ def get_fleet_summary(
     ] = None,
 ) -> dict:
     """Fleet savings and comfort over the last ``hours`` (30-minute windows excluded as in the
-    pair comparison), per train; the coaches by status; the coaches stale, in fallback,
-    overridden or outside the comfort band for more than 30 min."""
+    pair comparison), per train; the coaches by status; the coaches stale, disconnected, in
+    fallback, overridden or outside the comfort band for more than 30 min."""
     if end is not None:
         queries.checked_range(end, None, timedelta(hours=hours))  # the API's bounds
     live = queries.live_clock(s)
