@@ -53,7 +53,20 @@ function badge(coach) {
   const label = coach.status === "override" && coach.override_until ? `override until ${local(coach.override_until).slice(11, 16)}` : coach.status;
   const span = el("span", { class: `badge ${coach.status}`, text: label });
   const wrap = el("span", {}, span);
-  if (coach.status === "fallback" && coach.reason) wrap.append(el("span", { class: "reason", text: coach.reason }));
+  if ((coach.status === "fallback" || coach.status === "disconnected") && coach.reason) wrap.append(el("span", { class: "reason", text: coach.reason }));
+  return wrap;
+}
+/** The coach's decks against the comfort band now (its newest telemetry row), in words. */
+function comfortBadge(coach) {
+  const c = coach.comfort;
+  if (!c) return el("span", { class: "comfort-unknown", text: "–", title: "unknown: no telemetry in time, no T_rule or not in regular mode" });
+  if (c.in_band) return el("span", { class: "comfort-in", text: "in band" });
+  return el("span", { class: "badge comfort-out", text: `outside +${fmt(c.worst_excess_k, 2)} K (${c.decks_out.join(", ")})` });
+}
+/** The T_ref issued, and whether the coach receives it (a lost link: its HVAC holds T_rule). */
+function tRefCell(coach, digits = 2) {
+  const wrap = el("span", {}, fmt(coach.t_ref_c, digits));
+  if (coach.t_ref_applied === false) wrap.append(el("span", { class: "reason not-applied", text: "not applied: holds T_rule" }));
   return wrap;
 }
 function kpi(label, value, id) {
@@ -141,7 +154,7 @@ async function route() {
 
 // --- fleet overview: savings, comfort and what needs attention -----------------------------
 const PLOT_CONFIG = { responsive: true, displaylogo: false };
-const KIND_LABEL = { stale: "stale", fallback: "fallback", override: "override", comfort: "comfort" };
+const KIND_LABEL = { stale: "stale", disconnected: "disconnected", fallback: "fallback", override: "override", comfort: "comfort" };
 
 async function showOverview() {
   const view = mount("tpl-overview");
@@ -306,10 +319,11 @@ async function showFleet() {
     const text = view.querySelector("#filter").value.toLowerCase();
     const status = view.querySelector("#status-filter").value;
     const { key, dir } = state.sort;
+    const by = (c) => sortValue(c, key);
     const rows = coaches
       .filter((c) => !status || c.status === status)
       .filter((c) => !text || [c.id, c.train_id, c.status, c.reason || ""].some((s) => s.toLowerCase().includes(text)))
-      .sort((a, b) => (a[key] > b[key] ? dir : a[key] < b[key] ? -dir : 0));
+      .sort((a, b) => (by(a) > by(b) ? dir : by(a) < by(b) ? -dir : 0));
     body.replaceChildren(...rows.map((c) => {
       const temps = c.t_room_c ? c.t_room_c.map((t) => fmt(t)).join(" / ") : "–";
       const band = c.t_rule_c === null ? "–" : `${fmt(c.t_rule_c - c.comfort_band_k)} – ${fmt(c.t_rule_c + c.comfort_band_k)}`;
@@ -320,7 +334,8 @@ async function showFleet() {
         el("td", {}, badge(c)),
         el("td", { text: c.mode || "–" }),
         el("td", { class: "num", text: temps }),
-        el("td", { class: "num", text: fmt(c.t_ref_c, 2) }),
+        el("td", { class: "comfort" }, comfortBadge(c)),
+        el("td", { class: "num" }, tRefCell(c)),
         el("td", { class: "num", text: band }),
         el("td", { class: "num", text: fmt(c.last_solve_ms, 3) }),
         el("td", {}, el("a", { href: `#/train/${encodeURIComponent(c.train_id)}`, text: "compare" })));
@@ -345,6 +360,13 @@ async function showFleet() {
     draw();
     drawReplicas(view.querySelector("#replicas tbody"), replicas);
   });
+}
+
+/** The value the coaches list sorts column ``key`` by: comfort by how far outside the band
+ *  (unknown before any within it). */
+function sortValue(coach, key) {
+  if (key === "comfort") return coach.comfort ? coach.comfort.worst_excess_k : -1;
+  return coach[key];
 }
 
 /** "Feed down since …" when there are live coaches and nothing arrives from any of them. */
@@ -518,10 +540,12 @@ async function showCoach(coachId) {
     view.querySelector("#coach-status").replaceChildren(
       kpi("Status", "", "kpi-status"),
       kpi("Layer", coach.ddpc_active ? "activated" : "deactivated"),
-      kpi("T_ref", `${fmt(coach.t_ref_c, 2)} °C`),
+      kpi(coach.t_ref_applied === false ? "T_ref issued, not applied: the HVAC holds T_rule" : "T_ref", `${fmt(coach.t_ref_c, 2)} °C`, "kpi-t-ref"),
       kpi("T_rule band", coach.t_rule_c === null ? "–" : `${fmt(coach.t_rule_c - coach.comfort_band_k)} – ${fmt(coach.t_rule_c + coach.comfort_band_k)} °C`),
+      kpi("Comfort now", "", "kpi-comfort"),
       kpi("Last solve", `${fmt(coach.last_solve_ms, 3)} ms`));
     view.querySelector("#kpi-status .value").replaceChildren(badge(coach));
+    view.querySelector("#kpi-comfort .value").replaceChildren(comfortBadge(coach));
     view.querySelector("#layer-button").textContent = coach.ddpc_active ? "Switch the layer off" : "Switch the layer on";
     view.querySelector("#ov-band").textContent = coach.t_rule_c === null ? "" :
       `Allowed: ${fmt(coach.t_rule_c - coach.setpoint_band_k)} – ${fmt(coach.t_rule_c + coach.setpoint_band_k)} °C (T_rule ± ${fmt(coach.setpoint_band_k, 0)} K, the driver's limit).`;

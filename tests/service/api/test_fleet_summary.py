@@ -157,7 +157,9 @@ def test_summary_is_the_pair_comparisons_pooled(client, tokens):
     # statuses as the fleet list shows them; the attention list: the override, the comfort
     # (the live loop ticks meanwhile: a status may move on; the counting is tested below)
     assert sum(s["coaches_by_status"].values()) == 9
-    assert set(s["coaches_by_status"]) <= {*queries.STATUS.values(), "fallback", "no-data"}
+    assert set(s["coaches_by_status"]) <= set(queries.STATUSES)
+    # F2-B's lost link at T0 + 44 is long past: its newest row is connected
+    assert "disconnected" not in s["coaches_by_status"]
     concerns = {(a["coach_id"], a["kind"]) for a in s["attention"]}
     assert ("F3-A", "override") in concerns
     assert ("F2-A", "comfort") in concerns and ("F1-A", "comfort") not in concerns
@@ -190,13 +192,14 @@ def test_empty_fleet_and_refusals(client, tokens):
 
 
 def test_attention_order_and_details():
-    def view(cid, status, reason=None, until=None):
+    def view(cid, status, reason=None, until=None, t_rule=None):
         return {
             "id": cid,
             "train_id": cid[:2],
             "status": status,
             "reason": reason,
             "override_until": until,
+            "t_rule_c": t_rule,
         }
 
     views = [
@@ -205,10 +208,14 @@ def test_attention_order_and_details():
         view("A3-A", "override", "override"),  # issued under an override cancelled since
         view("A4-A", "fallback", "solver_failed"),
         view("A5-A", "stale"),
+        view("A6-A", "disconnected", "connection_lost", t_rule=21.5),
+        view("A7-A", "disconnected", "connection_lost"),
     ]
     out = fleet_summary.attention(views, {"A1-A": 31.0, "A4-A": 30.0, "A5-A": 400.0})
     assert [(a["coach_id"], a["kind"]) for a in out] == [
         ("A5-A", "stale"),
+        ("A6-A", "disconnected"),
+        ("A7-A", "disconnected"),
         ("A4-A", "fallback"),
         ("A2-A", "override"),
         ("A3-A", "override"),
@@ -216,14 +223,20 @@ def test_attention_order_and_details():
         ("A5-A", "comfort"),
     ]
     details = [a["detail"] for a in out]
-    assert details[1] == "rule-based setpoint: solver_failed"
-    assert details[2] == f"operator's setpoint until {T0:%Y-%m-%d %H:%M} UTC"
-    assert details[3] == "operator's setpoint"
-    assert details[4:] == [
+    assert details[1:3] == [
+        "link to the HVAC lost: it holds T_rule 21.5 °C, not the T_ref issued",
+        "link to the HVAC lost: it holds its T_rule, not the T_ref issued",
+    ]
+    assert out[1]["reason"] == "connection_lost"
+    assert details[3] == "rule-based setpoint: solver_failed"
+    assert details[4] == f"operator's setpoint until {T0:%Y-%m-%d %H:%M} UTC"
+    assert details[5] == "operator's setpoint"
+    assert details[6:] == [
         "outside the comfort band for 31 min",
         "outside the comfort band for more than 400 min",
     ]
     assert fleet_summary.coaches_by_status(views) == {
+        "disconnected": 2,
         "fallback": 1,
         "ok": 1,
         "override": 2,

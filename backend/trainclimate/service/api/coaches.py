@@ -30,8 +30,9 @@ router = APIRouter()
 
 @router.get("/coaches", response_model=list[schemas.CoachOut], tags=["coaches"], responses=AUTH)
 def list_coaches(request: Request, s: DB, _: Viewer) -> list:
-    """Every coach with its train, layer, status (ok, warm-up, stale, fallback, override,
-    inactive, not-regular, no-data), latest readings and setpoint."""
+    """Every coach with its train, layer, status (ok, warm-up, stale, disconnected, fallback,
+    override, inactive, not-regular, preparing, no-data), latest readings, whether its decks are
+    within the comfort band now, and its setpoint (and whether the coach receives it)."""
     live = queries.live_clock(s)
     return [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
 

@@ -31,7 +31,8 @@ def get_fleet_summary(
     them (windows counted only where one coach ran the layer and the other T_rule; each train's
     trial estimate with its 95 % interval), pooled over the trains with an interval (random
     effects) beside the naive energy-over-energy figure; the coaches by status; the coaches
-    stale, in fallback, overridden or outside the comfort band for more than 30 min."""
+    stale, disconnected, in fallback,
+    overridden or outside the comfort band for more than 30 min."""
     if end is not None:
         queries.checked_range(end, None, timedelta(hours=hours))  # the API's bounds
     live = queries.live_clock(s)

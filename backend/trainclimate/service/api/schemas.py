@@ -8,9 +8,21 @@ from typing import Annotated, Literal
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from trainclimate.service.store.attention import KINDS
+from trainclimate.service.store.queries import STATUSES
+
 Role = Literal["gateway", "viewer", "operator", "admin"]
 Source = Literal["ddpc", "rule", "override", "fallback"]
 Mode = Literal["regular", "slumber", "off"]
+#: A coach's status (:data:`trainclimate.service.store.queries.STATUSES`).
+CoachStatus = Literal[STATUSES]
+STATUS_HELP = (
+    "ok (the DDPC step solved), warm-up (collecting the first hour of samples), stale (no "
+    "telemetry in time), disconnected (the newest telemetry says the link to the HVAC is "
+    "down: it holds T_rule, not the T_ref issued; reason connection_lost), fallback (T_rule; "
+    "the reason says why), override (an operator's T_ref), inactive (the layer is off), "
+    "not-regular (slumber or off), preparing (no predictor model yet) or no-data"
+)
 
 
 #: How far ahead of the server's clock a telemetry row may be stamped (clock skew).
@@ -99,6 +111,21 @@ class ReplicaOut(BaseModel):
     last_seen: datetime
 
 
+class ComfortNow(BaseModel):
+    """A coach's decks against the comfort band T_rule ± comfort_band_k in its newest telemetry
+    row (regular mode)."""
+
+    in_band: bool = Field(description="every deck with a reading within the band")
+    worst_excess_k: float = Field(
+        ge=0,
+        examples=[0.3],
+        description="how far the worst deck lies outside the band (K); 0 within it",
+    )
+    decks_out: list[Literal["up", "mid", "low"]] = Field(
+        examples=[["up"]], description="the decks outside the band"
+    )
+
+
 class CoachOut(BaseModel):
     """A coach and what its layer does now."""
 
@@ -107,16 +134,29 @@ class CoachOut(BaseModel):
     fleet: str = Field(examples=["demo"])
     ddpc_active: bool
     mode: str | None = Field(examples=["regular"], description="HVAC mode in the newest telemetry")
-    status: str = Field(
+    status: CoachStatus = Field(examples=["ok"], description=STATUS_HELP)
+    reason: str | None = Field(
         examples=["ok"],
-        description="ok, warm-up, stale, fallback, override, inactive, not-regular, preparing "
-        "or no-data",
+        description="the newest setpoint's reason code; connection_lost when the newest "
+        "telemetry says the link to the HVAC is down (status disconnected, or stale once "
+        "nothing arrives since)",
     )
-    reason: str | None = Field(examples=["ok"], description="the newest setpoint's reason code")
     t_rule_c: float | None = Field(examples=[22.0])
-    t_ref_c: float | None = Field(examples=[21.0])
+    t_ref_c: float | None = Field(
+        examples=[21.0], description="the T_ref issued at the newest tick"
+    )
+    t_ref_applied: bool | None = Field(
+        examples=[True],
+        description="whether the coach's HVAC receives t_ref_c: false when the newest telemetry "
+        "says the link is down (it holds T_rule, t_rule_c, instead); null when unknown (no "
+        "T_ref issued, or no telemetry in time)",
+    )
     t_room_c: list[float | None] | None = Field(
         examples=[[21.1, 21.0, 20.9]], description="deck temperatures up, mid, low (newest)"
+    )
+    comfort: ComfortNow | None = Field(
+        description="the decks against the comfort band now (the newest telemetry row); null "
+        "when unknown: no telemetry in time, no T_rule, no deck reading, or not in regular mode"
     )
     last_tick: datetime | None
     last_solve_ms: float | None = Field(examples=[0.09])
@@ -441,9 +481,14 @@ class Attention(BaseModel):
 
     coach_id: str
     train_id: str
-    kind: Literal["stale", "fallback", "override", "comfort"]
-    status: str
-    reason: str | None = Field(description="the setpoint's reason code")
+    kind: Literal[KINDS] = Field(
+        description="the list is in this order; comfort: outside the comfort band for more "
+        "than 30 min without a break"
+    )
+    status: CoachStatus
+    reason: str | None = Field(
+        description="the setpoint's reason code, or connection_lost (disconnected)"
+    )
     detail: str
 
 
@@ -479,7 +524,10 @@ class FleetSummary(SavingsFigures):
     window_min: float
     trains: list[TrainSavings]
     windows: list[FleetWindow]
-    coaches_by_status: dict[str, int]
+    coaches_by_status: dict[str, int] = Field(
+        description="status → how many coaches have it (as the coaches list shows them)",
+        examples=[{"ok": 18, "disconnected": 1, "inactive": 1}],
+    )
     attention: list[Attention]
 
 

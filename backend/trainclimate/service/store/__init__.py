@@ -7,8 +7,10 @@
 - :mod:`.telemetry` — storing 1-minute telemetry rows and turning them into the controller's
   samples; the rows' wire format and the rows of a simulation;
 - :mod:`.queries` — what the API reads (coach views, time series, setpoints, pair comparisons);
+- :mod:`.comfort` — whether a coach's decks are within the comfort band now (its newest row);
 - :mod:`.fleet_summary` — the fleet at a glance: every train's savings and comfort summed in the
   database, pooled, and the coaches that need attention;
+- :mod:`.attention` — the coaches that need attention and the coaches by status, from their views;
 - :mod:`.model_health` — the stored predictions against the temperatures measured afterwards;
 - :mod:`.commands` — what the API writes, each write audited;
 - :mod:`.tokens` — bearer tokens (only their SHA-256 is stored), roles and who a token belongs to.

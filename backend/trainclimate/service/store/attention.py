@@ -11,20 +11,32 @@ from collections import Counter
 VIOLATION_ATTENTION_MIN = 30.0
 #: How far back a coach's comfort is read for the attention list. [min]
 VIOLATION_LOOKBACK_MIN = 120.0
+#: The concerns of the attention list, in its order.
+KINDS = ("stale", "disconnected", "fallback", "override", "comfort")
 
 
 def attention(views: list[dict], violating_min: dict[str, float]) -> list[dict]:
     """The coaches that need an operator's attention, from their views (as the fleet list shows
     them) and the minutes each has been outside the comfort band
-    (:func:`.fleet_summary.comfort_violations`): stale (no telemetry), in fallback (with the
-    reason), overridden, or outside the band for longer than :data:`VIOLATION_ATTENTION_MIN`.
+    (:func:`.fleet_summary.comfort_violations`): stale (no telemetry), disconnected (its newest
+    telemetry says the link to the HVAC is down: the HVAC holds T_rule, not the T_ref issued),
+    in fallback (with the reason), overridden, or outside the band for longer than
+    :data:`VIOLATION_ATTENTION_MIN`.
+
+    Parameters
+    ----------
+    views : list of dict
+        The coaches' views (:func:`.queries.coach_view` with :func:`.queries.with_liveness`).
+    violating_min : dict
+        Coach id → how long its decks have been outside the comfort band without a break. [min]
 
     Returns
     -------
     list of dict
-        One entry per coach and concern: ``coach_id``, ``train_id``, ``kind`` (``stale``,
-        ``fallback``, ``override``, ``comfort``), ``status``, ``reason`` (the setpoint's reason
-        code, or None) and ``detail`` in words; stale first, then fallback, override, comfort.
+        One entry per coach and concern: ``coach_id``, ``train_id``, ``kind`` (one of
+        :data:`KINDS`), ``status``, ``reason`` (the view's reason code: the setpoint's, or
+        ``connection_lost``; or None) and ``detail`` in words; in the order of :data:`KINDS`,
+        then by coach.
     """
     out = []
     for v in views:
@@ -36,6 +48,8 @@ def attention(views: list[dict], violating_min: dict[str, float]) -> list[dict]:
         }
         if v["status"] == "stale":
             out.append({**base, "kind": "stale", "detail": "no telemetry in time"})
+        elif v["status"] == "disconnected":
+            out.append({**base, "kind": "disconnected", "detail": _disconnected(v)})
         elif v["status"] == "fallback":
             out.append(
                 {**base, "kind": "fallback", "detail": f"rule-based setpoint: {v['reason']}"}
@@ -55,8 +69,14 @@ def attention(views: list[dict], violating_min: dict[str, float]) -> list[dict]:
                     "detail": f"outside the comfort band for {more}{minutes:.0f} min",
                 }
             )
-    order = {"stale": 0, "fallback": 1, "override": 2, "comfort": 3}
-    return sorted(out, key=lambda e: (order[e["kind"]], e["coach_id"]))
+    return sorted(out, key=lambda e: (KINDS.index(e["kind"]), e["coach_id"]))
+
+
+def _disconnected(view: dict) -> str:
+    """What a ``disconnected`` coach's HVAC does, in words, from its view."""
+    t_rule = view.get("t_rule_c")
+    holds = f"T_rule {t_rule:.1f} °C" if t_rule is not None else "its T_rule"
+    return f"link to the HVAC lost: it holds {holds}, not the T_ref issued"
 
 
 def coaches_by_status(views: list[dict]) -> dict[str, int]:

@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.control.ocp import OCPSettings
 from trainclimate.service.store import liveness
+from trainclimate.service.store.comfort import comfort_now
 from trainclimate.service.store.models import (
     Coach,
     FleetClock,
@@ -31,6 +32,10 @@ from trainclimate.sim.setpoint import U_BAND_K
 #: The comfort bound the controller holds the decks to around T_rule (T_max of its problem). [K]
 COMFORT_BAND_K = OCPSettings().t_max
 
+#: A coach's status from the reason of its newest setpoint (any other reason: ``fallback``).
+#: Before it come, in this order: ``no-data`` (nothing reported), ``stale`` (no telemetry in
+#: time), ``disconnected`` (the newest telemetry row says the link to the HVAC is down: it holds
+#: T_rule whatever was issued), ``override`` and ``warm-up`` (no setpoint yet).
 STATUS = {
     "ok": "ok",
     "warmup": "warm-up",
@@ -40,6 +45,21 @@ STATUS = {
     "not_regular": "not-regular",
     "no_model": "preparing",
 }
+#: Every status a coach view can have, those decided before the setpoint's reason first.
+STATUSES = (
+    "no-data",
+    "stale",
+    "disconnected",
+    "override",
+    "warm-up",
+    "ok",
+    "inactive",
+    "not-regular",
+    "preparing",
+    "fallback",
+)
+#: The view's reason of a ``disconnected`` coach (in place of its newest setpoint's).
+CONNECTION_LOST = "connection_lost"
 
 
 #: The time ranges the API reads (far outside, dates overflow in the arithmetic behind a read).
@@ -91,7 +111,33 @@ def newest_setpoint(session: Session, coach: Coach) -> Setpoint | None:
 
 
 def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
-    """A coach with its newest setpoint, telemetry and override, and its status."""
+    """A coach with its newest setpoint, telemetry and override, its status and its comfort now.
+
+    Parameters
+    ----------
+    coach : Coach
+        The coach.
+    period : datetime.timedelta
+        The sampling period of the ticks.
+    stale_periods : int
+        A demo coach whose newest row is more than this many periods behind its fleet's clock is
+        ``stale`` (a live coach's silence is judged by :func:`with_liveness`).
+
+    Returns
+    -------
+    dict
+        The fields of the API's ``CoachOut``. ``status`` is the first that applies of: ``no-data``
+        (no setpoint and no telemetry), ``stale`` (no telemetry in time), ``disconnected`` (the
+        newest row says the link to the HVAC is down: the HVAC holds T_rule, whatever was
+        issued; ``reason`` is then :data:`CONNECTION_LOST`), ``override``, ``warm-up`` (no
+        setpoint yet) and the newest setpoint's reason mapped by :data:`STATUS` (else
+        ``fallback``). ``t_ref_c`` is the T_ref issued at the newest tick [°C];
+        ``t_ref_applied`` whether the coach's HVAC receives it: False when its newest row says
+        the link is down (it holds T_rule, ``t_rule_c``), None when that is unknown (no T_ref
+        issued, or no telemetry in time), else True. ``comfort`` is
+        :func:`.comfort.comfort_now` of the newest row, None without telemetry in time (what
+        its decks are now is unknown).
+    """
     setpoint = newest_setpoint(session, coach)
     row = session.scalar(
         select(Telemetry)
@@ -111,16 +157,21 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
         )
     # a live coach's silence is judged on the wall clock (with_liveness), the demo's on its clock
     behind = coach.fleet != liveness.LIVE and clock is not None
+    unseen = row is None or (behind and row.time < clock - stale_periods * period)
     if setpoint is None and row is None:
         status = "no-data"
-    elif row is None or (behind and row.time < clock - stale_periods * period):
+    elif unseen:
         status = "stale"
+    elif not row.connected:
+        status = "disconnected"
     elif override is not None:
         status = "override"
     elif setpoint is None:
         status = "warm-up"
     else:
         status = STATUS.get(setpoint.reason, "fallback")
+    t_room = [row.t_room_up_c, row.t_room_mid_c, row.t_room_low_c] if row else None
+    t_ref = setpoint.t_ref_c if setpoint else None
     return {
         "id": coach.id,
         "train_id": coach.train_id,
@@ -128,16 +179,20 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
         "ddpc_active": coach.ddpc_active,
         "mode": row.mode if row else None,
         "status": status,
-        "reason": setpoint.reason if setpoint else None,
+        "reason": CONNECTION_LOST
+        if status == "disconnected"
+        else (setpoint.reason if setpoint else None),
         # the setpoint's T_rule, else the newest row's (a tick before any row has none)
         "t_rule_c": next(
             (v for v in (setpoint and setpoint.t_rule_c, row and row.t_rule_c) if v is not None),
             None,
         ),
-        "t_ref_c": setpoint.t_ref_c if setpoint else None,
+        "t_ref_c": t_ref,
+        "t_ref_applied": None if t_ref is None or unseen else bool(row.connected),
         "comfort_band_k": COMFORT_BAND_K,
         "setpoint_band_k": U_BAND_K,
-        "t_room_c": [row.t_room_up_c, row.t_room_mid_c, row.t_room_low_c] if row else None,
+        "t_room_c": t_room,
+        "comfort": None if unseen else comfort_now(t_room, row.t_rule_c, row.mode, COMFORT_BAND_K),
         "last_tick": setpoint.tick if setpoint else None,
         "last_solve_ms": setpoint.solve_time_ms if setpoint else None,
         "override_until": override.ends_at if override else None,
@@ -151,13 +206,15 @@ def with_liveness(
 ) -> dict:
     """The :func:`coach_view` ``view`` with a live coach's status judged by arrivals (wall time
     ``now``; :mod:`.liveness`): ``stale`` when nothing has arrived from it for ``stale_periods``
-    periods at the live clock's pace; while its telemetry arrives, a tick decided ``stale`` (its
-    rows behind the fleet's clock) shows as ``fallback``: its gateway is alive. Kept apart from
-    the view, which is cached while its data is unchanged: silence changes nothing stored."""
+    periods at the live clock's pace (whatever its newest row said: ``disconnected`` too; its
+    ``t_ref_applied`` and ``comfort`` then unknown, None); while its telemetry arrives, a tick
+    decided ``stale`` (its rows behind the fleet's clock) shows as ``fallback``: its gateway is
+    alive. Kept apart from the view, which is cached while its data is unchanged: silence
+    changes nothing stored."""
     if view["fleet"] != liveness.LIVE or view["status"] == "no-data":
         return view
     if liveness.silent(view["last_seen_at"], live_clock, now, period, stale_periods):
-        return {**view, "status": "stale"}
+        return {**view, "status": "stale", "t_ref_applied": None, "comfort": None}
     if view["status"] == "stale":
         return {**view, "status": "fallback"}
     return view
@@ -174,7 +231,10 @@ def coach_states(session: Session, coach_id: str | None = None) -> list[tuple[Co
     own columns, its newest setpoint tick, its newest telemetry time, its fleet's clock, and how
     many overrides it has and how many of them were cancelled. The view reads the same coach
     row; setpoints and telemetry are only inserted, clocks only advance, and an override is only
-    ever cancelled once, so a coach whose state is unchanged has an unchanged view."""
+    ever cancelled once, so a coach whose state is unchanged has an unchanged view. In particular
+    the newest telemetry row — whose ``connected`` decides ``disconnected`` and whose decks
+    decide ``comfort`` — is never rewritten (a resent minute is skipped): a new one changes the
+    newest time."""
     newest_tick = select(func.max(Setpoint.tick)).where(Setpoint.coach_id == Coach.id)
     newest_row = select(func.max(Telemetry.time)).where(Telemetry.coach_id == Coach.id)
     clock = select(FleetClock.time).where(FleetClock.name == Coach.fleet)
