@@ -16,8 +16,17 @@ from service_support import (
     register,
     shared_coach_model,  # noqa: F401  (autouse)
 )
+from trainclimate.service.settings import Settings
 
 DAY = 24 * 60
+
+
+@pytest.fixture
+def settings(db_url, model_file) -> Settings:
+    """The app's live loop runs once at start and then sleeps: the setpoints are the test's."""
+    return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=3600)
+
+
 #: Each service day, the pair's rows from 06:00 to 09:00 UTC (T0 is 06:00 UTC): six windows.
 HOURS = 180
 
