@@ -34,6 +34,8 @@ def test_a_service_day_starts_at_the_local_switch_hour():
         date(2024, 11, 28).toordinal(),
         date(2024, 11, 28).toordinal(),
     ]
+    # the days service_days gives (numpy integers) are what activated takes
+    assert [activated("alternate", d) for d in service_days(times)] == [1, 0, 0, 0]
     assert day_start(date(2024, 11, 28)) == pd.Timestamp("2024-11-28 02:00", tz="UTC")
     # the day the clocks go back is 25 hours long; it still starts at 03:00 local
     assert day_start(date(2024, 10, 27)) == pd.Timestamp("2024-10-27 02:00", tz="UTC")

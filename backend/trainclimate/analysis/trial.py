@@ -122,7 +122,8 @@ def activated(plan: str, day: date | int, seed: int = 0, fixed: int = 0) -> int:
     plan : str
         One of :data:`PLANS`.
     day : datetime.date or int
-        The service day, or its ordinal.
+        The service day, or its ordinal (a Python or numpy integer, as :func:`service_days`
+        gives).
     seed : int, default 0
         The ``randomized`` plan's seed.
     fixed : int, default 0
@@ -138,7 +139,7 @@ def activated(plan: str, day: date | int, seed: int = 0, fixed: int = 0) -> int:
     ValueError
         For an unknown plan or a coach other than 0 or 1.
     """
-    n = day if isinstance(day, int) else day.toordinal()
+    n = day.toordinal() if isinstance(day, date) else int(day)
     if plan == "fixed":
         if fixed not in (0, 1):
             raise ValueError("the fixed plan's coach is 0 or 1")
