@@ -128,6 +128,8 @@ def test_loop_and_controllers_are_checked(predictor):
         ClosedLoop(sim, [None])
     with pytest.raises(ValueError, match="multiple of the simulator's step"):
         ClosedLoop(sim, [None, None], tick_s=305.0)
+    with pytest.raises(ValueError, match="1 forecast seeds for 2 coaches"):
+        ClosedLoop(sim, [None, None], seed=[7])
     with pytest.raises(ValueError, match="unknown forecast 'oracle'"):
         ClosedLoop(sim, build_controllers("edge", 2), forecast="oracle")
     with pytest.raises(ValueError, match="needs a prediction model"):
@@ -137,3 +139,21 @@ def test_loop_and_controllers_are_checked(predictor):
     ddpc = build_controllers("ddpc", 2, predictor)
     assert ddpc[0].model is ddpc[1].model and ddpc[0] is not ddpc[1]
     assert build_controllers("rule", 2) == [None, None]
+
+
+def test_a_coach_switched_off_runs_on_the_rule_and_acts_at_once_when_switched_on(predictor):
+    """The layer off for the first 90 min: T_ref = T_rule and no controller step; its telemetry
+    is still gathered, so at the switch (tick 18) the lead-in is complete and it acts at once."""
+    env, params = scenarios.build(scenarios.get("parked-heating-nov"), hours=2.5)
+    sim = FleetSimulator(params, env, seed=1)
+    active = np.ones((len(env.time), 1), bool)
+    active[:540] = False  # 90 min of 10-s steps
+    loop = ClosedLoop(sim, build_controllers("ddpc", 1, predictor), active=active)
+    sim.run(loop)
+    result = sim.result()
+    np.testing.assert_array_equal(result.t_ref_c[:540], result.t_rule_c[:540])
+    assert loop.log.step[0] == 540 and loop.log.results[0].reason == "ok"
+    assert len(loop.log.results) == 12  # ticks 18 … 29
+    assert np.any(result.t_ref_c[540:] < result.t_rule_c[540:] - 0.4)
+    with pytest.raises(ValueError, match="masks must have the shape"):
+        ClosedLoop(sim, [None], active=np.ones((3, 1), bool))

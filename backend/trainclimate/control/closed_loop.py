@@ -125,8 +125,8 @@ class ClosedLoop:
         ``"perfect"``, ``"persistence"`` or ``"noisy"``, for all coaches or one per coach.
     tick_s : float, default 300.0
         The controller's period, a multiple of the simulator's step. [s]
-    seed : int, default 0
-        Seed of the noisy forecasts (plus the coach index).
+    seed : int or list of int, default 0
+        Seed of the noisy forecasts: plus the coach index, or one per coach.
     on_tick : callable, optional
         Called with (step, coach, StepResult) after each controller step.
     disconnected : numpy.ndarray of bool, shape (steps, coaches), optional
@@ -138,6 +138,11 @@ class ClosedLoop:
     active_from : numpy.ndarray of int, shape (coaches,), optional
         The step before which a controller only gathers its lead-in and the coach runs on
         T_rule (the paper activated the layer at a chosen time).
+    active : numpy.ndarray of bool, shape (steps, coaches), optional
+        Where the layer is switched on for the coach (default: everywhere), as a trial's plan
+        switches it day by day. While it is off the coach runs on T_rule and its controller does
+        not step, but its telemetry is still gathered (as the service stores it), so the layer
+        acts from its first tick once switched on again.
 
     Attributes
     ----------
@@ -149,8 +154,9 @@ class ClosedLoop:
     Raises
     ------
     ValueError
-        If the numbers of controllers or forecasts do not match the coaches, the period is not
-        a multiple of the step, an event mask has the wrong shape, or a forecast is unknown.
+        If the numbers of controllers, forecasts or seeds do not match the coaches, the period
+        is not a multiple of the step, an event or activity mask has the wrong shape, or a
+        forecast is unknown.
 
     References
     ----------
@@ -165,11 +171,12 @@ class ClosedLoop:
         *,
         forecast: str | list[str] = "perfect",
         tick_s: float = 300.0,
-        seed: int = 0,
+        seed: int | list[int] = 0,
         on_tick: Callable[[int, int, StepResult], None] | None = None,
         disconnected: np.ndarray | None = None,
         overridden: np.ndarray | None = None,
         active_from: np.ndarray | None = None,
+        active: np.ndarray | None = None,
     ):
         n = sim.env.n_coaches
         if len(controllers) != n:
@@ -184,7 +191,10 @@ class ClosedLoop:
         kinds = [forecast] * n if isinstance(forecast, str) else list(forecast)
         if len(kinds) != n:
             raise ValueError(f"{len(kinds)} forecasts for {n} coaches")
-        self.forecasters = [self._forecaster(kind, c, seed) for c, kind in enumerate(kinds)]
+        seeds = [seed + c for c in range(n)] if np.ndim(seed) == 0 else list(seed)
+        if len(seeds) != n:
+            raise ValueError(f"{len(seeds)} forecast seeds for {n} coaches")
+        self.forecasters = [self._forecaster(kind, c, seeds[c]) for c, kind in enumerate(kinds)]
         self.held = np.full(n, np.nan)
         self.history = [_History() for _ in range(n)]
         self.log = TickLog()
@@ -193,8 +203,10 @@ class ClosedLoop:
         self.disconnected = np.zeros(shape, bool) if disconnected is None else disconnected
         self.overridden = np.zeros(shape, bool) if overridden is None else overridden
         self.active_from = np.zeros(n, int) if active_from is None else np.asarray(active_from)
-        if self.disconnected.shape != shape or self.overridden.shape != shape:
-            raise ValueError(f"event masks must have the shape (steps, coaches) = {shape}")
+        self.active = np.ones(shape, bool) if active is None else np.asarray(active, bool)
+        masks = (self.disconnected, self.overridden, self.active)
+        if any(m.shape != shape for m in masks):
+            raise ValueError(f"the masks must have the shape (steps, coaches) = {shape}")
 
     def _forecaster(self, kind: str, coach: int, seed: int) -> Forecaster:
         d_true = self.d_true  # not ``self``: a loop → forecaster → loop cycle would keep the
@@ -209,7 +221,7 @@ class ClosedLoop:
         if kind == "persistence":
             return PersistenceForecast()
         if kind == "noisy":
-            return NoisyForecast(truth, seed=seed + coach)
+            return NoisyForecast(truth, seed=seed)
         raise ValueError(f"unknown forecast {kind!r} (perfect, persistence, noisy)")
 
     def __call__(self, k: int, sim: FleetSimulator) -> np.ndarray:
@@ -220,6 +232,7 @@ class ClosedLoop:
         applied = (
             (sim.env.mode[k] == MODE_REGULAR)
             & (k >= self.active_from)
+            & self.active[k]
             & ~self.disconnected[k]
             & ~self.overridden[k]
         )
@@ -254,6 +267,9 @@ class ClosedLoop:
                 y_now = rec.t_room_meas_c[k - minute : k, c].mean(axis=0)
                 hist.add(t_now, y_now, controller.rho)
             if not hist.times:
+                continue
+            if not self.active[k, c]:
+                self.held[c] = np.nan
                 continue
             T = controller.horizon
             fc = self.forecasters[c].forecast(tick - 1, T + 1, self.d_true[tick - 1, c])

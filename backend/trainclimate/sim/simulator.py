@@ -283,7 +283,7 @@ class FleetSimulator:
     def measure(self) -> np.ndarray:
         """Read the deck temperature sensors: Gaussian noise, then quantisation.
 
-        Draws from the sensor-noise generator.
+        Draws from the sensor-noise generator (:meth:`noise`).
 
         Returns
         -------
@@ -291,12 +291,18 @@ class FleetSimulator:
             Readings. [°C]
         """
         p = self.p
-        noisy = (
-            self.T[:, thermal.ROOM]
-            + self.rng.normal(size=(self.T.shape[0], 3)) * (p.sensor_noise_k[:, None])
-        )
+        noisy = self.T[:, thermal.ROOM] + self.noise() * (p.sensor_noise_k[:, None])
         q = p.sensor_quantum_k[:, None]
         return np.where(q > 0, np.round(noisy / np.where(q > 0, q, 1.0)) * q, noisy)
+
+    def noise(self) -> np.ndarray:
+        """One standard normal draw per deck sensor, from the sensor-noise generator.
+
+        Returns
+        -------
+        numpy.ndarray of shape (N, 3)
+        """
+        return self.rng.normal(size=(self.T.shape[0], 3))
 
     def t_rule(self, k: int | None = None) -> np.ndarray:
         """The rule-based setpoint T_rule from the step's ambient temperature.
