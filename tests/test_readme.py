@@ -42,6 +42,10 @@ SMALL: dict[str, tuple[list[str], set[str]]] = {
     "predictor fit": ([], set()),
     "bench predictor": (["--scales", "1"], {"fit_seconds", "target_met"}),
     "experiment run": (["--predictor", MODEL], {"savings_pct", "avg_hourly_violation_k"}),
+    "experiment trial": (
+        ["--days", "1", "--predictor", MODEL],
+        {"savings_pct", "true_savings_pct", "error_pct", "estimator"},
+    ),
     "report demo": (["--predictor", MODEL, "--coaches", "1", "--hours", "2"], set()),
     "token create": ([], {"token", "role"}),
     "study fleet": (

@@ -11,7 +11,7 @@ JSON keys are listed in the README and in ``docs/``.
 - :mod:`.dataset` — ``dataset build``
 - :mod:`.calibrate` — ``calibrate``
 - :mod:`.predictor` — ``predictor evaluate|fit|default|study``
-- :mod:`.experiment` — ``experiment run|summary``
+- :mod:`.experiment` — ``experiment run|trial|summary``
 - :mod:`.study` — ``study fleet``
 - :mod:`.model` — ``model retrain``
 - :mod:`.service` — ``serve``, ``token create``, ``gateway``
