@@ -1,5 +1,6 @@
 // trainclimate operator dashboard: fleet overview (savings, comfort, attention), the coaches'
-// list, pair comparison, coach detail, model health, audit log, API tokens (admins only).
+// list, pair comparison (with the train's trial plan), coach detail, model health, audit log, API
+// tokens (admins only).
 // Plain JavaScript, no build step; Plotly.js is served by the backend (no CDN).
 "use strict";
 
@@ -426,12 +427,14 @@ async function showTrain(trainId) {
     if (rangeSelect.value !== "custom") refresh().catch(report);
   });
   view.querySelector("#range-apply").addEventListener("click", () => refresh().catch(report));
+  const drawPlan = planControl(view, trainId);
   if (!train.activated.length || !train.deactivated.length) {
     view.querySelector("#summary").textContent = "This train has no pair of an activated and a deactivated coach.";
-    return;
+    return every(2 * REFRESH_MS, drawPlan);
   }
   const [act, deact] = [train.activated[0], train.deactivated[0]];
   async function refresh() {
+    drawPlan().catch(report);
     const coach = await api(`/coaches/${encodeURIComponent(act)}`);
     const q = rangeQuery(view, coach.clock);
     const [cmp, a, b] = await Promise.all([
@@ -449,6 +452,50 @@ async function showTrain(trainId) {
     drawPair(view.querySelector("#pair-figure"), cmp, a, b, act, deact, coach.comfort_band_k);
   }
   await every(2 * REFRESH_MS, refresh);
+}
+
+/** The pair view's trial plan: the one in force and a pending change with its effective time;
+ *  operators change it (PUT, from the next switch hour). Returns the function that redraws it. */
+function planControl(view, trainId) {
+  const url = `/trains/${encodeURIComponent(trainId)}/plan`;
+  const form = view.querySelector("#plan-form");
+  const error = view.querySelector("#plan-error");
+  let chosen = false; // the form starts on the plan in force, then keeps what the operator picks
+  async function draw() {
+    const p = await api(url);
+    const today = p.activated_today ? `${p.activated_today} runs the layer today` : "neither coach runs the layer today";
+    // a plan set before the train had any clock is in force from its first moment (1970)
+    const since = p.effective_from && p.effective_from >= "2000" ? ` since ${local(p.effective_from).slice(0, 16)}` : "";
+    const state = view.querySelector("#plan-state");
+    state.dataset.plan = p.plan;
+    state.textContent = `In force: ${p.plan}${since}, switch hour ${p.switch_hour}:00 (Zurich); ${today}.`;
+    const pending = view.querySelector("#plan-pending");
+    pending.dataset.plan = p.pending ? p.pending.plan : "";
+    pending.textContent = p.pending
+      ? `Pending: ${p.pending.plan} from ${local(p.pending.effective_from).slice(0, 16)} (Zurich), set by ${p.pending.created_by}: ${p.pending.reason}`
+      : `No change pending; the next service day starts at ${local(p.next_switch).slice(0, 16)} (Zurich).`;
+    if (!chosen) {
+      view.querySelector("#plan-select").value = p.plan;
+      view.querySelector("#plan-hour").value = String(p.switch_hour);
+    }
+  }
+  form.addEventListener("input", () => { chosen = true; });
+  form.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    error.textContent = "";
+    try {
+      const p = await api(url, { method: "PUT", body: JSON.stringify({
+        plan: view.querySelector("#plan-select").value,
+        switch_hour: Number(view.querySelector("#plan-hour").value),
+        reason: view.querySelector("#plan-reason").value }) });
+      view.querySelector("#plan-message").textContent = p.message;
+      view.querySelector("#plan-reason").value = "";
+      await draw();
+    } catch (err) {
+      error.textContent = err.message;
+    }
+  });
+  return draw;
 }
 
 function temperatureTraces(ts, axis, showlegend, band) {

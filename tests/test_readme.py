@@ -48,6 +48,7 @@ SMALL: dict[str, tuple[list[str], set[str]]] = {
     ),
     "report demo": (["--predictor", MODEL, "--coaches", "1", "--hours", "2"], set()),
     "token create": ([], {"token", "role"}),
+    "train plan D2": ([], {"plan", "pending", "activated_today", "next_switch", "history"}),
     "study fleet": (
         ["--coaches", "2", "--days", "1", "--chunk-coaches", "1", "--predictor", MODEL],
         {"coach_days", "savings_pct", "avg_hourly_violation_k", "chunks", "chunks_skipped"},

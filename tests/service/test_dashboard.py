@@ -5,15 +5,19 @@ Pages load without console errors and their charts have data: the fleet overview
 screen: fleet savings, per-train bars that click through to the pair, attention, model health),
 the coaches, the pair, the coach, the model's health; a viewer sees no write controls;
 an operator's override is applied (the next tick issues it) and audited, an invalid one shows the
-API's message, and cancelling ends it. With ``TRAINCLIMATE_SCREENSHOT_DIR`` set, the screenshots of
-the operator guide are written there (``docs/img``).
+API's message, and cancelling ends it; the pair view shows a train's trial plan, and an
+operator's change of it is pending until the next service day. With
+``TRAINCLIMATE_SCREENSHOT_DIR`` set, the screenshots of the operator guide are written there
+(``docs/img``).
 """
 
 from __future__ import annotations
 
 import os
 import re
+from datetime import datetime
 from pathlib import Path
+from zoneinfo import ZoneInfo
 
 import httpx
 import pytest
@@ -29,6 +33,7 @@ if not CHROMIUM.exists():
     pytest.skip(f"no Chromium at {CHROMIUM} (.ci/run installs Debian's)", allow_module_level=True)
 sync_api = pytest.importorskip("playwright.sync_api")
 
+ZURICH = ZoneInfo("Europe/Zurich")
 LAPTOP = {"width": 1366, "height": 768}
 WALL = {"width": 1920, "height": 1080}
 #: Chromium flags for a headless run in a container without a session bus or GPU.
@@ -318,6 +323,47 @@ def test_viewer_sees_no_write_controls(browser, server):
     assert not w.page.locator("#override-form").is_visible()
     assert not w.page.locator("#layer-form").is_visible()
     assert w.page.locator("#overrides button").count() == 0
+    assert w.errors == []
+    w.close()
+
+
+def test_the_pair_view_shows_and_changes_the_trial_plan(browser, server):
+    """D2 runs the demo's alternate plan: the pair view says so, with today's coach; a viewer
+    has no form; an operator sets fixed, which is pending until the next service day, as the
+    panel and the API's message say, and audited."""
+    headers = {"Authorization": f"Bearer {server.tokens['viewer']}"}
+    url = f"{server.url}/api/v1/trains/D2/plan"
+    viewer = Watched(browser, server, "viewer")
+    viewer.go("#/train/D2")
+    viewer.page.wait_for_selector("#plan-state[data-plan='alternate']")
+    today = httpx.get(url, headers=headers).json()["activated_today"]
+    assert f"; {today} runs the layer today." in viewer.page.locator("#plan-state").inner_text()
+    assert not viewer.page.locator("#plan-form").is_visible()
+    assert viewer.errors == []
+    viewer.close()
+
+    w = Watched(browser, server, "operator")
+    page = w.page
+    w.go("#/train/D2")
+    page.wait_for_selector("#plan-state[data-plan='alternate']")
+    assert page.locator("#plan-pending").inner_text().startswith("No change pending")
+    assert page.locator("#plan-select").input_value() == "alternate"
+    assert page.locator("label:has(#plan-hour)").inner_text().startswith("Switch hour")
+    page.select_option("#plan-select", "fixed")
+    page.fill("#plan-reason", "the trial ends")
+    page.click("#plan-form button[type=submit]")
+    page.wait_for_selector("#plan-pending[data-plan='fixed']")
+    plan = httpx.get(url, headers=headers).json()
+    assert plan["plan"] == "alternate" and plan["pending"]["plan"] == "fixed"
+    at = datetime.fromisoformat(plan["pending"]["effective_from"]).astimezone(ZURICH)
+    pending = page.locator("#plan-pending").inner_text()
+    assert pending == (
+        f"Pending: fixed from {at:%Y-%m-%d %H:%M} (Zurich), set by demo-operator: the trial ends"
+    )
+    assert "not mid-day" in page.locator("#plan-message").inner_text()
+    assert page.locator("#plan-error").inner_text() == ""
+    audit = httpx.get(f"{server.url}/api/v1/audit?target=D2", headers=headers).json()
+    assert (audit[0]["action"], audit[0]["user"]) == ("train.plan", "demo-operator")
     assert w.errors == []
     w.close()
 

@@ -1,9 +1,10 @@
 """The demo fleet driven directly (no server, SQLite): its trains and their pairing, and the
 afternoon of its first day, 12:30–15:00 local (30 periods, ≈ 4 s): D9-A's daily connection loss
 (14:00–14:40) leaves it on T_rule while the DDPC setpoints issued for it do not arrive, and on D8's
-mild day heating and cooling alternate. A simulator state stored by a fleet of another size (by
-the three-train demo of earlier versions) starts the coaches afresh instead of failing every
-period.
+mild day heating and cooling alternate. Four trains run a crossover trial from the demo's first
+moment, and at 03:00 of the second day their other coach takes the layer. A simulator state
+stored by a fleet of another size (by the three-train demo of earlier versions) starts the coaches
+afresh instead of failing every period.
 """
 
 from __future__ import annotations
@@ -21,8 +22,17 @@ from trainclimate.service.adapters import demo
 from trainclimate.service.app import register_model_file
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
+from trainclimate.service.store import plans
 from trainclimate.service.store.db import Database, migrate
-from trainclimate.service.store.models import Coach, FleetClock, Setpoint, Telemetry, Train
+from trainclimate.service.store.models import (
+    Coach,
+    FleetClock,
+    Setpoint,
+    Telemetry,
+    Train,
+    TrainPlan,
+    TrialDay,
+)
 from trainclimate.service.store.telemetry import load_frame
 from trainclimate.sim import hvac, scenarios
 from trainclimate.sim.simulator import FleetSimulator
@@ -72,6 +82,55 @@ def test_at_least_ten_trains_of_an_activated_and_a_deactivated_coach(afternoon):
     assert sorted(demo.coach_ids()) == sorted(c.id for c in coaches)
     assert len(set(trains.values())) == len(trains)  # each name says where its train is
     assert trains["D1"] == "parked outdoors in Zug (like Experiment 4)"
+
+
+def test_four_trains_run_a_crossover_trial_from_the_first_moment(tmp_path, model_file):
+    """D2, D3, D7 alternate and D5 randomized, in force from the demo's start (audited as the
+    demo); registering again adds nothing. Run across 03:00 of the second day, their coach B
+    takes the layer at the 03:00 tick, and the days are recorded."""
+    fleet = demo_fleet(tmp_path, model_file)
+    start = pd.Timestamp(demo.START_LOCAL, tz=demo.LOCAL_TZ).tz_convert("UTC")
+    with fleet.db.transaction() as session:
+        demo.register(session)  # a restart
+        rows = session.scalars(select(TrainPlan).order_by(TrainPlan.train_id)).all()
+        assert [(r.train_id, r.plan, r.switch_hour, r.seed) for r in rows] == [
+            ("D2", "alternate", 3, 0),
+            ("D3", "alternate", 3, 0),
+            ("D5", "randomized", 3, 0),
+            ("D7", "alternate", 3, 0),
+        ]
+        assert {r.effective_from for r in rows} == {start} and {r.created_by for r in rows} == {
+            "demo"
+        }
+        names = plans.names_in_force(session, session.scalars(select(Train)).all())
+    assert {t for t, plan in names.items() if plan != "fixed"} == {"D2", "D3", "D5", "D7"}
+    assert {t.id for t in demo.TRAINS if t.plan != "fixed"} == {"D2", "D3", "D5", "D7"}
+
+    switch = pd.Timestamp("2024-11-29 03:00", tz=demo.LOCAL_TZ).tz_convert("UTC")
+    with fleet.db.transaction() as session:
+        session.get(FleetClock, demo.FLEET).time = (switch - 2 * PERIOD).to_pydatetime()
+    while fleet.advance() < switch + PERIOD:
+        pass
+    with fleet.db.transaction() as session:
+        reasons = dict(
+            session.execute(
+                select(Setpoint.coach_id, Setpoint.reason).where(Setpoint.tick == switch)
+            ).all()
+        )
+        days = session.scalars(select(TrialDay).where(TrialDay.plan != "fixed")).all()
+        layer = dict(session.execute(select(Coach.id, Coach.ddpc_active)).all())
+    for t in ("D2", "D3", "D5", "D7"):
+        assert (reasons[f"{t}-A"], layer[f"{t}-A"], layer[f"{t}-B"]) == ("inactive", False, True)
+        assert reasons[f"{t}-B"] != "inactive"
+    for t in ("D1", "D4", "D6", "D8", "D9", "D10"):
+        assert reasons[f"{t}-B"] == "inactive" and layer[f"{t}-A"], t
+    recorded = {(d.train_id, d.day.isoformat(), d.activated_coach_id) for d in days}
+    assert recorded == {
+        (t, day, f"{t}-{side}")
+        for t in ("D2", "D3", "D5", "D7")
+        for day, side in (("2024-11-28", "A"), ("2024-11-29", "B"))
+    }
+    fleet.db.dispose()
 
 
 def test_a_lost_connection_leaves_the_coach_on_t_rule_and_its_twin_connected(afternoon):

@@ -55,7 +55,7 @@ def test_a_schema_behind_the_newest_migration_is_not_ready(app_client, settings)
     try:
         reply = app_client.get(f"{API}/ready")
         assert reply.status_code == 503
-        assert "migrations at 0002, not at the newest 0007" in reply.json()["reasons"]
+        assert "migrations at 0002, not at the newest 0008" in reply.json()["reasons"]
     finally:
         migrate(settings.database_url)
 

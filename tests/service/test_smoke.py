@@ -10,7 +10,7 @@ def test_health_and_coaches(client, tokens):
     reply = client.get("/api/v1/coaches", headers=tokens["viewer"])
     assert reply.status_code == 200 and reply.json() == []
     ready = client.get("/api/v1/ready").json()
-    assert ready["migrations"] == "0007" and ready["model_version"] == 1
+    assert ready["migrations"] == "0008" and ready["model_version"] == 1
 
 
 def test_serve_json_prints_one_object_then_logs(db_url, servers):

@@ -15,6 +15,7 @@ JSON keys are listed in the README and in ``docs/``.
 - :mod:`.study` — ``study fleet``
 - :mod:`.model` — ``model retrain``
 - :mod:`.service` — ``serve``, ``token create``, ``gateway``
+- :mod:`.train` — ``train plan``
 - :mod:`.bench` — ``bench …``
 """
 
@@ -34,6 +35,7 @@ from trainclimate.cli import (
     service,
     simulate,
     study,
+    train,
 )
 from trainclimate.cli.common import Parser, UsageError
 from trainclimate.data.pipeline import PipelineError
@@ -46,7 +48,7 @@ from trainclimate.sim.weather import WeatherError
 
 DESCRIPTION = "Data-driven predictive HVAC energy management for SBB Regio-Dosto coaches."
 #: The command groups, in the order ``--help`` lists them.
-GROUPS = (simulate, bench, dataset, calibrate, predictor, experiment, study, model, service)
+GROUPS = (simulate, bench, dataset, calibrate, predictor, experiment, study, model, service, train)
 #: Errors that are the user's input, not a bug: exit 2 with their first line.
 USER_ERRORS = (
     UsageError,

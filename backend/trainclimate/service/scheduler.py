@@ -18,6 +18,12 @@ supplies its inputs — the samples from the stored telemetry, the override in f
 controller, kept here between ticks — and stores what it decides. One coach's failure never stops
 the others: its decision becomes a fallback.
 
+Trial plans (:mod:`trainclimate.service.store.plans`) set the layer before the decision: each coach
+whose train runs a plan other than ``fixed`` gets its layer on or off as the plan has it on the
+tick's service day (logged when that switches it), and each train's service day is recorded in
+``trial_days`` the first time a tick applies it — in the tick's transaction, with the plans of a
+whole batch read in one query. Under ``fixed`` the layer stays as operators set it.
+
 Candidate models run in the active model's shadow: for every DDPC setpoint, each candidate
 predicts from the same samples and the setpoints the active model planned
 (:func:`~trainclimate.service.policy.shadow_prediction`), and its prediction is stored beside the
@@ -46,6 +52,7 @@ from trainclimate.predict.setting import RHO
 from trainclimate.service import policy
 from trainclimate.service.policy import Decision
 from trainclimate.service.settings import LOOP_READY_MIN_S, Settings
+from trainclimate.service.store import plans
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import (
     Coach,
@@ -94,6 +101,9 @@ class Scheduler:
         #: loop name → (monotonic time of its last completed iteration [s], how long it may
         #: stay silent and still count as running [s]); see :meth:`beat`
         self.heartbeats: dict[str, tuple[float, float]] = {}
+        #: train → the newest service day stored for it (``trial_days``), once committed: a
+        #: tick of a day already stored needs no statement to record it
+        self._days: dict[str, plans.PlanDay] = {}
 
     # --- the model -------------------------------------------------------------------------
     def refresh_model(self, session: Session) -> None:
@@ -241,6 +251,7 @@ class Scheduler:
             if not coaches:
                 return 0
             ids = [c.id for c in coaches]
+            recorded = self._apply_plans(session, coaches, tick)
             telemetry = load_rows(session, ids, tick - window, tick)
             overrides = active_overrides(session, ids, tick)
             rows, shadows = [], []
@@ -274,12 +285,44 @@ class Scheduler:
             session.execute(Setpoint.__table__.insert(), rows)
             if shadows:
                 session.execute(ShadowPrediction.__table__.insert(), shadows)
+        self._days.update(recorded)
         for listener in self.listeners:
             try:
                 listener(fleet, rows)
             except Exception:
                 log.exception("a setpoint listener failed (the setpoints are stored)")
         return len(rows)
+
+    def _apply_plans(self, session: Session, coaches: list[Coach], tick: datetime) -> dict:
+        """Set the layer of the (locked) ``coaches`` as their trains' plans in force at ``tick``
+        have it, recording each train's service day unless it is stored already; returns the
+        stored days (train → :class:`~.plans.PlanDay`) for :attr:`_days` once committed."""
+        trains = sorted({c.train_id for c in coaches})
+        pairs = plans.coaches_of(session, trains)
+        days = plans.plan_days(plans.plans_at(session, trains, tick), pairs, tick)
+        stored = {t: self._days[t] for t, d in days.items() if plans.same_day(d, self._days.get(t))}
+        new = [
+            d for t, d in days.items() if t not in stored and len(pairs[t]) == 2 and not d.partial
+        ]
+        if new:
+            stored |= plans.record(session, new)
+        states = plans.layer_states(days, stored, pairs)
+        for coach in coaches:
+            active = states.get(coach.id, coach.ddpc_active)
+            if active != coach.ddpc_active:
+                coach.ddpc_active = active
+                self.forget(coach.id)
+                day = days[coach.train_id]
+                log.info(
+                    "tick %s: the %s plan of train %s %s coach %s (service day %s)",
+                    tick,
+                    day.plan,
+                    coach.train_id,
+                    "activates" if active else "deactivates",
+                    coach.id,
+                    day.day,
+                )
+        return stored
 
     def _rho(self) -> int:
         """ρ of the active model (the default ρ without one): a tick reads ρ + 2 periods."""

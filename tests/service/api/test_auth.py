@@ -39,6 +39,8 @@ ROUTES = [
     ("PUT", "/coaches/{coach_id}/controller", "operator"),
     ("GET", "/trains", "viewer"),
     ("GET", "/trains/{train_id}", "viewer"),
+    ("GET", "/trains/{train_id}/plan", "viewer"),
+    ("PUT", "/trains/{train_id}/plan", "operator"),
     ("GET", "/trains/{train_id}/comparison", "viewer"),
     ("GET", "/fleet/summary", "viewer"),
     ("POST", "/telemetry", "operator"),
@@ -112,7 +114,7 @@ def test_every_protected_route_checks_token_and_role(client, tokens):
             else:  # let in: whatever the route then says about the request itself
                 assert reply.status_code not in (401, 403, 500), (method, path, role, reply.text)
             checked += 1
-    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 270
+    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 290
 
 
 def test_health_and_readiness_need_no_token(client):
@@ -124,7 +126,7 @@ def test_health_and_readiness_need_no_token(client):
     body = ready.json()
     assert {k: body[k] for k in ("status", "migrations", "model_version", "under_rule")} == {
         "status": "ready",
-        "migrations": "0007",
+        "migrations": "0008",
         "model_version": 1,
         "under_rule": False,
     }

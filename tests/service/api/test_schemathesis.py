@@ -16,9 +16,11 @@ from hypothesis import strategies as st
 from schemathesis import GenerationMode
 from schemathesis.checks import not_a_server_error
 from schemathesis.python import asgi
+from sqlalchemy import delete
 
 from trainclimate.service.app import create_app
 from trainclimate.service.store.db import Database
+from trainclimate.service.store.models import TrainPlan
 from trainclimate.service.store.tokens import create_token
 
 MAX_EXAMPLES = 25
@@ -81,7 +83,12 @@ def api(settings):
         admin_id = next(t["id"] for t in tokens if t["user"] == "schemathesis")
 
         def restore() -> None:
-            """The pair as it was: 124-A activated, 124-B not (the fuzzer switches them)."""
+            """The pair as it was: 124-A activated, 124-B not, and no trial plan (the fuzzer
+            switches the coaches and sets plans; a plan in force would refuse the switch)."""
+            db = Database(settings.database_url)
+            with db.transaction() as s:
+                s.execute(delete(TrainPlan).where(TrainPlan.train_id == "124"))
+            db.dispose()
             with asgi.get_client(app) as client:
                 for cid, active in (("124-A", True), ("124-B", False)):
                     url = f"http://{asgi.HOST}/api/v1/coaches/{cid}/controller"

@@ -15,6 +15,7 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect
 
+from trainclimate.service.store import commands, plans
 from trainclimate.service.store.db import MIGRATIONS, Database, downgrade, make_engine, migrate
 from trainclimate.service.store.models import (
     AuditLog,
@@ -23,13 +24,17 @@ from trainclimate.service.store.models import (
     Setpoint,
     Telemetry,
     Train,
+    TrainPlan,
+    TrialDay,
     User,
 )
-from trainclimate.service.store.tokens import create_token
+from trainclimate.service.store.tokens import Principal, create_token
 
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 TABLES = {
+    "train_plans",
+    "trial_days",
     "shadow_predictions",
     "trains",
     "coaches",
@@ -79,6 +84,26 @@ def fill(url: str) -> None:
             s.flush()
             s.add(Telemetry(coach_id="T1-A", time=now, t_room_mid_c=21.0))
             s.add(Setpoint(coach_id="T1-A", tick=now, source="rule", reason="warmup"))
+            s.add(
+                TrainPlan(
+                    train_id="T1",
+                    plan="reference",
+                    switch_hour=3,
+                    seed=0,
+                    reason="r",
+                    effective_from=now,
+                    created_by="alice",
+                )
+            )
+            s.add(
+                TrialDay(
+                    train_id="T1",
+                    day=now.date(),
+                    plan="fixed",
+                    switch_hour=3,
+                    activated_coach_id="T1-A",
+                )
+            )
             create_token(s, "admin", "alice")
             s.add(AuditLog(user_name="alice", role="admin", action="test"))
         with db.transaction() as s:
@@ -90,7 +115,7 @@ def fill(url: str) -> None:
 
 def test_migrate_up_down_up(db_url):
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0007")
+    assert schema(db_url) == (TABLES, "0008")
     assert set(Base.metadata.tables) == TABLES
     assert differences(db_url) == []
     fill(db_url)
@@ -98,7 +123,7 @@ def test_migrate_up_down_up(db_url):
     downgrade(db_url)
     assert schema(db_url) == (set(), None)
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0007")
+    assert schema(db_url) == (TABLES, "0008")
     assert differences(db_url) == []
 
 
@@ -122,14 +147,14 @@ def alembic(db_url: str, tmp_path: Path, *args: str) -> subprocess.CompletedProc
 def test_alembic_command_line(db_url, tmp_path):
     assert ALEMBIC.exists(), f"no alembic script next to {sys.executable}"
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0007")
+    assert schema(db_url) == (TABLES, "0008")
     # `check` autogenerates against the models and fails on any difference
     assert "No new upgrade operations detected" in alembic(db_url, tmp_path, "check").stdout
     fill(db_url)
     alembic(db_url, tmp_path, "downgrade", "base")
     assert schema(db_url) == (set(), None)
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0007")
+    assert schema(db_url) == (TABLES, "0008")
     assert differences(db_url) == []
 
 
@@ -156,3 +181,36 @@ def test_the_active_flag_becomes_a_state(db_url):
         rows = c.execute(text("SELECT version, active FROM predictor_models ORDER BY version"))
         assert [(v, bool(a)) for v, a in rows] == [(1, False), (2, True)]
     engine.dispose()
+
+
+def test_trial_plans_upgrade_a_database_in_use(db_url):
+    """0008 adds the plan tables to a database at 0007 with trains, coaches and telemetry: every
+    train then runs fixed, a plan can be set, and the downgrade drops the tables and keeps the
+    trains."""
+    migrate(db_url, "0007")
+    db = Database(db_url)
+    now = datetime(2024, 11, 28, 6, 0, tzinfo=UTC)
+    try:
+        with db.transaction() as s:
+            s.add(Train(id="T1", name="t"))
+            s.flush()
+            s.add_all([Coach(id="T1-A", train_id="T1", ddpc_active=True),
+                       Coach(id="T1-B", train_id="T1")])  # fmt: skip
+            s.flush()
+            s.add(Telemetry(coach_id="T1-A", time=now, t_room_mid_c=21.0))
+        assert schema(db_url) == (TABLES - {"train_plans", "trial_days"}, "0007")
+        migrate(db_url)
+        assert schema(db_url) == (TABLES, "0008")
+        with db.transaction() as s:
+            train = s.get(Train, "T1")
+            assert plans.view(s, train)["plan"] == "fixed"
+            view = commands.set_plan(
+                s, Principal("alice", "operator"), "T1", "alternate", 3, 0, "x"
+            )
+            assert view["pending"]["effective_from"] == "2024-11-29T02:00:00+00:00"
+        downgrade(db_url, "0007")
+        assert schema(db_url) == (TABLES - {"train_plans", "trial_days"}, "0007")
+        with db.transaction() as s:
+            assert [c.id for c in s.get(Train, "T1").coaches] == ["T1-A", "T1-B"]
+    finally:
+        db.dispose()

@@ -14,6 +14,14 @@ operations), on a late-November day that is cold and overcast for all but one of
   (:attr:`DemoTrain.connection_loss`): no setpoint reaches it, so it runs under its rule-based
   T_rule, and its telemetry reports ``connected`` false, as in the paper's experiments.
 
+Four trains run a crossover trial (:attr:`DemoTrain.plan`, :mod:`trainclimate.service.store.plans`)
+from the demo's first moment, so their savings cancel the coaches' own difference: D2 (S12), D3
+(Muelligen) and D7 (Wiesendangen) ``alternate`` — coach A on the first service day, B on the next,
+and so on, switching at 03:00 — and D5 (S14) ``randomized`` (seed 0: A, B, B, A, … day by day).
+They are trains whose comparison is clean: no lost link (D9), no mild day of small savings (D8),
+no stabling or late shift (D6, D10). The other six keep coach A activated (``fixed``), D1 too,
+whose pair figure the operator guide shows.
+
 :class:`DemoFleet` advances the fleet one sampling period at a time, as fast as ``speedup`` allows:
 it simulates the period with the setpoints issued at its start, writes the coaches' telemetry (one
 row per minute, the minute up to its time), the new clock and the simulator's state in one
@@ -39,9 +47,18 @@ from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
 
 from trainclimate.service.scheduler import Scheduler
+from trainclimate.service.store import commands
 from trainclimate.service.store.db import Database
-from trainclimate.service.store.models import Coach, FleetClock, Setpoint, Telemetry, Train
+from trainclimate.service.store.models import (
+    Coach,
+    FleetClock,
+    Setpoint,
+    Telemetry,
+    Train,
+    TrainPlan,
+)
 from trainclimate.service.store.telemetry import rows_from_simulation
+from trainclimate.service.store.tokens import Principal
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
@@ -56,18 +73,21 @@ FLEET = "demo"
 LOCAL_TZ = "Europe/Zurich"
 #: The demo's first simulated moment (local time).
 START_LOCAL = "2024-11-28 04:00"
+#: Who sets the demo trains' trial plans, as the audit log records it.
+DEMO = Principal("demo", "operator")
 
 
 @dataclass(frozen=True)
 class DemoTrain:
-    """One demo train: its id, its name (where it is, in words), the scenario of its day, and
-    when coach A's connection is lost every day: local ``("HH:MM", "HH:MM")`` (start, end), or
-    None."""
+    """One demo train: its id, its name (where it is, in words), the scenario of its day, when
+    coach A's connection is lost every day (local ``("HH:MM", "HH:MM")`` (start, end), or None),
+    and the trial plan it runs from the demo's first moment (switching at 03:00, seed 0)."""
 
     id: str
     name: str
     scenario: Scenario
     connection_loss: tuple[str, str] | None = None
+    plan: str = "fixed"
 
     def connection_lost(self, times: pd.DatetimeIndex) -> np.ndarray:
         """Whether coach A's link is down at each of ``times`` (UTC, one local day), shape
@@ -128,11 +148,13 @@ TRAINS = (
         "D2",
         "in service on the S12 Brugg – Winterthur",
         _day("demo-s12", "zurich", seed=2128, service=S12_DAY),
+        plan="alternate",
     ),
     DemoTrain(
         "D3",
         "parked outdoors in Muelligen",
         _day("demo-muelligen", "muelligen", seed=3128, parked_heading_deg=75.0),
+        plan="alternate",
     ),
     DemoTrain(
         "D4",
@@ -143,6 +165,7 @@ TRAINS = (
         "D5",
         "in service on the S14 Zürich HB – Wetzikon",
         _day("demo-s14", "zurich", seed=5128, service=S14_DAY),
+        plan="randomized",
     ),
     DemoTrain(
         "D6",
@@ -153,6 +176,7 @@ TRAINS = (
         "D7",
         "parked outdoors in Wiesendangen",
         _day("demo-wiesendangen", "wiesendangen", seed=7128, parked_heading_deg=120.0),
+        plan="alternate",
     ),
     DemoTrain(
         "D8",
@@ -186,7 +210,9 @@ def coach_ids() -> list[str]:
 
 
 def register(session) -> None:
-    """Create the demo trains, coaches and clock if they do not exist yet."""
+    """Create the demo trains, coaches and clock if they do not exist yet, and set the trial plan
+    of a train that runs one and never had a plan: in force from the demo's first moment on a new
+    demo (no telemetry yet), else from the next switch hour (audited as ``demo``)."""
     for train in TRAINS:
         if session.get(Train, train.id) is None:
             session.add(Train(id=train.id, name=train.name))
@@ -198,6 +224,12 @@ def register(session) -> None:
     if session.get(FleetClock, FLEET) is None:
         start = pd.Timestamp(START_LOCAL, tz=LOCAL_TZ).tz_convert("UTC").to_pydatetime()
         session.add(FleetClock(name=FLEET, time=start, state=None))
+    session.flush()
+    for train in TRAINS:
+        planned = select(TrainPlan.id).where(TrainPlan.train_id == train.id).limit(1)
+        if train.plan != "fixed" and session.scalar(planned) is None:
+            why = f"the demo's {train.plan} crossover trial"
+            commands.set_plan(session, DEMO, train.id, train.plan, reason=why)
 
 
 class DemoFleet:

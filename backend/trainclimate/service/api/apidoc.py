@@ -86,7 +86,12 @@ def _limits(schema: dict) -> str:
         "minItems": "items ≥",
         "maxItems": "items ≤",
     }
-    parts = [f"{label} {schema[key]}" for key, label in names.items() if key in schema]
+    integer = schema.get("type") == "integer"  # FastAPI writes a body's integer limits as 3.0
+    parts = [
+        f"{label} {int(schema[key]) if integer else schema[key]}"
+        for key, label in names.items()
+        if key in schema
+    ]
     if "default" in schema and schema["default"] is not None:
         parts.append(f"default `{json.dumps(schema['default'])}`")
     return ", ".join(parts)

@@ -1,5 +1,5 @@
-"""The audit log: every override, layer switch, model activation and token change, with who,
-when and why."""
+"""The audit log: every override, layer switch, trial plan change, model activation and token
+change, with who, when and why."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, date, datetime, timedelta
 from typing import Annotated, Literal
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -22,6 +22,14 @@ STATUS_HELP = (
     "down: it holds T_rule, not the T_ref issued; reason connection_lost), fallback (T_rule; "
     "the reason says why), override (an operator's T_ref), inactive (the layer is off), "
     "not-regular (slumber or off), preparing (no predictor model yet) or no-data"
+)
+
+#: The trial plans (:data:`trainclimate.analysis.trial.PLANS`).
+Plan = Literal["fixed", "alternate", "randomized", "reference"]
+PLAN_DESCRIPTION = (
+    "fixed (the layer stays on the coach operators activated), alternate (coach 0 and 1 by id on "
+    "alternate service days), randomized (each coach one day of every two, the order drawn from "
+    "the seed) or reference (neither: both on T_rule)"
 )
 
 
@@ -181,6 +189,52 @@ class TrainOut(BaseModel):
     coaches: list[str] = Field(examples=[["D1-A", "D1-B"]])
     activated: list[str] = Field(examples=[["D1-A"]])
     deactivated: list[str] = Field(examples=[["D1-B"]])
+    plan: Plan = Field(description="the trial plan in force (GET /trains/{id}/plan)")
+
+
+class PlanIn(Strict):
+    """A train's new trial plan: in force from the next switch hour of its fleet clock (at once
+    on a train that has reported no telemetry yet)."""
+
+    plan: Plan = Field(examples=["alternate"], description=PLAN_DESCRIPTION)
+    switch_hour: int = Field(
+        default=3,
+        ge=0,
+        le=23,
+        description="the local hour (Europe/Zurich) a service day starts at, when the trains "
+        "stand in the depot",
+    )
+    seed: int = Field(default=0, ge=0, le=2**31 - 1, description="the randomized plan's seed")
+    reason: str = Field(min_length=1, max_length=500, examples=["a crossover trial for a month"])
+
+
+class PlanChange(BaseModel):
+    """A trial plan as set: what, from when, who and why."""
+
+    plan: Plan
+    switch_hour: int = Field(description="local hour a service day starts at, 0–23")
+    seed: int
+    reason: str | None = Field(description="null: no plan set (fixed)")
+    effective_from: datetime | None = Field(description="null: no plan set (fixed)")
+    created_by: str | None
+    created_at: datetime | None = Field(description="when it was set (wall time)")
+
+
+class TrainPlanOut(PlanChange):
+    """A train's trial plan: the one in force at its fleet clock, the change pending, today's
+    activated coach and the recent changes."""
+
+    train_id: str
+    pending: PlanChange | None = Field(description="a change not in force yet, or null")
+    service_day: date = Field(description="today's service day (the local date it started on)")
+    activated_today: str | None = Field(
+        description="the coach running the layer today (as stored once the scheduler applied "
+        "the day); null: neither (reference), or not exactly one under fixed"
+    )
+    clock: datetime = Field(description="the train's fleet clock")
+    next_switch: datetime = Field(description="when the next service day starts")
+    history: list[PlanChange] = Field(description="the changes, newest first (at most 20)")
+    message: str = Field(description="the plan in words; after a change, what it does and when")
 
 
 class CoachCreate(Strict):
@@ -453,6 +507,9 @@ class Comparison(PairFigures):
     """A train's pair over a range: windows, totals and the trial estimate."""
 
     train_id: str
+    plan: Plan = Field(
+        description="the trial plan in force at the range's end: " + PLAN_DESCRIPTION
+    )
     coaches: list[str] = Field(description="the pair, ordered by id (coach 0, coach 1)")
     activated: str | None = Field(description="the coach activated now")
     deactivated: str | None = Field(description="the coach deactivated now")
@@ -469,6 +526,9 @@ class TrainSavings(PairFigures):
 
     id: str
     name: str
+    plan: Plan = Field(
+        description="the trial plan in force at the range's end: " + PLAN_DESCRIPTION
+    )
     coaches: list[str] = Field(description="the pair, ordered by id (coach 0, coach 1)")
     activated: str | None = Field(description="the coach activated now")
     deactivated: str | None = Field(description="the coach deactivated now")

@@ -1,5 +1,6 @@
-"""Trains: the list, one train with its activated and deactivated coaches, and the pair's
-activated-vs-deactivated comparison (kept in the read cache while its data is unchanged)."""
+"""Trains: the list, one train with its activated and deactivated coaches and its trial plan, the
+plan itself (read and changed), and the pair's activated-vs-deactivated comparison (kept in the
+read cache while its data is unchanged)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ from pydantic import AwareDatetime
 from sqlalchemy import select
 
 from trainclimate.service.api import schemas
-from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, Viewer
-from trainclimate.service.store import comparison, queries
+from trainclimate.service.api.deps import AUTH, CONFLICT, DB, NOT_FOUND, Operator, Viewer
+from trainclimate.service.store import commands, comparison, plans, queries
 from trainclimate.service.store.models import Train
 
 router = APIRouter()
@@ -19,8 +20,10 @@ router = APIRouter()
 
 @router.get("/trains", response_model=list[schemas.TrainOut], tags=["trains"], responses=AUTH)
 def list_trains(s: DB, _: Viewer) -> list:
-    """Every train with its activated and deactivated coaches."""
-    return [_train(t) for t in s.scalars(select(Train).order_by(Train.id))]
+    """Every train with its activated and deactivated coaches and its trial plan."""
+    trains = s.scalars(select(Train).order_by(Train.id)).all()
+    names = plans.names_in_force(s, trains)
+    return [_train(t, names[t.id]) for t in trains]
 
 
 @router.get(
@@ -30,18 +33,47 @@ def list_trains(s: DB, _: Viewer) -> list:
     responses={**AUTH, **NOT_FOUND},
 )
 def get_train(train_id: str, s: DB, _: Viewer) -> dict:
-    """One train with its activated and deactivated coaches."""
-    return _train(queries.train_or_404(s, train_id))
+    """One train with its activated and deactivated coaches and its trial plan."""
+    train = queries.train_or_404(s, train_id)
+    return _train(train, plans.names_in_force(s, [train])[train.id])
 
 
-def _train(t: Train) -> dict:
+def _train(t: Train, plan: str) -> dict:
     return {
         "id": t.id,
         "name": t.name,
         "coaches": [c.id for c in t.coaches],
         "activated": [c.id for c in t.coaches if c.ddpc_active],
         "deactivated": [c.id for c in t.coaches if not c.ddpc_active],
+        "plan": plan,
     }
+
+
+@router.get(
+    "/trains/{train_id}/plan",
+    response_model=schemas.TrainPlanOut,
+    tags=["trains"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def get_plan(train_id: str, s: DB, _: Viewer) -> dict:
+    """The train's trial plan: the one in force at its fleet clock (fixed when none was set), a
+    change pending, the coach running the layer today, when the next service day starts, and
+    the recent changes."""
+    return plans.view(s, queries.train_or_404(s, train_id))
+
+
+@router.put(
+    "/trains/{train_id}/plan",
+    response_model=schemas.TrainPlanOut,
+    tags=["trains"],
+    responses={**AUTH, **NOT_FOUND, **CONFLICT},
+)
+def set_plan(train_id: str, body: schemas.PlanIn, s: DB, who: Operator) -> dict:
+    """Change the train's trial plan; audited. On a train that reports telemetry it takes effect
+    at the next switch hour of its fleet clock, never mid-day (``pending`` and ``message`` say
+    when); on one that has reported nothing yet, at once. It replaces a change still pending.
+    409 for a plan other than fixed on a train without a pair of two coaches."""
+    return commands.set_plan(s, who, train_id, body.plan, body.switch_hour, body.seed, body.reason)
 
 
 @router.get(

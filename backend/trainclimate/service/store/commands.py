@@ -1,6 +1,6 @@
 """What the API writes. Each function works inside the caller's transaction (one per request, so
-a failed request changes nothing) and records every override, mode change, model activation and
-token change in the audit log with who, when and why."""
+a failed request changes nothing) and records every override, mode change, trial plan change,
+model activation and token change in the audit log with who, when and why."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ from datetime import datetime, timedelta
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
-from trainclimate.service.store import liveness
+from trainclimate.analysis import trial
+from trainclimate.service.store import liveness, plans
 from trainclimate.service.store.models import (
     ApiToken,
     AuditLog,
@@ -19,10 +20,12 @@ from trainclimate.service.store.models import (
     PredictorModel,
     Telemetry,
     Train,
+    TrainPlan,
     User,
     utcnow,
 )
 from trainclimate.service.store.queries import (
+    EARLIEST,
     NotFoundError,
     RequestError,
     coach_or_404,
@@ -168,8 +171,16 @@ def current_rule(session: Session, coach: Coach, at: datetime) -> float | None:
 
 
 def set_controller(session: Session, who: Principal, coach_id: str, active: bool, reason: str):
-    """Switch the DDPC layer on or off for a coach."""
+    """Switch the DDPC layer on or off for a coach; :class:`ConflictError` while its train runs a
+    plan other than ``fixed`` (the plan switches the layer)."""
     coach = coach_or_404(session, coach_id)
+    now = fleet_clock(session, coach) or utcnow()
+    current = plans.plans_at(session, [coach.train_id], now).get(coach.train_id, (None, None))[0]
+    if current is not None and current.plan != plans.FIXED:
+        raise ConflictError(
+            f"train {coach.train_id} runs {plans.named(current.plan)}, which switches the layer "
+            "of its coaches; set the plan to fixed first"
+        )
     before = coach.ddpc_active
     coach.ddpc_active = active
     audit(
@@ -182,6 +193,67 @@ def set_controller(session: Session, who: Principal, coach_id: str, active: bool
         after=active,
     )
     return coach
+
+
+def set_plan(
+    session: Session,
+    who: Principal,
+    train_id: str,
+    plan: str,
+    switch_hour: int = trial.DEFAULT_SWITCH_HOUR,
+    seed: int = 0,
+    reason: str = "",
+) -> dict:
+    """Change a train's trial plan (:mod:`.plans`); audited as ``train.plan`` with the plan in
+    force before and the change after.
+
+    A train that has reported telemetry gets the change at a switch hour (``switch_hour`` local)
+    of its fleet clock, the start of the new plan's next service day
+    (:func:`.plans.effective_from`), never mid-day; one that has reported nothing, at once (its
+    recorded days from the new plan's first on are dropped: they hold no measurement). A change
+    still pending is replaced. :class:`RequestError` for an unknown plan, an hour outside 0–23 or
+    a negative seed; :class:`ConflictError` for a plan other than ``fixed`` on a train without
+    two coaches (no pair). Returns the plan view (:func:`.plans.view`) with the change in words.
+    """
+    train = session.scalar(select(Train).where(Train.id == train_id).with_for_update())
+    if train is None:
+        raise NotFoundError(f"no train {train_id!r}")
+    if plan not in trial.PLANS:
+        raise RequestError(f"unknown plan {plan!r}: expected one of {', '.join(trial.PLANS)}")
+    if not 0 <= switch_hour <= 23 or seed < 0:
+        raise RequestError("the switch hour is 0–23 and the seed ≥ 0")
+    if plan != plans.FIXED and len(train.coaches) != 2:
+        raise ConflictError(
+            f"train {train.id} has {len(train.coaches)} coach(es): {plans.named(plan)} needs a "
+            "pair of two; only fixed is possible"
+        )
+    # before anything of its fleet reported, the train has no clock: a plan set then is in force
+    # from the first moment of whatever clock its data brings (an emulator's may be in the past)
+    now = plans.clock(session, train) or EARLIEST
+    current = plans.plans_at(session, [train.id], now).get(train.id, (None, None))[0]
+    waiting = plans.pending(session, train.id, now)
+    at_once = not plans.reported(session, train)
+    row = TrainPlan(
+        train_id=train.id,
+        plan=plan,
+        switch_hour=switch_hour,
+        seed=seed,
+        reason=reason,
+        effective_from=now if at_once else plans.effective_from(now, current, switch_hour),
+        created_by=who.name,
+    )
+    if at_once:
+        plans.forget_days(session, train.id, plans.first_day(row))
+    for old in waiting:  # one change pending at most: the newest decision stands
+        session.delete(old)
+    session.add(row)
+    session.flush()
+    replaced = waiting[-1] if waiting else None
+    extra = {"replaced": plans.change(replaced)} if replaced is not None else {}
+    before, after = plans.change(current), plans.change(row)
+    audit(session, who, "train.plan", train.id, reason, before=before, after=after, **extra)
+    message = plans.change_message(train.id, row, at_once, before["plan"], replaced)
+    return plans.view(session, train, message)
 
 
 def activate_model(session: Session, who: Principal, version: int, reason: str) -> PredictorModel:

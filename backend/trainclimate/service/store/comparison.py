@@ -16,7 +16,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis.savings import savings_pct
-from trainclimate.service.store import fleet_summary, pair_trial, queries
+from trainclimate.service.store import fleet_summary, pair_trial, plans, queries
 from trainclimate.service.store.models import Telemetry, Train
 
 
@@ -39,6 +39,12 @@ def _range(
     return c0, c1, first, n, [(c0.id, c1.id, first.to_pydatetime(), hi.to_pydatetime())]
 
 
+def _plan(session: Session, train: Train, end: datetime) -> tuple[str, int, int]:
+    """(plan, switch hour [h], seed) of the train's plan in force at ``end``."""
+    row = plans.plans_at(session, [train.id], end).get(train.id, (None, None))[0]
+    return plans.terms(row)
+
+
 def comparison_state(
     session: Session, train: Train, start: datetime, end: datetime, window_min: float
 ) -> tuple:
@@ -48,7 +54,8 @@ def comparison_state(
     c0, c1, first, n, pairs = _range(session, train, start, end, window_min)
     overrides = fleet_summary.overrides_over(session, pairs)
     states = fleet_summary.pair_states(session, pairs, overrides)
-    return (c0.id, c0.ddpc_active, c1.id, c1.ddpc_active, first, n, *states)
+    plan = _plan(session, train, end)
+    return (c0.id, c0.ddpc_active, c1.id, c1.ddpc_active, plan, first, n, *states)
 
 
 def comparison(
@@ -70,7 +77,8 @@ def comparison(
     Returns
     -------
     dict
-        ``train_id``, ``coaches`` (coach 0, coach 1), ``activated`` / ``deactivated`` (the
+        ``train_id``, ``plan`` (in force at ``end``; its switch hour starts the service days),
+        ``coaches`` (coach 0, coach 1), ``activated`` / ``deactivated`` (the
         coaches' roles now), ``start``, ``end``, ``window_min``, ``windows`` (per window:
         ``start``, ``activated`` — the coach under the layer, None for none —,
         ``energy_kwh`` per coach, ``energy_activated_kwh``, ``energy_deactivated_kwh``,
@@ -83,7 +91,8 @@ def comparison(
     if pd.Timestamp(end) - first < pd.Timedelta(minutes=2):
         raise queries.RequestError("the range is shorter than two minutes")
     sums, counts = fleet_summary.pair_data(session, pairs, window_min)[c0.id]
-    r = pair_trial.pair_result((c0.id, c1.id), sums, counts, first, n, window_min)
+    plan, switch_hour, _ = _plan(session, train, end)
+    r = pair_trial.pair_result((c0.id, c1.id), sums, counts, first, n, window_min, switch_hour)
     e0, e1 = r["grid"][:, list(pair_trial.energy_columns(r["meter"]))].T
     ids = (c0.id, c1.id)
     out_windows = []
@@ -106,6 +115,7 @@ def comparison(
     figures = pair_trial.figures(r, window_min)
     return {
         "train_id": train.id,
+        "plan": plan,
         "coaches": list(ids),
         "activated": next((c.id for c in (c0, c1) if c.ddpc_active), None),
         "deactivated": next((c.id for c in (c0, c1) if not c.ddpc_active), None),

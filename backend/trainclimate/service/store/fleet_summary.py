@@ -38,7 +38,7 @@ from sqlalchemy.sql.expression import ColumnElement
 
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
-from trainclimate.service.store import pair_trial, queries
+from trainclimate.service.store import pair_trial, plans, queries
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
     attention,
@@ -359,8 +359,8 @@ def summary(
         ``energy_activated_kwh`` and ``energy_deactivated_kwh`` [kWh],
         ``avg_hourly_violation_activated_k`` and ``avg_hourly_violation_deactivated_k`` [K],
         ``excluded_minutes`` [min], ``counted_windows``, ``counted_hours`` [h]; ``trains``: per
-        train ``id``, ``name``, ``coaches``, ``activated``, ``deactivated`` (now), ``start``,
-        ``end`` and its :func:`figures`; ``windows``: per window (oldest first) its ``start``,
+        train ``id``, ``name``, ``plan`` (in force at its end), ``coaches``, ``activated``,
+        ``deactivated`` (now), ``start``, ``end`` and its :func:`figures`; ``windows``: per window (oldest first) its ``start``,
         the energies of the trains that count it (``energy_activated_kwh``,
         ``energy_deactivated_kwh``, kWh: they add up to the fleet's) and how many ``trains``
         do; ``coaches_by_status`` (:func:`coaches_by_status`) and ``attention``
@@ -387,11 +387,18 @@ def summary(
         hi = first + pd.Timedelta(minutes=window_min * n)
         pairs.append((c0.id, c1.id, first.to_pydatetime(), hi.to_pydatetime()))
     data = pair_data(session, pairs, window_min, cache)
+    by_stop: dict[datetime, list[str]] = {}
+    for t, _, _, _, _, stop in ranges:
+        by_stop.setdefault(stop, []).append(t.id)
+    in_force = {}
+    for stop, ids in by_stop.items():
+        in_force |= {tid: rows[0] for tid, rows in plans.plans_at(session, ids, stop).items()}
     results = []
     for t, c0, c1, first, n, stop in ranges:
         sums, counts = data.get(c0.id, ({}, {}))
-        result = pair_result((c0.id, c1.id), sums, counts, first, n, window_min)
-        results.append((t, c0, c1, first, stop, result))
+        plan, switch_hour, _ = plans.terms(in_force.get(t.id))
+        result = pair_result((c0.id, c1.id), sums, counts, first, n, window_min, switch_hour)
+        results.append((t, c0, c1, first, stop, {**result, "plan": plan}))
     # the fleet's headline is the HVAC units' meter when every train has it
     fleet_meters = [m for m in METERS if all(m in r[-1]["totals"] for r in results)]
     fleet_meter = HEADLINE_METER if HEADLINE_METER in fleet_meters else "hvac_and_floor"
@@ -413,6 +420,7 @@ def summary(
             {
                 "id": t.id,
                 "name": t.name,
+                "plan": r["plan"],
                 "coaches": [c0.id, c1.id],
                 "activated": next((c.id for c in (c0, c1) if c.ddpc_active), None),
                 "deactivated": next((c.id for c in (c0, c1) if not c.ddpc_active), None),

@@ -9,19 +9,23 @@
   predicted trajectory;
 - overrides with their expiry; predictor models (versions, parameters, validation, which is
   active); users, their hashed tokens (a gateway's scoped to its coaches) and roles; the audit
-  log of every write.
+  log of every write;
+- trial plans: each train's plan changes (``train_plans``) and each service day's assignment as
+  the scheduler first applied it (``trial_days``).
 
 Every timestamp is stored in UTC and read back timezone-aware (:class:`UTCDateTime`).
 """
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import UTC, date, datetime
 
 from sqlalchemy import (
     JSON,
     BigInteger,
     Boolean,
+    CheckConstraint,
+    Date,
     DateTime,
     Float,
     ForeignKey,
@@ -40,6 +44,9 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 ROLES = ("gateway", "viewer", "operator", "admin")
 SOURCES = ("ddpc", "rule", "override", "fallback")
 MODES = ("regular", "slumber", "off")
+#: The trial plans the database accepts: :data:`trainclimate.analysis.trial.PLANS`, named here so
+#: the models do not import the analysis (and scipy) — a test holds the two equal.
+PLANS = ("fixed", "alternate", "randomized", "reference")
 #: An autoincrementing 64-bit key (SQLite only autoincrements INTEGER PRIMARY KEY).
 BigKey = BigInteger().with_variant(Integer, "sqlite")
 
@@ -286,3 +293,41 @@ class AuditLog(Base):
     target: Mapped[str] = mapped_column(String(64), default="")
     reason: Mapped[str] = mapped_column(Text, default="")
     detail: Mapped[dict] = mapped_column(JSON, default=dict)
+
+
+class TrainPlan(Base):
+    """A change of a train's trial plan: the plan (:data:`PLANS`), the local hour its
+    service days start at (0–23), the ``randomized`` plan's seed, why, from when it is in force
+    (UTC), who made it and when (wall time). The plan in force at t is the row with the latest
+    ``effective_from`` ≤ t (the newest of equals); a train without one runs ``fixed``."""
+
+    __tablename__ = "train_plans"
+    __table_args__ = (
+        Index("ix_train_plans_train_effective", "train_id", "effective_from"),
+        CheckConstraint("switch_hour >= 0 AND switch_hour <= 23", name="ck_train_plans_hour"),
+        CheckConstraint(
+            "plan IN (" + ", ".join(f"'{p}'" for p in PLANS) + ")", name="ck_train_plans_plan"
+        ),
+    )
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    train_id: Mapped[str] = mapped_column(ForeignKey("trains.id"))
+    plan: Mapped[str] = mapped_column(String(16))
+    switch_hour: Mapped[int] = mapped_column(Integer)
+    seed: Mapped[int] = mapped_column(Integer, default=0)
+    reason: Mapped[str] = mapped_column(Text)
+    effective_from: Mapped[datetime] = mapped_column(UTCDateTime)
+    created_by: Mapped[str] = mapped_column(String(100))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class TrialDay(Base):
+    """A train's service day as the scheduler first applied it (never rewritten): the plan in
+    force, its switch hour, and the coach with the layer activated — None on a ``reference``
+    day, or on a ``fixed`` day without exactly one of the two coaches activated."""
+
+    __tablename__ = "trial_days"
+    train_id: Mapped[str] = mapped_column(ForeignKey("trains.id"), primary_key=True)
+    day: Mapped[date] = mapped_column(Date, primary_key=True)
+    plan: Mapped[str] = mapped_column(String(16))
+    switch_hour: Mapped[int] = mapped_column(Integer)
+    activated_coach_id: Mapped[str | None] = mapped_column(ForeignKey("coaches.id"), nullable=True)
