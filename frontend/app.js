@@ -194,12 +194,121 @@ function pct(v) {
   return v === null || v === undefined ? "–" : `${fmt(v, 1)} %`;
 }
 
-/** The headline savings on their meter, and the savings on the other meter. */
-function savingsKpis(label, figures, id) {
+// --- savings with their uncertainty (the trial estimate of a pair, pooled for the fleet) -----
+/** The coaches' colours where the pair's chart says which coach ran the layer (≥ 3:1 on white,
+ *  told apart with the common colour-vision deficiencies; each run is labelled too). */
+const COACH_SHADE = ["#332288", "#994F00"];
+const NEITHER_SHADE = "#6b6b6b";
+const EXCLUDED_SHADE = "#b42318";
+/** The per-train savings bars: with a 95 % interval solid, without one hatched. */
+const BAR = { solid: "#0072B2", light: "#dcebf5", whisker: "#1b1f24" };
+/** Why a window does not count, in words (the API's `excluded_reason`). */
+const EXCLUDED_REASON = {
+  disconnected: "a coach disconnected",
+  override: "an operator's override",
+  missing_data: "data missing",
+  no_setpoint: "no setpoint",
+  preparing: "model being prepared",
+  fallback: "DDPC fallback",
+  not_regular: "HVAC not in regular mode",
+  mixed_roles: "roles mixed in the window",
+  plan_switch: "lead-in after a plan switch",
+  reference: "reference: both coaches on T_rule",
+};
+const NO_WINDOWS = "no comparable windows yet";
+
+/** Why a figure has no interval, in words (from its estimator and `savings_ci95_reason`). */
+function noIntervalWords(f) {
+  const why = f.savings_ci95_reason || "";
+  if (f.estimator === "fixed_naive") {
+    return why.startsWith("fewer than a day") ? "confounded with the coaches: less than a day's windows" : "confounded with the coaches: fixed plan";
+  }
+  const few = why.match(/^fewer than (\d+) days/);
+  if (few) {
+    const groups = f.estimator === "fixed_reference" ? "activated or on reference" : "with each coach activated";
+    return `fewer than ${few[1]} days ${groups}: no interval yet`;
+  }
+  if (why === "no train has an interval yet") return "no interval: no train has one yet";
+  if (why === "no day-to-day spread") return "no day-to-day spread: no interval";
+  if (why === "the bootstrap is degenerate") return "no interval: the days' spread is degenerate";
+  return why || "no interval";
+}
+
+/** A savings figure's parts: the value ("5.6 %"), its interval ("(95 % CI 2.1 to 9.0)") and what
+ *  qualifies it (not yet distinguishable from zero, or why there is no interval); `none` when no
+ *  window counted (never 0.0 % then). */
+function savingsParts(f) {
+  if (!f.counted_windows) return { none: true, value: NO_WINDOWS, interval: "", qualifier: "" };
+  const ci = f.savings_ci95_pct;
+  if (f.savings_pct === null || f.savings_pct === undefined) {
+    return { none: false, value: "–", interval: "", qualifier: ci ? "" : noIntervalWords(f) };
+  }
+  if (!ci) return { none: false, value: pct(f.savings_pct), interval: "", qualifier: noIntervalWords(f) };
+  const [low, high] = ci;
+  return { none: false, value: pct(f.savings_pct), interval: `(95 % CI ${fmt(low, 1)} to ${fmt(high, 1)})`,
+    qualifier: low <= 0 && high >= 0 ? "not yet distinguishable from zero" : "" };
+}
+
+/** "5.6 % (95 % CI 2.1 to 9.0)", "… — not yet distinguishable from zero", "4.1 % — confounded …". */
+function savingsText(f) {
+  const p = savingsParts(f);
+  return [p.value, p.interval].filter(Boolean).join(" ") + (p.qualifier ? ` — ${p.qualifier}` : "");
+}
+
+/** A tile's value node for a savings figure: the value large, interval and qualifier smaller. */
+function savingsValue(f) {
+  const p = savingsParts(f);
+  const node = el("div", { class: p.none ? "value none" : "value" }, el("span", { class: "main", text: p.value }));
+  if (p.interval) node.append(" ", el("span", { class: "ci", text: p.interval }));
+  if (p.qualifier) node.append(el("span", { class: "qualifier", text: ` — ${p.qualifier}` }));
+  return node;
+}
+
+/** How a pair's savings are estimated, in words; `brief` where its savings say "confounded"
+ *  already. */
+function estimatorWords(f, brief = false) {
+  const d = f.days || {};
+  const lessThanADay = (f.savings_ci95_reason || "").startsWith("fewer than a day");
+  if (f.estimator === "crossover") return `crossover over ${d.coach_0 + d.coach_1} days`;
+  if (f.estimator === "fixed_reference") return `fixed plan, corrected by ${d.reference} reference day${d.reference === 1 ? "" : "s"}`;
+  if (f.estimator === "fixed_naive" && lessThanADay) return brief ? "less than a day's windows" : "less than a day's windows: confounded with the coaches";
+  if (f.estimator === "fixed_naive") return brief ? "fixed plan, no reference days" : "fixed plan: confounded with the coaches";
+  return "no comparable days yet";
+}
+
+/** The days still needed for the interval's half-width to reach ±2 points, in words (`brief`:
+ *  without "for ±2 points"). */
+function daysToTargetWords(f, brief = false) {
+  if (f.days_to_target === null || f.days_to_target === undefined) return "–";
+  if (f.days_to_target === 0) return brief ? "reached" : "reached: ±2 points or better";
+  return `about ${f.days_to_target} more day${f.days_to_target === 1 ? "" : "s"}${brief ? "" : " for ±2 points"}`;
+}
+
+/** How the fleet's figure is made: pooled over the trains with an interval, or the energy ratio. */
+function fleetEstimatorWords(s) {
+  const trains = (n) => `${n} train${n === 1 ? "" : "s"}`;
+  if (!s.counted_windows) return "";
+  const why = "confounded with the coaches (a fixed plan, or less than a day)";
+  if (s.estimator === "random_effects") {
+    return [`pooled over ${trains(s.trains_pooled)} with an interval (random effects)`,
+      ...(s.trains_confounded ? [`${trains(s.trains_confounded)} left out: ${why}`] : []),
+      `energy ratio of every train ${pct(s.naive_savings_pct)}`].join("; ");
+  }
+  return ["energy ratio over every train's counted windows",
+    ...(s.trains_confounded ? [`${trains(s.trains_confounded)} ${why}`] : [])].join("; ");
+}
+
+/** The headline savings on their meter (the trial estimate with its interval), and the savings on
+ *  the other meter (energy over energy). */
+function savingsKpis(label, figures, id, sub = "") {
   const other = figures.meter === "hvac" ? "hvac_and_floor" : "hvac";
+  const tile = kpi(`${label} (${METER_LABEL[figures.meter]})`, "", id);
+  tile.classList.add("savings");
+  tile.querySelector(".value").replaceWith(savingsValue(figures));
+  if (sub) tile.append(el("div", { class: "sub", text: sub }));
   return [
-    kpi(`${label} (${METER_LABEL[figures.meter]})`, pct(figures.savings_pct), id),
-    kpi(`… ${METER_LABEL[other]}`, pct(figures.savings_by_meter_pct[other]), `${id}-other-meter`),
+    tile,
+    kpi(`… ${METER_LABEL[other]}`, figures.counted_windows ? pct(figures.savings_by_meter_pct[other]) : "–", `${id}-other-meter`),
   ];
 }
 
@@ -207,7 +316,7 @@ function drawFleetKpis(node, s, health) {
   const saved = s.energy_deactivated_kwh - s.energy_activated_kwh;
   const trains = s.trains.length;
   node.replaceChildren(
-    ...savingsKpis("Fleet energy savings", s, "kpi-fleet-savings"),
+    ...savingsKpis("Fleet energy savings", s, "kpi-fleet-savings", fleetEstimatorWords(s)),
     kpi(`Energy saved (${METER_LABEL[s.meter]})`, `${fmt(saved, 0)} kWh`, "kpi-saved"),
     kpi("Avg hourly violation, activated", `${fmt(s.avg_hourly_violation_activated_k, 3)} K`, "kpi-violation"),
     kpi("… deactivated (reference)", `${fmt(s.avg_hourly_violation_deactivated_k, 3)} K`),
@@ -246,18 +355,44 @@ function drawTrainFigures(view, s) {
   const trains = [...s.trains].sort(by === "id" ? (a, b) => (a.id > b.id ? 1 : -1)
     : (a, b) => (b.savings_pct ?? -Infinity) - (a.savings_pct ?? -Infinity));
   const names = trains.map((t) => t.id);
-  const hover = trains.map((t) => `${t.name}<br>${fmt(t.energy_activated_kwh, 1)} / ${fmt(t.energy_deactivated_kwh, 1)} kWh, ${fmt(t.excluded_minutes, 0)} min excluded`);
-  const savings = view.querySelector("#savings-figure");
-  Plotly.react(savings, [{ type: "bar", x: names, y: trains.map((t) => t.savings_pct), hovertext: hover, customdata: names,
-    hovertemplate: "%{x}: %{y:.1f} %<br>%{hovertext}<extra></extra>", marker: { color: COLOUR.savings } }],
-  { margin: { t: 20, r: 20, l: 60, b: 50 }, yaxis: { title: { text: "savings (%)" } }, xaxis: { title: { text: "train" }, type: "category" } }, PLOT_CONFIG);
-  savings.removeAllListeners?.("plotly_click");
-  savings.on("plotly_click", (event) => { location.hash = `#/train/${encodeURIComponent(event.points[0].customdata)}`; });
+  drawSavingsPerTrain(view, trains);
   Plotly.react(view.querySelector("#violation-figure"), [
     { type: "bar", x: names, y: trains.map((t) => t.avg_hourly_violation_activated_k), name: "activated", marker: { color: COLOUR.act } },
     { type: "bar", x: names, y: trains.map((t) => t.avg_hourly_violation_deactivated_k), name: "deactivated", marker: { color: COLOUR.deact } },
   ], { barmode: "group", margin: { t: 20, r: 20, l: 60, b: 50 }, legend: { orientation: "h", y: -0.2 },
     yaxis: { title: { text: "avg hourly violation (K)" }, rangemode: "tozero" }, xaxis: { type: "category" } }, PLOT_CONFIG);
+}
+
+/** One bar per train, its 95 % interval as error bars; a train without an interval hatched
+ *  (confounded or too few days), one without a counted window marked so (no bar); and the same
+ *  figures in words in the table below. A bar opens its train's pair comparison. */
+function drawSavingsPerTrain(view, trains) {
+  const names = trains.map((t) => t.id);
+  const hover = trains.map((t) => `${t.name}: ${savingsText(t)}<br>${estimatorWords(t)}<br>` +
+    `${fmt(t.energy_activated_kwh, 1)} / ${fmt(t.energy_deactivated_kwh, 1)} kWh, ${fmt(t.excluded_minutes, 0)} min excluded`);
+  const shown = (t) => t.counted_windows > 0 && t.savings_pct !== null;
+  const ci = (t) => shown(t) && t.savings_ci95_pct;
+  const common = { type: "bar", x: names, hovertext: hover, customdata: names, hovertemplate: "%{x}: %{hovertext}<extra></extra>" };
+  const savings = view.querySelector("#savings-figure");
+  Plotly.react(savings, [
+    { ...common, name: "with a 95 % interval (error bars)", y: trains.map((t) => (ci(t) ? t.savings_pct : null)),
+      marker: { color: BAR.solid, line: { color: BAR.solid, width: 1.5 } },
+      error_y: { type: "data", symmetric: false, color: BAR.whisker, thickness: 1.5, width: 6,
+        array: trains.map((t) => (ci(t) ? t.savings_ci95_pct[1] - t.savings_pct : null)),
+        arrayminus: trains.map((t) => (ci(t) ? t.savings_pct - t.savings_ci95_pct[0] : null)) } },
+    { ...common, name: "no interval (confounded or too few days)", y: trains.map((t) => (shown(t) && !ci(t) ? t.savings_pct : null)),
+      marker: { color: BAR.light, line: { color: BAR.solid, width: 1.5 }, pattern: { shape: "/", fgcolor: BAR.solid, bgcolor: BAR.light, size: 8, solidity: 0.25 } } },
+  ], { barmode: "overlay", margin: { t: 20, r: 20, l: 60, b: 50 }, showlegend: true, legend: { orientation: "h", y: -0.25 },
+    yaxis: { title: { text: "savings (%)" }, zeroline: true, zerolinecolor: "#5b6470" }, xaxis: { title: { text: "train" }, type: "category" },
+    annotations: trains.filter((t) => !t.counted_windows).map((t) => ({ x: t.id, y: 0, yanchor: "bottom", text: "none<br>counted",
+      showarrow: false, font: { size: 11, color: "#5b6470" } })) }, PLOT_CONFIG);
+  savings.removeAllListeners?.("plotly_click");
+  savings.on("plotly_click", (event) => { location.hash = `#/train/${encodeURIComponent(event.points[0].customdata)}`; });
+  view.querySelector("#train-savings tbody").replaceChildren(...trains.map((t) => el("tr", { "data-train": t.id },
+    el("td", {}, el("a", { href: `#/train/${encodeURIComponent(t.id)}`, text: t.id })),
+    el("td", { class: "savings-text", text: savingsText(t) }),
+    el("td", { text: t.counted_windows ? estimatorWords(t, true) : "–" }),
+    el("td", { text: daysToTargetWords(t, true) }))));
 }
 
 function drawAttention(body, items) {
@@ -392,6 +527,107 @@ function drawReplicas(body, replicas) {
   if (!replicas.length) body.append(el("tr", {}, el("td", { colspan: "4", text: "no ticks decided in the last hour" })));
 }
 
+// --- the pair's trial figures: which coach ran the layer in each window, what was excluded ----
+/** Consecutive windows alike in `key(w)` as runs {key, start, end} (ms since 1970; a gap in the
+ *  windows ends a run). */
+function windowRuns(windows, windowMin, key) {
+  const out = [];
+  for (const w of windows) {
+    const start = new Date(w.start).getTime();
+    const end = start + windowMin * 60e3;
+    const k = key(w);
+    const last = out[out.length - 1];
+    if (last && last.key === k && last.end === start) last.end = end;
+    else out.push({ key: k, start, end });
+  }
+  return out.filter((r) => r.key !== null);
+}
+
+/** The strip above the pair's chart: its two rows (which coach ran the layer; the windows
+ *  excluded from the savings), each this tall, and the gap between them. [px] */
+const STRIP_PX = { row: 15, gap: 2 };
+
+/** The pair chart's shading: per run of windows, the coach under the layer as a strip above the
+ *  chart (labelled where wide enough) and a light shade down the chart; excluded windows red in
+ *  a second row of the strip (their reason written in it) and lightly shaded. Adds to `layout`
+ *  (the top panel moves down to make room), for a chart of `width` × `height` px. */
+function shadeWindows(layout, cmp, width, height) {
+  const colour = (key) => (key === "neither" ? NEITHER_SHADE : COACH_SHADE[cmp.coaches.indexOf(key)] || NEITHER_SHADE);
+  const layer = windowRuns(cmp.windows, cmp.window_min, (w) => w.activated ?? (w.excluded_reason === "reference" ? "neither" : null));
+  const excluded = windowRuns(cmp.windows, cmp.window_min, (w) => (w.excluded && w.excluded_reason !== "reference" ? w.excluded_reason : null));
+  const span = cmp.windows.length ? cmp.windows.length * cmp.window_min * 60e3 : 1;
+  const px = Math.max(200, width - (layout.margin.l + layout.margin.r));
+  const py = Math.max(300, height - (layout.margin.t + layout.margin.b));
+  const row = STRIP_PX.row / py;
+  const gap = STRIP_PX.gap / py;
+  const rows = { layer: [1 - row, 1], excluded: [1 - 2 * row - gap, 1 - row - gap] };
+  const top = 1 - 2 * row - 4 * gap;
+  const iso = (ms) => local(new Date(ms).toISOString());
+  // a run's label: the longest of its texts that fits (about 6.5 px a character at 11 px)
+  const label = (run, texts) => {
+    const text = texts.find((t) => t.length * 6.5 + 8 <= ((run.end - run.start) / span) * px);
+    return text ? { text, font: { color: "#ffffff", size: 11 }, textposition: "middle center" } : undefined;
+  };
+  const strip = (run, name, fill, texts) => ({ type: "rect", name: `${name}:${run.key}`, xref: "x", yref: "paper",
+    x0: iso(run.start), x1: iso(run.end), y0: rows[name][0], y1: rows[name][1], fillcolor: fill, line: { color: "#ffffff", width: 1 },
+    layer: "above", label: label(run, texts) });
+  const shade = (run, name, fill, opacity) => ({ type: "rect", name: `shade-${name}:${run.key}`, xref: "x", yref: "paper",
+    x0: iso(run.start), x1: iso(run.end), y0: 0, y1: top, fillcolor: fill, opacity, line: { width: 0 }, layer: "below" });
+  layout.shapes = [...(layout.shapes || []),
+    ...layer.map((r) => shade(r, "layer", colour(r.key), 0.07)),
+    ...excluded.map((r) => shade(r, "excluded", EXCLUDED_SHADE, 0.1)),
+    ...layer.map((r) => strip(r, "layer", colour(r.key), r.key === "neither" ? ["reference: both on T_rule", "reference", "ref"] : [`${r.key} under the layer`, r.key])),
+    ...excluded.map((r) => strip(r, "excluded", EXCLUDED_SHADE, [EXCLUDED_REASON[r.key] || r.key, r.key]))];
+  // the rows named at the right, where the top panels have no axis
+  const side = ([y0, y1], text) => ({ xref: "paper", yref: "paper", x: 1, xanchor: "left", xshift: 4, y: (y0 + y1) / 2, yanchor: "middle",
+    text, showarrow: false, font: { size: 11, color: "#5b6470" } });
+  layout.annotations = [...(layout.annotations || []), side(rows.layer, "layer"), side(rows.excluded, "excluded")];
+  layout.yaxis.domain = [layout.yaxis.domain[0], Math.min(layout.yaxis.domain[1], top)];
+}
+
+/** The key to the strip above the pair's chart, in words with colour swatches. */
+function drawPairKey(node, cmp) {
+  const item = (cls, text) => el("span", { class: "key-item" }, el("span", { class: `swatch ${cls}`, "aria-hidden": "true" }), text);
+  const [c0, c1] = cmp.coaches;
+  node.replaceChildren(el("span", { class: "key-title", text: `Strip above the chart, per ${fmt(cmp.window_min, 0)}-min window:` }), " ",
+    item("coach-0", `${c0} under the layer (${c1} on T_rule)`),
+    item("coach-1", `${c1} under the layer (${c0} on T_rule)`),
+    item("neither", "reference: both on T_rule"),
+    item("excluded", "excluded from the savings (the reason in the strip where it fits, and in the table)"),
+    el("span", { class: "hint", text: "The same runs are shaded lightly down the chart." }));
+}
+
+/** The excluded minutes by reason (most first), the reference windows beside them, and the sum. */
+function drawExcludedReasons(body, cmp) {
+  const rows = Object.entries(cmp.excluded_minutes_by_reason || {}).sort((a, b) => b[1] - a[1]);
+  const reference = cmp.windows.filter((w) => w.excluded_reason === "reference").length * cmp.window_min;
+  if (reference) rows.push(["reference", reference]);
+  const row = (reason, minutes) => el("tr", { "data-reason": reason },
+    el("td", { text: EXCLUDED_REASON[reason] || reason }), el("td", { class: "num", text: fmt(minutes, 0) }));
+  body.replaceChildren(...(rows.length ? rows.map(([r, m]) => row(r, m)) : [el("tr", {}, el("td", { colspan: "2", text: "none: every window counts" }))]));
+  if (rows.length) body.append(el("tr", { class: "total" }, el("td", { text: "excluded in all" }), el("td", { class: "num", text: fmt(cmp.excluded_minutes, 0) })));
+}
+
+/** A tile whose value is words, not a figure (set smaller). */
+function wordy(tile) {
+  tile.classList.add("wordy");
+  return tile;
+}
+
+/** The pair's savings tiles: the estimate with its interval, how it is made, the days to ±2
+ *  points, Guideline 14, and the energy ratio with the coaches' difference in it. */
+function pairSavingsKpis(cmp) {
+  const counted = cmp.counted_windows > 0;
+  const g14 = cmp.meets_guideline_14 === null || cmp.meets_guideline_14 === undefined ? "–" : cmp.meets_guideline_14 ? "yes" : "no";
+  return [
+    ...savingsKpis("Energy savings", cmp, "kpi-savings"),
+    wordy(kpi("Estimate", counted ? estimatorWords(cmp) : "–", "kpi-estimator")),
+    wordy(kpi("Days to ±2 points", daysToTargetWords(cmp), "kpi-days-to-target")),
+    kpi("ASHRAE Guideline 14 met", g14, "kpi-guideline-14"),
+    kpi("Energy ratio, coaches' difference included", counted ? pct(cmp.naive_savings_pct) : "–", "kpi-naive"),
+  ];
+}
+
 // --- pair comparison (the paper's experiment figure, live) ---------------------------------
 function rangeQuery(view, clock) {
   const choice = view.querySelector("#range").value;
@@ -444,11 +680,13 @@ async function showTrain(trainId) {
     ]);
     view.querySelector("#train-clock").textContent = coach.clock ? `clock ${local(coach.clock)} (Zurich)` : "";
     view.querySelector("#summary").replaceChildren(
-      ...savingsKpis("Energy savings", cmp, "kpi-savings"),
+      ...pairSavingsKpis(cmp),
       kpi(`Avg hourly violation, activated ${act}`, `${fmt(cmp.avg_hourly_violation_k, 3)} K`),
       kpi(`Avg hourly violation, deactivated ${deact}`, `${fmt(cmp.baseline_violation_k, 3)} K`),
       kpi(`Energy activated / deactivated (${METER_LABEL[cmp.meter]})`, `${fmt(cmp.energy_activated_kwh, 1)} / ${fmt(cmp.energy_deactivated_kwh, 1)} kWh`),
       kpi("Excluded", `${fmt(cmp.excluded_minutes, 0)} min`));
+    drawPairKey(view.querySelector("#pair-key"), cmp);
+    drawExcludedReasons(view.querySelector("#excluded-reasons tbody"), cmp);
     drawPair(view.querySelector("#pair-figure"), cmp, a, b, act, deact, coach.comfort_band_k);
   }
   await every(2 * REFRESH_MS, refresh);
@@ -526,15 +764,11 @@ function drawPair(node, cmp, a, b, act, deact, band) {
     { x: b.time.map(local), y: cumulative(b, cmp.meter), name: `energy ${deact} (deactivated)`, yaxis: "y5", line: { color: COLOUR.deact } },
     { x: a.time.map(local), y: cumulative(a, cmp.meter), name: `energy ${act} (activated)`, yaxis: "y5", line: { color: COLOUR.act } },
     { type: "bar", x: cmp.windows.map((w) => local(new Date(new Date(w.start).getTime() + cmp.window_min * 30e3).toISOString())),
-      y: cmp.windows.map((w) => w.savings_pct), name: "30-min savings (%)", yaxis: "y6", marker: { color: COLOUR.savings }, opacity: 0.65,
-      width: cmp.window_min * 60e3 * 0.8 },
+      y: cmp.windows.map((w) => w.savings_pct), name: "30-min savings (%)", yaxis: "y6",
+      marker: { color: "rgba(0, 114, 178, 0.55)", line: { color: BAR.solid, width: 1 } }, width: cmp.window_min * 60e3 * 0.8 },
   ];
-  const shapes = cmp.windows.filter((w) => w.excluded).map((w) => ({
-    type: "rect", xref: "x", yref: "paper", y0: 0, y1: 1, fillcolor: "#b42318", opacity: 0.12, line: { width: 0 },
-    x0: local(w.start), x1: local(new Date(new Date(w.start).getTime() + cmp.window_min * 60e3).toISOString()) }));
   const layout = {
     margin: { t: 30, r: 70, l: 70, b: 50 }, hovermode: "x unified", legend: { orientation: "h", y: -0.08 },
-    shapes,
     xaxis: { title: { text: "local time (Europe/Zurich)" }, anchor: "y5" },
     yaxis: { title: { text: `${deact} deactivated (°C)` }, domain: [0.76, 1], anchor: "x" },
     yaxis2: { title: { text: `${act} activated (°C)` }, domain: [0.51, 0.73], anchor: "x" },
@@ -543,6 +777,7 @@ function drawPair(node, cmp, a, b, act, deact, band) {
     yaxis5: { title: { text: `energy, ${METER_LABEL[cmp.meter]} (kWh)` }, domain: [0, 0.24], anchor: "x" },
     yaxis6: { title: { text: "30-min savings (%)" }, overlaying: "y5", side: "right", anchor: "x", showgrid: false, rangemode: "tozero", tickmode: "auto" },
   };
+  shadeWindows(layout, cmp, node.clientWidth, node.clientHeight);
   Plotly.react(node, traces, layout, { responsive: true, displaylogo: false });
 }
 

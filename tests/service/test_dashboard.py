@@ -6,7 +6,12 @@ screen: fleet savings, per-train bars that click through to the pair, attention,
 the coaches, the pair, the coach, the model's health; a viewer sees no write controls;
 an operator's override is applied (the next tick issues it) and audited, an invalid one shows the
 API's message, and cancelling ends it; the pair view shows a train's trial plan, and an
-operator's change of it is pending until the next service day. With
+operator's change of it is pending until the next service day.
+On a seeded fleet (``trainclimate serve`` without the demo):
+while every window waits for the model the savings read "no comparable windows yet", never
+0.0 %; a train on a crossover plan shows its savings with their 95 % interval (error bars, the
+estimate in words, the days to ±2 points, the excluded minutes by reason, the windows shaded by
+the coach under the layer), one on a fixed plan why it has none (a hatched bar). With
 ``TRAINCLIMATE_SCREENSHOT_DIR`` set, the screenshots of the operator guide are written there
 (``docs/img``).
 """
@@ -18,12 +23,13 @@ import re
 from datetime import datetime
 from pathlib import Path
 from zoneinfo import ZoneInfo
+from types import SimpleNamespace
 
 import httpx
 import pytest
 
 from service_processes import CLI, Server, free_port
-from service_support import wait_for
+from service_support import decided, flat_rows, post_rows, register, wait_for
 from trainclimate.service.adapters import demo
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
@@ -133,12 +139,15 @@ def test_the_overview_answers_with_fleet_figures_and_clicks_through(browser, ser
     with page.expect_response(lambda r: "/fleet/summary?hours=6" in r.url and r.ok) as info:
         page.select_option("#hours", "6")
     summary = info.value.json()
-    if summary["savings_pct"] is not None:
+    # the headline figure (its interval beside it, or why it has none), never 0.0 % for a fleet
+    # in which nothing counted
+    expected = "no comparable windows yet"
+    if summary["counted_windows"] and summary["savings_pct"] is not None:
         expected = f"{summary['savings_pct']:.1f} %"
-        page.wait_for_function(
-            "(v) => document.querySelector('#kpi-fleet-savings .value').textContent === v",
-            arg=expected,
-        )
+    page.wait_for_function(
+        "(v) => document.querySelector('#kpi-fleet-savings .value .main').textContent === v",
+        arg=expected,
+    )
     # the demo's coaches split the floor heating off: the headline is the HVAC units' meter,
     # and the tile says so, the whole coach's beside it
     assert summary["meter"] == "hvac"
@@ -150,10 +159,16 @@ def test_the_overview_answers_with_fleet_figures_and_clicks_through(browser, ser
     energy = {t["name"]: t["points"] for t in w.traces("#energy-figure")}
     assert energy["activated coaches"] == energy["deactivated coaches"] == len(summary["windows"])
     assert len(summary["windows"]) >= 2
-    [bars] = w.traces("#savings-figure")
-    # a bar per train; none where its deactivated coach used no energy (HVAC off) yet
+    # a bar per train, solid with a 95 % interval, hatched without; none where its deactivated
+    # coach used no energy (HVAC off) yet
+    bars = w.traces("#savings-figure")
+    assert [b["name"] for b in bars] == [
+        "with a 95 % interval (error bars)",
+        "no interval (confounded or too few days)",
+    ]
     with_savings = [t for t in summary["trains"] if t["savings_pct"] is not None]
-    assert bars["type"] == "bar" and bars["points"] == len(with_savings) >= 1
+    assert {b["type"] for b in bars} == {"bar"}
+    assert sum(b["points"] for b in bars) == len(with_savings) >= 1
     x = page.evaluate("() => document.querySelector('#savings-figure').data[0].x")
     assert len(x) == len(demo.TRAINS)
     assert {t["name"] for t in w.traces("#violation-figure")} == {"activated", "deactivated"}
@@ -273,7 +288,7 @@ def test_pages_load_and_charts_have_data(browser, server):
     assert traces["energy D1-A (activated)"]["points"] > 60
     assert traces["energy D1-B (deactivated)"]["points"] > 60
     assert page.locator("#pair-figure .main-svg").count() > 0  # drawn, not only data
-    savings = page.locator("#kpi-savings .value").inner_text()
+    savings = page.locator("#kpi-savings .value .main").inner_text()
     assert savings.endswith("%"), savings
     assert page.locator("#kpi-savings .label").inner_text() == "Energy savings (HVAC units)"
     w.shot("dashboard-pair")
@@ -445,3 +460,218 @@ def test_a_service_preparing_its_model_says_so_and_runs_the_coaches_under_t_rule
         w.close()
     finally:
         srv.stop()
+
+
+# --- savings with their uncertainty, on a seeded fleet ------------------------------------------
+#: The seeded trial's service days (each 4 h from 07:00 Zurich), the saving the layer makes on
+#: them, the coaches' own levels, each day's level and coach 1's day-to-day scatter.
+TRIAL_DAYS = 6
+DAY_MIN = 240
+SAVING = 0.10
+COACH_LEVEL = (1.0, 1.08)
+DAY_LEVEL = (1.0, 1.1, 0.95, 1.05, 0.9, 1.0)
+SCATTER = (1.0, 1.03, 0.98, 1.01, 0.97, 1.02)
+ROLES = ("viewer", "operator")
+
+
+def seed_pair(srv, train: str, days: range, plan: str) -> None:
+    """Train ``train`` with coaches ``{train}-A`` (coach 0) and ``{train}-B``: on each service
+    day of ``days``, DAY_MIN minutes of telemetry from T0's time of day and the setpoints of
+    their ticks (up to the one at their end) — on the ``crossover`` plan coach A under the layer
+    on even days, B on odd ones; on ``fixed``, A every day; on ``preparing``, A waiting for the
+    model (``rule``/``no_model``) and B on T_rule. The setpoints are stored first (the coaches'
+    last tick moved up to the newest), so the live loop does not decide those ticks again when
+    the telemetry arrives."""
+    coaches = (f"{train}-A", f"{train}-B")
+    operator = {"Authorization": f"Bearer {srv.tokens['operator']}"}
+    with httpx.Client(base_url=srv.url) as http:
+        for i, coach in enumerate(coaches):
+            assert register(http, operator, coach, train, active=i == 0).status_code == 201
+        db = Database(srv.db_url)
+        store = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(db=db)))
+        for d in days:
+            first = d * 24 * 60
+            on = d % 2 if plan == "crossover" else 0
+            for c, coach in enumerate(coaches):
+                if plan == "preparing":
+                    source, reason = ("rule", "no_model") if c == 0 else ("rule", "inactive")
+                else:
+                    source, reason = ("ddpc", "ok") if c == on else ("rule", "inactive")
+                decided(store, coach, first, first + DAY_MIN, source, reason)
+        db.dispose()
+        for c, coach in enumerate(coaches):
+            rows = []
+            for d in days:
+                saving = 1.0 - SAVING if c == (d % 2 if plan == "crossover" else 0) else 1.0
+                level = COACH_LEVEL[c] * DAY_LEVEL[d] * (SCATTER[d] if c == 1 else 1.0)
+                first = d * 24 * 60
+                rows += flat_rows(first + 1, first + DAY_MIN, power_kw=10.0 * level * saving)
+            reply = post_rows(http, operator, coach, rows)
+            assert reply.status_code in (200, 201, 202), reply.text
+
+
+@pytest.fixture(scope="module")
+def seeded(tmp_path_factory, model_file):
+    """The service without a demo fleet, with one train seeded, ``P``: two hours in which the
+    model was still being prepared (every window excluded as ``preparing``). ``seed_trial()``
+    adds train ``X`` on a crossover plan over six service days (a 95 % interval) and ``F`` on a
+    fixed plan over two (confounded: none), once."""
+    home = tmp_path_factory.mktemp("dashboard-trial")
+    db_url = f"sqlite:///{home / 'trainclimate.db'}"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
+    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+    port = free_port()
+    args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
+    srv = Server(args, env, port, home / "server.log")
+    srv.start()
+    srv.db_url = db_url
+    migrate(db_url)
+    db = Database(db_url)
+    with db.transaction() as s:
+        srv.tokens = {role: create_token(s, role, f"browser-{role}")[0] for role in ROLES}
+    db.dispose()
+    seed_pair(srv, "P", range(1), "preparing")
+    seeded_trial = []
+
+    def seed_trial() -> None:
+        if not seeded_trial:
+            seed_pair(srv, "X", range(TRIAL_DAYS), "crossover")
+            seed_pair(srv, "F", range(2), "fixed")
+            seeded_trial.append(True)
+
+    srv.seed_trial = seed_trial
+    yield srv
+    srv.stop()
+
+
+def summary_of(srv, hours: int) -> dict:
+    headers = {"Authorization": f"Bearer {srv.tokens['viewer']}"}
+    reply = httpx.get(f"{srv.url}/api/v1/fleet/summary?hours={hours}", headers=headers)
+    assert reply.status_code == 200, reply.text
+    return reply.json()
+
+
+def interval_text(f: dict) -> str:
+    """A figure with its interval as the dashboard writes it."""
+    low, high = f["savings_ci95_pct"]
+    text = f"{f['savings_pct']:.1f} % (95 % CI {low:.1f} to {high:.1f})"
+    return text + (" — not yet distinguishable from zero" if low <= 0 <= high else "")
+
+
+def test_the_overview_says_no_comparable_windows_while_every_window_is_preparing(browser, seeded):
+    summary = summary_of(seeded, 24)
+    assert summary["counted_windows"] == 0 and summary["savings_pct"] is None
+    [train] = summary["trains"]
+    assert set(train["excluded_minutes_by_reason"]) == {"preparing"}
+    w = Watched(browser, seeded, "viewer")
+    page = w.page
+    tile = page.locator("#kpi-fleet-savings .value")
+    tile.wait_for(timeout=20_000)
+    assert tile.inner_text() == "no comparable windows yet"
+    row = page.locator("#train-savings tr[data-train='P'] td")
+    row.first.wait_for()
+    assert row.nth(1).inner_text() == "no comparable windows yet"
+    assert "0.0 %" not in page.locator("#fleet-kpis").inner_text()
+    assert w.errors == []
+    w.close()
+
+
+def test_savings_show_their_interval_or_why_they_have_none(browser, seeded):
+    seeded.seed_trial()
+    summary = summary_of(seeded, 168)
+    trains = {t["id"]: t for t in summary["trains"]}
+    x, f = trains["X"], trains["F"]
+    assert x["estimator"] == "crossover" and x["savings_ci95_pct"] is not None
+    assert f["estimator"] == "fixed_naive" and f["savings_ci95_pct"] is None
+    assert summary["estimator"] == "random_effects" and summary["trains_pooled"] == 1
+    w = Watched(browser, seeded, "viewer", WALL)
+    page = w.page
+    page.wait_for_selector("#kpi-fleet-savings .value")
+    with page.expect_response(lambda r: "/fleet/summary?hours=168" in r.url and r.ok):
+        page.select_option("#hours", "168")
+    # the fleet's figure pooled over the train with an interval; the confounded one left out
+    tile = page.locator("#kpi-fleet-savings .value")
+    page.wait_for_function(
+        "(v) => document.querySelector('#kpi-fleet-savings .value').textContent === v",
+        arg=interval_text(summary),
+    )
+    sub = page.locator("#kpi-fleet-savings .sub").inner_text()
+    assert "pooled over 1 train with an interval" in sub
+    assert "1 train left out: confounded with the coaches" in sub
+    assert tile.inner_text().startswith(f"{summary['savings_pct']:.1f} %")
+    # per train: the interval, the reason there is none, or that nothing counted
+    cells = {
+        t: page.locator(f"#train-savings tr[data-train='{t}'] td").all_inner_texts()
+        for t in ("X", "F", "P")
+    }
+    assert cells["X"][1:3] == [interval_text(x), "crossover over 6 days"]
+    assert cells["F"][1:] == [
+        f"{f['savings_pct']:.1f} % — confounded with the coaches: fixed plan",
+        "fixed plan, no reference days",
+        "–",
+    ]
+    assert cells["P"][1:] == ["no comparable windows yet", "–", "–"]
+    # the bars: X's with its error bars, F's hatched, none for P
+    bars = page.evaluate(
+        """() => document.querySelector('#savings-figure').data.map((t) => ({
+            name: t.name, x: t.x, y: t.y, pattern: (t.marker.pattern || {}).shape || '',
+            plus: (t.error_y || {}).array || [], minus: (t.error_y || {}).arrayminus || []}))"""
+    )
+    solid, hatched = bars
+    assert hatched["name"] == "no interval (confounded or too few days)" and hatched["pattern"]
+    order = sorted(("X", "F"), key=lambda t: -trains[t]["savings_pct"])
+    assert solid["x"] == hatched["x"] == [*order, "P"]  # by savings, P without any last
+    i, j = order.index("X"), order.index("F")
+    low, high = x["savings_ci95_pct"]
+    assert solid["y"][i] == pytest.approx(x["savings_pct"]) and solid["y"][j] is None
+    assert solid["plus"][i] == pytest.approx(high - x["savings_pct"])
+    assert solid["minus"][i] == pytest.approx(x["savings_pct"] - low)
+    assert hatched["y"][i] is None and hatched["y"][j] == pytest.approx(f["savings_pct"])
+    assert solid["y"][2] is None and hatched["y"][2] is None
+    w.shot("dashboard-overview-trial")
+
+    # the pair: its estimate in words, the excluded minutes by reason, the windows shaded
+    w.go("#/train/X")
+    page.wait_for_function(
+        "() => (document.querySelector('#pair-figure').data || []).length > 0", timeout=20_000
+    )
+    page.select_option("#range", "custom")
+    page.fill("#range-start", "2024-11-28T00:00")
+    page.fill("#range-end", "2024-12-03T12:00")
+    with page.expect_response(lambda r: "/comparison?start=" in r.url and r.ok) as info:
+        page.click("#range-apply")
+    cmp = info.value.json()
+    assert cmp["estimator"] == "crossover" and cmp["days"]["coach_0"] == 3
+    page.wait_for_function(
+        "(v) => document.querySelector('#kpi-savings .value').textContent === v",
+        arg=interval_text(cmp),
+    )
+    assert page.locator("#kpi-estimator .value").inner_text() == "crossover over 6 days"
+    target = cmp["days_to_target"]
+    expected = "reached: ±2 points or better" if target == 0 else f"about {target} more day"
+    assert page.locator("#kpi-days-to-target .value").inner_text().startswith(expected)
+    g14 = page.locator("#kpi-guideline-14 .value").inner_text()
+    assert g14 == ("yes" if cmp["meets_guideline_14"] else "no")
+    # five switches of the activated coach: an hour's lead-in after each
+    reasons = dict(
+        zip(
+            page.locator("#excluded-reasons tr[data-reason]").evaluate_all(
+                "(rows) => rows.map((r) => r.dataset.reason)"
+            ),
+            page.locator("#excluded-reasons tr[data-reason] td.num").all_inner_texts(),
+            strict=True,
+        )
+    )
+    assert reasons["plan_switch"] == "300"
+    assert reasons == {k: f"{v:.0f}" for k, v in cmp["excluded_minutes_by_reason"].items()}
+    key = page.locator("#pair-key").inner_text()
+    assert "X-A under the layer" in key and "X-B under the layer" in key
+    # the strip above the chart: a run of windows per day, by the coach under the layer
+    shapes = page.evaluate(
+        "() => document.querySelector('#pair-figure').layout.shapes.map((s) => s.name)"
+    )
+    assert shapes.count("layer:X-A") == shapes.count("layer:X-B") == 3
+    assert shapes.count("excluded:plan_switch") == 5
+    w.shot("dashboard-pair-trial")
+    assert w.errors == []
+    w.close()

@@ -361,9 +361,9 @@ def summary(
         ``excluded_minutes`` [min], ``counted_windows``, ``counted_hours`` [h]; ``trains``: per
         train ``id``, ``name``, ``plan`` (in force at its end), ``coaches``, ``activated``,
         ``deactivated`` (now), ``start``, ``end`` and its :func:`figures`; ``windows``: per
-        window (oldest first) its ``start``, the energies of the trains that count it (``energy_activated_kwh``,
-        ``energy_deactivated_kwh``, kWh: they add up to the fleet's) and how many ``trains``
-        do; ``coaches_by_status`` (:func:`coaches_by_status`) and ``attention``
+        window (oldest first) its ``start``, the energies of the trains that count it
+        (``energy_activated_kwh``, ``energy_deactivated_kwh``, kWh: they add up to the fleet's)
+        and how many ``trains`` do; ``coaches_by_status`` (:func:`coaches_by_status`) and ``attention``
         (:func:`attention`).
     """
     trains = session.scalars(select(Train).options(selectinload(Train.coaches)).order_by(Train.id))
