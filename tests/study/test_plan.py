@@ -52,6 +52,7 @@ def test_chunks_cover_every_coach_day_once():
         ({"occupancy_scale": -1.0}, "--occupancy-scale"),
         ({"coach_spread": 1.0}, "--coach-spread"),
         ({"chunk_days": 0}, "--chunk"),
+        ({"forecast": "tomorrow"}, "--forecast"),
         ({"coach_ids": ("A", "A", "B", "C", "D")}, "unique"),
     ],
 )
@@ -66,6 +67,8 @@ def test_the_fingerprint_follows_what_the_numbers_depend_on():
     assert s.fingerprint() != dataclasses.replace(s, seed=1).fingerprint()
     assert s.fingerprint() != dataclasses.replace(s, chunk_days=3).fingerprint()
     assert s.fingerprint() != dataclasses.replace(s, model="other.npz:1").fingerprint()
+    assert s.forecast == "persistence"  # what the service's controller gets
+    assert s.fingerprint() != dataclasses.replace(s, forecast="perfect").fingerprint()
 
 
 def test_coach_days_are_drawn_from_the_seed_alone_with_the_parked_share():

@@ -27,7 +27,8 @@ from trainclimate.sim.params import CoachParams
 from trainclimate.study import runner
 from trainclimate.study.chunk import SITUATIONS, run_chunk
 from trainclimate.study.plan import StudySpec, study_weather
-from trainclimate.study.runner import ChunkError, run_study
+from trainclimate.study.runner import ChunkError, read_chunks, run_study
+from trainclimate.study.summary import summarise
 
 DASK = Path(sys.executable).with_name("dask")
 
@@ -94,12 +95,50 @@ def test_a_study_gives_totals_per_month_situation_and_coach(local):
     assert html.count("plotly-graph-div") == 4 and "Comfort cost" in html
 
 
+def test_the_savings_carry_a_bootstrap_interval_and_the_forecast(local):
+    _, d = local
+    assert d["study"]["forecast"] == "persistence"  # what the service's controller gets
+    for row in (d, *d["by_month"]):
+        low, high = row["savings_ci95_pct"]
+        assert low < row["savings_pct"] < high and row["savings_ci95_reason"] is None
+    assert d["bootstrap"]["resamples"] == 9999 and d["bootstrap"]["confidence"] == 0.95
+    assert {"savings_ci95_pct", "savings_ci95_reason"} <= set(d["by_situation"][0])
+    assert "95 % CI" in Path(d["html"]).read_text()
+
+
+def test_one_coach_gives_no_interval_and_says_why(local):
+    out, d = local
+    spec = StudySpec(
+        coach_ids=tuple(f"S{i + 1:04d}" for i in range(4)),
+        coach_params=(CoachParams().to_dict(),) * 4,
+        start="2025-01-14",
+        days=2,
+        chunk_coaches=2,
+        chunk_days=1,
+    )  # study_argv's chunks
+    frame = read_chunks(spec, out)
+    one = summarise(frame[frame["coach_index"] == 0], spec)
+    assert one["savings_pct"] is not None and one["savings_ci95_pct"] is None
+    assert "at least 2 coaches and 2 days (1 × 2 here)" in one["savings_ci95_reason"]
+    assert summarise(frame, spec)["savings_ci95_pct"] == d["savings_ci95_pct"]
+
+
+def test_the_text_gives_the_saving_with_its_interval(local, predictor_file, capsys):
+    out, d = local
+    code, text, err = call(capsys, *study_argv(predictor_file, out)[:-1])
+    assert code == 0, err
+    low, high = d["savings_ci95_pct"]
+    assert f"savings {d['savings_pct']:.1f} % (95 % CI {low:.1f} to {high:.1f})" in text
+    assert "persistence forecast" in text
+
+
 def test_a_rerun_skips_every_chunk_with_the_same_totals(local, predictor_file, capsys):
     out, first = local
     again = run_cli(capsys, study_argv(predictor_file, out))
     assert (again["chunks_skipped"], again["chunks_run"], again["workers"]) == (4, 0, 0)
     for key in ("coach_days", "energy_rule_kwh", "energy_ddpc_kwh", "savings_pct"):
         assert again[key] == first[key]
+    assert again["savings_ci95_pct"] == first["savings_ci95_pct"]  # the bootstrap is seeded
 
 
 def test_a_lost_chunk_alone_is_recomputed(local, predictor_file, capsys, tmp_path):
@@ -199,7 +238,14 @@ def test_bad_arguments_are_one_line_and_exit_2(extra, needle, predictor_file, ca
 def test_another_study_on_the_same_out_is_refused(local, predictor_file, capsys):
     out, _ = local
     code, _, err = call(capsys, *study_argv(predictor_file, out, "--seed", "7"))
-    assert code == 2 and "holds a different study" in err
+    assert code == 2 and "holds a different study (seed: 2025 there, 7 here)" in err
+
+
+def test_another_forecast_on_the_same_out_is_refused(local, predictor_file, capsys):
+    out, _ = local
+    code, _, err = call(capsys, *study_argv(predictor_file, out, "--forecast", "perfect"))
+    assert code == 2 and "(forecast: persistence there, perfect here)" in err
+    assert len(list((out / "chunks").iterdir())) == 4  # its chunks untouched
 
 
 def test_a_fleet_file_gives_the_coaches_and_their_parameters(predictor_file, capsys, tmp_path):

@@ -39,14 +39,17 @@ def add_group(sub, name: str, help_: str):
     return group.add_subparsers(dest=f"{name}_command", required=True, parser_class=Parser)
 
 
-def add_model_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--predictor FILE`` and ``--forecast`` for commands that run the DDPC layer."""
+def add_model_options(
+    p: argparse.ArgumentParser, prefix: str = "", forecast: str = "perfect"
+) -> None:
+    """``--predictor FILE`` and ``--forecast`` (default ``forecast``) for commands that run the
+    DDPC layer."""
     p.add_argument("--predictor", default=None, help=f"{prefix}model file (default: cached model)")
     p.add_argument(
         "--forecast",
         choices=("perfect", "persistence", "noisy"),
-        default="perfect",
-        help=f"{prefix}disturbance forecast (default perfect)",
+        default=forecast,
+        help=f"{prefix}disturbance forecast (default {forecast})",
     )
 
 

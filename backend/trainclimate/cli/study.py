@@ -178,14 +178,26 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
 
 
 def _text(d: dict) -> str:
+    from trainclimate.study.summary import savings_text
+
     def pct(v):
         return "–" if v is None else f"{v:.2f} %"
 
+    edge = (
+        "; band-edge reference "
+        + savings_text(
+            d["edge_savings_pct"], d["edge_savings_ci95_pct"], d["edge_savings_ci95_reason"]
+        )
+        if "edge_savings_pct" in d
+        else ""
+    )
     return (
-        f"{d['coach_days']} coach-days ({d['coaches']} coaches × {d['days']} days): rule-based "
+        f"{d['coach_days']} coach-days ({d['coaches']} coaches × {d['days']} days, "
+        f"{d['study']['forecast']} forecast): rule-based "
         f"{d['energy_rule_kwh'] / 1e3:.2f} MWh, DDPC {d['energy_ddpc_kwh'] / 1e3:.2f} MWh on the "
-        f"{d['meter']} meter: savings {pct(d['savings_pct'])} "
-        f"({pct(d['savings_by_meter_pct']['hvac_and_floor'])} with the floor heating), "
+        f"{d['meter']} meter: savings "
+        f"{savings_text(d['savings_pct'], d['savings_ci95_pct'], d['savings_ci95_reason'])}"
+        f"{edge}; {pct(d['savings_by_meter_pct']['hvac_and_floor'])} with the floor heating; "
         f"{d['saved_mwh']:.2f} MWh, {d['saved_chf']:,.0f} CHF, {d['saved_t_co2']:.2f} t CO₂-eq; "
         f"average hourly violation {d['avg_hourly_violation_k']:.4f} K (rule-based "
         f"{d['avg_hourly_violation_rule_k']:.4f} K)\n"
@@ -231,4 +243,4 @@ def register(sub) -> None:
                    help=f"electricity price (default {PRICE_CHF_PER_KWH})")  # fmt: skip
     p.add_argument("--co2-kg-kwh", type=float, default=CO2_KG_PER_KWH,
                    help=f"emission factor (default {CO2_KG_PER_KWH})")  # fmt: skip
-    add_model_options(p, "ddpc: ")
+    add_model_options(p, "ddpc: ", forecast="persistence")

@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import pandas as pd
 
+from trainclimate.control.forecast import FORECASTS
 from trainclimate.data.fleetlogs import draw_service_day, local_hours
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
@@ -91,7 +92,11 @@ class StudySpec:
     chunk_coaches, chunk_days : int
         The chunk size.
     forecast : str
-        The DDPC layer's disturbance forecast (``perfect``, ``persistence`` or ``noisy``).
+        The DDPC layer's disturbance forecast, one of
+        :data:`~trainclimate.control.forecast.FORECASTS`: ``persistence`` (the default, the
+        current disturbance held over the horizon, what the service's controller gets),
+        ``perfect`` (the true future, the paper's simulation study) or ``noisy``. The band-edge
+        reference always gets the perfect one.
     model : str
         The prediction model's identity (its name and hash).
     """
@@ -108,7 +113,7 @@ class StudySpec:
     weather_source: str = "generated"
     chunk_coaches: int = 64
     chunk_days: int = 7
-    forecast: str = "perfect"
+    forecast: str = "persistence"
     model: str = ""
 
     def __post_init__(self) -> None:
@@ -136,6 +141,8 @@ class StudySpec:
             raise StudyError("--occupancy-scale must lie in [0, 3]")
         if not 0.0 <= self.coach_spread < 1.0:
             raise StudyError("--coach-spread must lie in [0, 1)")
+        if self.forecast not in FORECASTS:
+            raise StudyError(f"--forecast: one of {', '.join(FORECASTS)}")
         if self.chunk_coaches < 1 or self.chunk_days < 1:
             raise StudyError("--chunk-coaches and --chunk-days must be at least 1")
 

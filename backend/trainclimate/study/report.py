@@ -1,5 +1,6 @@
-"""A fleet study's HTML report: monthly savings, savings against the outside temperature, the
-spread over coaches and the comfort cost, as Plotly charts in one self-contained page."""
+"""A fleet study's HTML report: monthly savings with their 95 % intervals, savings against the
+outside temperature, the spread over coaches and the comfort cost, as Plotly charts in one
+self-contained page."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pandas as pd
 import plotly.graph_objects as go
 
 from trainclimate.analysis.report import fmt_num, html_page
-from trainclimate.study.summary import by_coach_day
+from trainclimate.study.summary import by_coach_day, savings_text
 
 
 def _monthly(summary: dict) -> go.Figure:
@@ -21,8 +22,16 @@ def _monthly(summary: dict) -> go.Figure:
                 name="rule-based (MWh)")  # fmt: skip
     fig.add_bar(x=months, y=[m["energy_ddpc_kwh"] / 1e3 for m in summary["by_month"]],
                 name="DDPC layer (MWh)")  # fmt: skip
-    fig.add_scatter(x=months, y=[m["savings_pct"] for m in summary["by_month"]],
-                    name="savings (%)", yaxis="y2", mode="lines+markers")  # fmt: skip
+    rows = summary["by_month"]
+    # no interval → no bar (the saving is None too when the month used no energy)
+    above = [None if m["savings_ci95_pct"] is None else m["savings_ci95_pct"][1] - m["savings_pct"]
+             for m in rows]  # fmt: skip
+    below = [None if m["savings_ci95_pct"] is None else m["savings_pct"] - m["savings_ci95_pct"][0]
+             for m in rows]  # fmt: skip
+    fig.add_scatter(x=months, y=[m["savings_pct"] for m in rows], name="savings (%), 95 % CI",
+                    yaxis="y2", mode="lines+markers",
+                    error_y={"type": "data", "symmetric": False, "array": above,
+                             "arrayminus": below})  # fmt: skip
     fig.update_layout(
         title=f"Energy per month ({summary['meter']} meter) and the layer's saving",
         yaxis={"title": "MWh"},
@@ -99,25 +108,39 @@ def write_study_report(summary: dict, frame: pd.DataFrame, path: str | Path) -> 
         f"<tr><td>{html.escape(r['situation'])}</td><td>{fmt_num(r['hours'] / 1e3, '.1f')}</td>"
         f"<td>{fmt_num(r['energy_rule_kwh'] / 1e3, '.1f')}</td>"
         f"<td>{fmt_num(r['energy_ddpc_kwh'] / 1e3, '.1f')}</td>"
-        f"<td>{fmt_num(r['savings_pct'], '.2f')}</td>"
+        f"<td>{html.escape(savings_text(r['savings_pct'], r['savings_ci95_pct']))}</td>"
         f"<td>{fmt_num(r['avg_hourly_violation_k'], '.4f')}</td></tr>"
         for r in s["by_situation"]
     )
+    saving = savings_text(s["savings_pct"], s["savings_ci95_pct"], s["savings_ci95_reason"])
+    edge = (
+        " The band-edge reference (perfect forecast) saves "
+        + html.escape(
+            savings_text(
+                s["edge_savings_pct"], s["edge_savings_ci95_pct"], s["edge_savings_ci95_reason"]
+            )
+        )
+        + "."
+        if "edge_savings_pct" in s
+        else ""
+    )
     head = (
         f"<h1>Fleet study: {s['coaches']} coaches × {s['days']} days</h1>"
-        f"<p>{s['coach_days']} coach-days. Headline meter: the HVAC units ({s['meter']}). "
-        f"Rule-based {fmt_num(s['energy_rule_kwh'] / 1e3, '.1f')} MWh, DDPC layer "
+        f"<p>{s['coach_days']} coach-days, the DDPC layer with the "
+        f"{html.escape(s['study']['forecast'])} forecast. Headline meter: the HVAC units "
+        f"({s['meter']}). Rule-based {fmt_num(s['energy_rule_kwh'] / 1e3, '.1f')} MWh, DDPC layer "
         f"{fmt_num(s['energy_ddpc_kwh'] / 1e3, '.1f')} MWh: "
-        f"<b>{fmt_num(s['savings_pct'], '.2f')} %</b> "
+        f"<b>{html.escape(saving)}</b> "
         f"saved ({fmt_num(s['saved_mwh'], '.1f')} MWh, {fmt_num(s['saved_chf'], ',.0f')} CHF at "
         f"{s['price_chf_per_kwh']:g} CHF/kWh, {fmt_num(s['saved_t_co2'], '.2f')} t CO₂-eq at "
         f"{s['co2_kg_per_kwh']:g} kg/kWh); whole coach "
         f"{fmt_num(s['savings_by_meter_pct']['hvac_and_floor'], '.2f')} %. "
         "Average hourly violation "
         f"{fmt_num(s['avg_hourly_violation_k'], '.4f')} K (rule-based "
-        f"{fmt_num(s['avg_hourly_violation_rule_k'], '.4f')} K).</p>"
+        f"{fmt_num(s['avg_hourly_violation_rule_k'], '.4f')} K).{edge} The intervals: "
+        "a two-way bootstrap over coaches and days.</p>"
         "<table border=1 cellpadding=4><tr><th>situation</th><th>hours (thousands)</th>"
-        "<th>rule (MWh)</th><th>DDPC (MWh)</th><th>savings (%)</th>"
+        "<th>rule (MWh)</th><th>DDPC (MWh)</th><th>savings (95 % CI)</th>"
         f"<th>avg hourly violation (K)</th></tr>{rows}</table>"
     )
     figures = [_monthly(s), _vs_temperature(frame), _coaches(s), _comfort(s)]

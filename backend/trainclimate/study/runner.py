@@ -10,7 +10,8 @@ with its coaches and days, and the study gives no totals.
 ``--out`` holds one study: ``study.json`` (what was asked, and its fingerprint) and
 ``chunks/<key>.parquet``, each written by the client as its chunk completes (to a temporary name,
 then renamed, so a file is either whole or absent). Running the same study on the same ``--out``
-submits only the chunks without a file; a killed run loses only the chunks in flight.
+submits only the chunks without a file; a killed run loses only the chunks in flight. Another
+study there — any input different, the forecast too — is refused, so chunks never mix.
 """
 
 from __future__ import annotations
@@ -79,19 +80,37 @@ def chunk_dir(out: Path) -> Path:
     return out / "chunks"
 
 
+def _differences(theirs: dict, mine: dict) -> list[str]:
+    """The fields two studies' specs differ in: ``name: theirs there, mine here`` for a short
+    value, the name alone for the others (the coaches' parameters)."""
+    out = []
+    for name, value in mine.items():
+        other = theirs.get(name)
+        if other == value:
+            continue
+        short = all(isinstance(v, str | int | float | bool) for v in (other, value))
+        out.append(f"{name}: {other} there, {value} here" if short else f"{name} differ")
+    return out
+
+
 def _claim_out(spec: StudySpec, out: Path) -> None:
-    """Record the study in ``out/study.json``, or refuse an ``out`` that holds another one."""
+    """Record the study in ``out/study.json``, or refuse an ``out`` that holds another one (any
+    field of the spec different: the forecast, the seed, the coaches …), naming what differs."""
     path = out / "study.json"
     mine = {"fingerprint": spec.fingerprint(), "spec": asdict(spec)}
     if path.exists():
         try:
-            theirs = json.loads(path.read_text()).get("fingerprint")
+            theirs = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
             raise StudyError(f"--out: {path} is unreadable ({exc}); use another --out") from None
-        if theirs != mine["fingerprint"]:
+        if theirs.get("fingerprint") != mine["fingerprint"]:
+            plain = json.loads(json.dumps(mine["spec"], default=str))
+            diff = _differences(theirs.get("spec") or {}, plain) or [
+                f"{theirs.get('fingerprint')}, this one is {mine['fingerprint']}"
+            ]
             raise StudyError(
-                f"--out {out} holds a different study ({theirs}, this one is "
-                f"{mine['fingerprint']}); use another --out to keep both"
+                f"--out {out} holds a different study ({'; '.join(diff)}); "
+                "use another --out to keep both"
             )
         return
     chunk_dir(out).mkdir(parents=True, exist_ok=True)
