@@ -190,15 +190,15 @@ def test_revoking_a_token_on_the_page_makes_the_api_refuse_it(browser, server):
 
 
 def test_an_api_error_is_shown_in_the_page(browser, server):
-    """The signed-in admin loses the role (a viewer token issued to the same user) while the page
+    """The signed-in admin loses the role (another admin makes the user a viewer) while the page
     is open: revoking answers 403, and the page says so; nothing is revoked."""
     signed_in = SimpleNamespace(url=server.url, tokens={"admin": server.other_admin})
     w = Watched(browser, signed_in, "admin")
     open_tokens(w)
-    db = Database(server.db_url)
-    with db.transaction() as s:
-        create_token(s, "viewer", "admin-two")
-    db.dispose()
+    demote = {"role": "viewer", "reason": "a test"}
+    admin = bearer(server.tokens["admin"])
+    reply = httpx.put(f"{server.url}/api/v1/users/admin-two/role", json=demote, headers=admin)
+    assert reply.status_code == 200, reply.text
     row = f"#tokens tr[data-token='{server.ids['gateways-124']}']"
     w.page.once("dialog", answer(True, []))
     w.page.click(f"{row} button:has-text('Revoke')")
@@ -206,7 +206,6 @@ def test_an_api_error_is_shown_in_the_page(browser, server):
     said = "this needs the admin role; the token is viewer"  # the API's detail
     assert re.fullmatch(f"Revoking tc_\\S+… of gateways-124 failed: {said}", error), error
     assert w.page.locator(f"{row}[data-status='active']").count() == 1
-    admin = bearer(server.tokens["admin"])
     listed = httpx.get(f"{server.url}/api/v1/tokens", headers=admin).json()
     assert [t["revoked_at"] for t in listed if t["user"] == "gateways-124"] == [None]
     # the browser logs the refused request itself; nothing else went wrong

@@ -125,14 +125,18 @@ def _create_token(
     expires_at: datetime | None = None,
 ) -> dict:
     """A new token in the migrated database ``url`` (a gateway's scoped to ``coaches``, valid
-    until ``expires_at``): {token, name, role, coaches, expires_at}."""
+    until ``expires_at``): {token, name, role, coaches, expires_at}. An existing user's token
+    has the user's role: another role is a :class:`UsageError`."""
     from trainclimate.service.store.db import Database
-    from trainclimate.service.store.tokens import create_token
+    from trainclimate.service.store.tokens import RoleConflictError, create_token
 
     db = Database(url)
     try:
         with db.transaction() as session:
-            token, user = create_token(session, role, name, coaches, expires_at)
+            try:
+                token, user = create_token(session, role, name, coaches, expires_at)
+            except RoleConflictError as exc:
+                raise UsageError(f"--name: {exc}") from None
             expiry = expires_at.isoformat() if expires_at else None
             return {
                 "token": token,
@@ -146,8 +150,8 @@ def _create_token(
 
 
 def cmd_token_create(args: argparse.Namespace) -> None:
-    """``token create``: a new token for a new user, shown once (or written to ``--out``); a
-    gateway's is scoped to ``--coaches``."""
+    """``token create``: a new token for a new user or an existing one of the same role, shown
+    once (or written to ``--out``); a gateway's is scoped to ``--coaches``."""
     from trainclimate.service.store.tokens import check_scope
 
     coaches = None

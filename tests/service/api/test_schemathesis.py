@@ -79,6 +79,7 @@ def api(settings):
             "train_id": "124",
             "version": 1,
             "token_id": next(t["id"] for t in tokens if t["user"] == "a-victim"),
+            "name": "a-victim",
         }
         admin_id = next(t["id"] for t in tokens if t["user"] == "schemathesis")
 
@@ -121,6 +122,8 @@ def fuzz(strategy, max_examples: int, headers: dict, ids: dict, admin_id: int) -
     def run(case):
         if case.path_parameters and str(case.path_parameters.get("token_id")) == str(admin_id):
             case.path_parameters["token_id"] = ids["token_id"]  # keep the fuzzer's own token
+        if case.path_parameters and case.path_parameters.get("name") == "schemathesis":
+            case.path_parameters["name"] = ids["name"]  # … and its role
         case.call_and_validate(headers=headers, checks=[not_a_server_error])
 
     run()

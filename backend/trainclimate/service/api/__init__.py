@@ -43,6 +43,7 @@ router.include_router(audit.router)
 #: The store's errors as HTTP statuses (the app's exception handlers answer with them).
 ERROR_STATUS = {
     queries.NotFoundError: status.HTTP_404_NOT_FOUND,
+    commands.ForbiddenError: status.HTTP_403_FORBIDDEN,
     commands.ConflictError: status.HTTP_409_CONFLICT,
     queries.RequestError: status.HTTP_422_UNPROCESSABLE_CONTENT,
 }

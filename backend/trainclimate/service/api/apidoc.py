@@ -23,11 +23,11 @@ viewer, writes operator, users and models admin. A gateway token (`trainclimate 
 gateway --coaches 124-A,124-B`) is scoped to its coaches: it may register them, push their telemetry
 and pull their setpoints, nothing else. Times are ISO 8601 with an offset (UTC in answers);
 temperatures °C, power kW, energy kWh, irradiance W/m². Errors are JSON `{"detail": …}`: 401 no
-valid token, 403 too low a role (or a coach outside a gateway token's scope), 404 no such coach,
-train or record, 409 a conflict with the stored state, 413 a request body over the limit (2 MiB by
-default), 422 a malformed request or a value out of range (with the reason), 429 too many failed
-authentications from the client address (with `Retry-After`), 503 the database does not answer.
-Every write is one transaction: a request that fails changes nothing.
+valid token, 403 too low a role (or a coach or train outside a gateway token's scope), 404 no such
+coach, train or record, 409 a conflict with the stored state, 413 a request body over the limit
+(2 MiB by default), 422 a malformed request or a value out of range (with the reason), 429 too many
+failed authentications from the client address (with `Retry-After`), 503 the database does not
+answer. Every write is one transaction: a request that fails changes nothing.
 
 ```sh
 TOKEN=$(.venv/bin/trainclimate token create --role operator)

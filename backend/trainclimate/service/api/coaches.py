@@ -52,7 +52,9 @@ def register_coach(
     who: GatewayOrOperatorCoach,
 ) -> dict:
     """Register a live coach (and its train); an existing coach is returned as it is (200). A
-    gateway token may register the coaches of its scope."""
+    coach's train is fixed when it is registered: another train for an existing coach is 409,
+    whatever the role. A gateway token may register the coaches of its scope into its own trains
+    only: a new train, or one whose coaches are all in its scope (else 403)."""
     coach, created = commands.register_coach(s, who, body.id, body.train_id, body.ddpc_active)
     if not created:
         response.status_code = 200

@@ -19,7 +19,8 @@ UNAUTHORIZED = {401: {"model": schemas.Message, "description": "no valid token"}
 FORBIDDEN = {
     403: {
         "model": schemas.Message,
-        "description": "the token's role is too low, or a gateway token is not for the coach",
+        "description": "the token's role is too low, or a gateway token is not for the coach "
+        "or its train",
     }
 }
 NOT_FOUND = {404: {"model": schemas.Message, "description": "no such coach or train"}}

@@ -242,7 +242,12 @@ class CoachCreate(Strict):
 
     id: str = Field(min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.-]+$", examples=["124-A"])
     train_id: str = Field(
-        min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.-]+$", examples=["124"]
+        min_length=1,
+        max_length=32,
+        pattern=r"^[A-Za-z0-9_.-]+$",
+        description="fixed once the coach is registered; a gateway's: a new train or one of its "
+        "coaches only",
+        examples=["124"],
     )
     ddpc_active: bool = Field(default=False, examples=[True])
 
@@ -628,8 +633,16 @@ CoachIds = list[Annotated[str, Field(min_length=1, max_length=32, pattern=r"^[A-
 
 
 class TokenIn(Strict):
-    role: Role
-    name: str | None = Field(default=None, min_length=1, max_length=100, examples=["alice"])
+    role: Role = Field(
+        description="a new user's role; for an existing user, its own (another role is 409)"
+    )
+    name: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=100,
+        description="the token's user, created if new (default: a new user named after the role)",
+        examples=["alice"],
+    )
     coaches: CoachIds | None = Field(
         default=None,
         min_length=1,
@@ -658,7 +671,7 @@ class TokenIn(Strict):
 
 class TokenOut(BaseModel):
     token: str = Field(description="shown once; only its hash is stored")
-    name: str
+    name: str = Field(description="the token's user")
     role: Role
     coaches: list[str] | None = Field(description="a gateway token's coaches; else null")
     expires_at: datetime | None = Field(description="null: it does not expire")
@@ -671,13 +684,30 @@ class Me(BaseModel):
 
 class TokenInfo(BaseModel):
     id: int
-    user: str
-    role: Role
+    user: str = Field(description="the token's user")
+    role: Role = Field(description="the role the token acts with")
     prefix: str
     coaches: list[str] | None = Field(description="a gateway token's coaches; else null")
     created_at: datetime
     expires_at: datetime | None = Field(description="null: it does not expire")
     revoked_at: datetime | None
+
+
+class RoleChange(Strict):
+    """A user's new role, for every token it holds."""
+
+    role: Role = Field(
+        examples=["operator"],
+        description="viewer, operator or admin: a user neither becomes a gateway nor stops being "
+        "one (409)",
+    )
+    reason: str = Field(min_length=1, max_length=500, examples=["runs the night shift now"])
+
+
+class UserOut(BaseModel):
+    name: str = Field(examples=["alice"])
+    role: Role
+    tokens: int = Field(description="its tokens not revoked: each acts with this role")
 
 
 class Message(BaseModel):

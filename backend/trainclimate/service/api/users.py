@@ -1,4 +1,5 @@
-"""Users and their tokens: who a token belongs to, and issuing, listing and revoking tokens."""
+"""Users and their tokens: who a token belongs to, creating, listing and revoking tokens, and
+changing a user's role."""
 
 from __future__ import annotations
 
@@ -6,11 +7,12 @@ from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
 from fastapi import APIRouter, Path
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
     AUTH,
+    CONFLICT,
     DB,
     INT32_MAX,
     NOT_FOUND,
@@ -31,12 +33,18 @@ def me(who: Viewer) -> dict:
 
 
 @router.post(
-    "/tokens", response_model=schemas.TokenOut, status_code=201, tags=["users"], responses=AUTH
+    "/tokens",
+    response_model=schemas.TokenOut,
+    status_code=201,
+    tags=["users"],
+    responses={**AUTH, **CONFLICT},
 )
 def create_token(body: schemas.TokenIn, s: DB, who: Admin) -> dict:
-    """A new token (shown once) for a user, created with the role if new; a gateway token is
-    scoped to ``coaches`` (it may register them, push their telemetry and pull their setpoints,
-    nothing else); audited with the scope."""
+    """A new token (shown once) for a user, created with the role if new. An existing user's
+    token has the user's role: another role is 409, and no other token changes (a user's role
+    changes only by ``PUT /users/{name}/role``). A gateway token is scoped to ``coaches`` (it may
+    register them, push their telemetry and pull their setpoints, nothing else); audited with
+    the role and scope."""
     expires_at = None
     if body.expires_in_days is not None:
         expires_at = datetime.now(UTC) + timedelta(days=body.expires_in_days)
@@ -68,6 +76,31 @@ def revoke_token(token_id: Annotated[int, Path(ge=1, le=INT32_MAX)], s: DB, who:
     """Revoke a token: it no longer authenticates; audited."""
     t = commands.revoke_token(s, who, token_id)
     return _info(t, s.get(User, t.user_id))
+
+
+@router.put(
+    "/users/{name}/role",
+    response_model=schemas.UserOut,
+    tags=["users"],
+    responses={**AUTH, **NOT_FOUND, **CONFLICT},
+)
+def set_user_role(
+    name: Annotated[str, Path(min_length=1, max_length=100)],
+    body: schemas.RoleChange,
+    s: DB,
+    who: Admin,
+) -> dict:
+    """Change a user's role: every token it holds acts with the new role from its next request.
+    Audited as ``user.role`` with the role before and after; the role it has already changes
+    nothing. 404 for an unknown user; 409 for a change to or from gateway (a gateway's tokens
+    are scoped to its coaches: create tokens under another name)."""
+    user = commands.set_user_role(s, who, name, body.role, body.reason)
+    tokens = s.scalar(
+        select(func.count(ApiToken.id)).where(
+            ApiToken.user_id == user.id, ApiToken.revoked_at.is_(None)
+        )
+    )
+    return {"name": user.name, "role": user.role, "tokens": tokens}
 
 
 def _info(t: ApiToken, u: User) -> dict:

@@ -1,6 +1,6 @@
 """What the API writes. Each function works inside the caller's transaction (one per request, so
 a failed request changes nothing) and records every override, mode change, trial plan change,
-model activation and token change in the audit log with who, when and why."""
+model activation, token and role change in the audit log with who, when and why."""
 
 from __future__ import annotations
 
@@ -32,13 +32,24 @@ from trainclimate.service.store.queries import (
     fleet_clock,
 )
 from trainclimate.service.store.telemetry import insert_rows
-from trainclimate.service.store.tokens import Principal, check_scope, create_token
+from trainclimate.service.store.tokens import (
+    GATEWAY,
+    Principal,
+    RoleConflictError,
+    article,
+    check_scope,
+    create_token,
+)
 from trainclimate.service.store.upsert import advance, insert_new
 from trainclimate.sim.setpoint import U_BAND_K
 
 
 class ConflictError(Exception):
     """A request that contradicts the stored state (→ 409)."""
+
+
+class ForbiddenError(Exception):
+    """A request about an object the caller's token does not reach (→ 403)."""
 
 
 def audit(session: Session, who: Principal, action: str, target: str, reason: str = "", **detail):
@@ -57,19 +68,48 @@ def audit(session: Session, who: Principal, action: str, target: str, reason: st
 
 def register_coach(session: Session, who: Principal, coach_id: str, train_id: str, active: bool):
     """Create a live coach (and its train) if new; an existing coach is left as it is.
-    Returns (coach, created)."""
+
+    A coach's train is fixed when it is registered: naming another train for an existing coach
+    is a :class:`ConflictError` for every role. A gateway registers its coaches only into its own
+    trains: a new train, or one whose coaches are all in its token's scope
+    (:func:`check_train_scope`, else :class:`ForbiddenError`).
+
+    Returns
+    -------
+    tuple of (Coach, bool)
+        The coach and whether this call created it.
+    """
     coach = session.get(Coach, coach_id)
     created = False
     if coach is None:  # two gateways may register the same train or coach at once
         insert_new(session, Train.__table__, [{"id": train_id, "name": train_id}], ["id"])
+        if who.role == GATEWAY:
+            check_train_scope(session, who, train_id)
         row = {"id": coach_id, "train_id": train_id, "fleet": "live", "ddpc_active": active}
         created = insert_new(session, Coach.__table__, [row], ["id"]) == 1
         coach = session.get(Coach, coach_id, populate_existing=True)
     if coach.train_id != train_id:
-        raise ConflictError(f"coach {coach_id!r} belongs to train {coach.train_id!r}")
+        raise ConflictError(
+            f"coach {coach_id!r} belongs to train {coach.train_id!r}; "
+            "a coach's train is fixed when it is registered"
+        )
     if created:
         audit(session, who, "coach.register", coach_id, "", train_id=train_id, ddpc_active=active)
     return coach, created
+
+
+def check_train_scope(session: Session, who: Principal, train_id: str) -> None:
+    """Refuse (:class:`ForbiddenError`) a gateway's registration into train ``train_id`` if the
+    train has a coach outside the gateway token's scope: its data would enter another train's
+    comparison. The train's row is locked first (``FOR UPDATE`` on PostgreSQL), so registrations
+    into one train run one after the other and each sees the coaches the one before added."""
+    session.execute(select(Train.id).where(Train.id == train_id).with_for_update())
+    coaches = session.scalars(select(Coach.id).where(Coach.train_id == train_id))
+    if any(not who.serves(c) for c in coaches):
+        raise ForbiddenError(
+            f"train {train_id!r} has coaches this gateway token is not for: a gateway registers "
+            "its coaches into its own trains only (a new train id, or a train of its coaches)"
+        )
 
 
 def ingest(session: Session, coach_id: str, rows: list[dict]) -> tuple[int, int]:
@@ -287,9 +327,12 @@ def issue_token(
     expires_at: datetime | None = None,
 ) -> tuple[str, User]:
     """A new token for user ``name`` with ``role`` (a gateway's scoped to ``coaches``, valid
-    until ``expires_at``, :func:`.tokens.create_token`), audited with its scope and expiry."""
+    until ``expires_at``, :func:`.tokens.create_token`), audited with its scope and expiry. An
+    existing user's token has the user's role: another role is a :class:`ConflictError`."""
     try:
         token, user = create_token(session, role, name, coaches, expires_at)
+    except RoleConflictError as exc:
+        raise ConflictError(str(exc)) from None
     except ValueError as exc:
         raise RequestError(str(exc)) from None
     scope = {} if coaches is None else {"coaches": check_scope(role, coaches)}
@@ -297,6 +340,28 @@ def issue_token(
         scope["expires_at"] = expires_at.isoformat()
     audit(session, who, "token.create", f"user:{user.name}", "", role=role, **scope)
     return token, user
+
+
+def set_user_role(session: Session, who: Principal, name: str, role: str, reason: str) -> User:
+    """Give user ``name`` the role ``role``: every token it holds acts with it from the next
+    request. Audited as ``user.role`` with the role before and after (a change to the role the
+    user has changes nothing and is not audited). A change to or from ``gateway`` is a
+    :class:`ConflictError`: a gateway's tokens are defined by their coaches, so a gateway is
+    given tokens under a name of its own."""
+    user = session.scalar(select(User).where(User.name == name).with_for_update())
+    if user is None:
+        raise NotFoundError(f"no user {name!r}")
+    before = user.role
+    if before == role:
+        return user
+    if GATEWAY in (before, role):
+        raise ConflictError(
+            f"user {name!r} is {article(before)}: a user neither becomes a gateway nor stops "
+            "being one (a gateway's tokens are scoped to its coaches); use another name"
+        )
+    user.role = role
+    audit(session, who, "user.role", f"user:{name}", reason, before=before, after=role)
+    return user
 
 
 def revoke_token(session: Session, who: Principal, token_id: int) -> ApiToken:

@@ -363,8 +363,8 @@ def summary(
         ``deactivated`` (now), ``start``, ``end`` and its :func:`figures`; ``windows``: per
         window (oldest first) its ``start``, the energies of the trains that count it
         (``energy_activated_kwh``, ``energy_deactivated_kwh``, kWh: they add up to the fleet's)
-        and how many ``trains`` do; ``coaches_by_status`` (:func:`coaches_by_status`) and ``attention``
-        (:func:`attention`).
+        and how many ``trains`` do; ``coaches_by_status`` (:func:`coaches_by_status`) and
+        ``attention`` (:func:`attention`).
     """
     trains = session.scalars(select(Train).options(selectinload(Train.coaches)).order_by(Train.id))
     paired = []

@@ -1,16 +1,25 @@
-"""Bearer tokens and roles as stored: issuing a token, and finding whose a token is.
+"""Bearer tokens, users and roles as stored: creating a token, and finding whose a token is.
 
 A token is 32 random bytes (``secrets.token_urlsafe``) prefixed ``tc_``, shown once when created
 (``trainclimate token create`` or ``POST /api/v1/tokens``); only its SHA-256 is stored. A fast hash
 is right here: the token is high-entropy random, not a password, so there is nothing to
 brute-force, and every request can check it in microseconds. Roles are ordered
 ``gateway < viewer < operator < admin``: reads need viewer, writes operator, user and model
-management admin. A ``gateway`` token is scoped to coaches (stored with the token): it passes no
-role check, and may only register its coaches, push their telemetry and pull their setpoints
-(the API's :func:`~trainclimate.service.api.security.require_coach`). A token with a scope is a
-gateway's whatever its user's role, and a gateway user's token without one is for no coach. A
-token past its ``expires_at`` no longer authenticates. Reading the token off an HTTP request is
-the API's part (:mod:`trainclimate.service.api.security`).
+management admin.
+
+Every token is a user's, and a user has one role, which all its tokens act with. Creating a token
+never changes another one: a new name becomes a user with the role asked for, an existing user's
+new token has the user's role (asking another is a :class:`RoleConflictError`), and only an
+admin's explicit, audited change (:func:`~trainclimate.service.store.commands.set_user_role`,
+``PUT /api/v1/users/{name}/role``) changes a user's role, for all its tokens at once. A
+``gateway`` user's tokens are each scoped to coaches (stored with the token): such a token passes
+no role check, and may only register its coaches, push their telemetry and pull their setpoints
+(the API's :func:`~trainclimate.service.api.security.require_coach`). Since a gateway's identity
+is its scope, no user becomes a gateway or stops being one. Tokens stored before these rules keep
+working as they did: a token with a scope is a gateway's whatever its user's role, and a gateway
+user's token without one is for no coach. A token past its ``expires_at`` no longer
+authenticates. Reading the token off an HTTP request is the API's part
+(:mod:`trainclimate.service.api.security`).
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from trainclimate.service.store.models import ROLES, ApiToken, User, utcnow
+from trainclimate.service.store.upsert import insert_new
 
 RANK = {role: i for i, role in enumerate(ROLES)}
 PREFIX = "tc_"
@@ -72,6 +82,10 @@ def check_scope(role: str, coaches: list[str] | None) -> list[str] | None:
     return list(dict.fromkeys(coaches))
 
 
+class RoleConflictError(Exception):
+    """A token asked for an existing user with a role other than the user's."""
+
+
 def create_token(
     session: Session,
     role: str,
@@ -79,10 +93,28 @@ def create_token(
     coaches: list[str] | None = None,
     expires_at: datetime | None = None,
 ) -> tuple[str, User]:
-    """A new token for user ``name`` (created with ``role`` if new; an existing user keeps its
-    name and gets the role asked for), scoped to ``coaches`` for a gateway (:func:`check_scope`),
-    valid until ``expires_at`` (UTC; None: until revoked; ValueError if not in the future).
-    Returns the token — the only time it is seen — and the user.
+    """A new token for user ``name``, created with ``role`` if new.
+
+    Parameters
+    ----------
+    session
+        The transaction to write in.
+    role
+        The token's role: a new user's role, or the existing user's own (else
+        :class:`RoleConflictError`; only an admin changes a user's role, through
+        :func:`~trainclimate.service.store.commands.set_user_role`).
+    name
+        The user; None: a new user named after the role.
+    coaches
+        A gateway token's scope (:func:`check_scope`).
+    expires_at
+        When the token stops authenticating (UTC; None: when revoked; ValueError if not in the
+        future).
+
+    Returns
+    -------
+    tuple of (str, User)
+        The token — the only time it is seen — and its user.
     """
     if expires_at is not None and expires_at <= utcnow():
         raise ValueError("the expiry must lie in the future")
@@ -90,13 +122,14 @@ def create_token(
         raise ValueError(f"unknown role {role!r} (gateway, viewer, operator, admin)")
     coaches = check_scope(role, coaches)
     name = name or f"{role}-{secrets.token_hex(3)}"
+    # a new name becomes a user, also when two requests create it at once
+    insert_new(session, User.__table__, [{"name": name, "role": role}], ["name"])
     user = session.scalar(select(User).where(User.name == name))
-    if user is None:
-        user = User(name=name, role=role)
-        session.add(user)
-        session.flush()
-    else:
-        user.role = role
+    if user.role != role:
+        raise RoleConflictError(
+            f"user {name!r} is {article(user.role)}, not {article(role)}: its tokens have its role "
+            f"(an admin changes it with PUT /api/v1/users/{name}/role); or give another name"
+        )
     token = PREFIX + secrets.token_urlsafe(32)
     session.add(
         ApiToken(
@@ -108,6 +141,11 @@ def create_token(
         )
     )
     return token, user
+
+
+def article(role: str) -> str:
+    """``role`` with its article: ``an admin``, ``a viewer``."""
+    return f"{'an' if role[0] in 'aeiou' else 'a'} {role}"
 
 
 def authenticate(session: Session, token: str) -> Principal | None:
