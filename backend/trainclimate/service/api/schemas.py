@@ -6,7 +6,16 @@ import math
 from datetime import UTC, datetime, timedelta
 from typing import Annotated, Literal
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    AwareDatetime,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StrictBool,
+    field_validator,
+    model_validator,
+)
 
 from trainclimate.service.store.attention import KINDS
 from trainclimate.service.store.queries import STATUSES
@@ -28,12 +37,54 @@ STATUS_HELP = (
 #: How far ahead of the server's clock a telemetry row may be stamped (clock skew).
 MAX_AHEAD = timedelta(minutes=5)
 EARLIEST_ROW = datetime(2000, 1, 1, tzinfo=UTC)
+#: The shortest life of an expiring token (a minute): one that expires before it can be used is
+#: a mistake. [days]
+MIN_EXPIRES_DAYS = 1 / 1440
+#: The shortest override: a shorter one would start and end at once, and still cancel the
+#: override in force. [min]
+MIN_OVERRIDE_MIN = 1.0
+
+
+def _storable(value):
+    """``value`` if every string in it (nested in lists and objects too) can be stored: no NUL
+    character (PostgreSQL refuses it in text) and no lone surrogate (not UTF-8); else
+    ValueError."""
+    if isinstance(value, str):
+        if "\x00" in value:
+            raise ValueError("must not contain a NUL character")
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            raise ValueError("must be valid Unicode (a lone surrogate is not)") from None
+    elif isinstance(value, list | tuple):
+        for item in value:
+            _storable(item)
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _storable(key)
+            _storable(item)
+    return value
 
 
 class Strict(BaseModel):
-    """Unknown fields are an error (a typo must not be silently ignored)."""
+    """A request body: unknown fields are an error (a typo must not be silently ignored), and no
+    string in it may hold a NUL character or a lone surrogate (422 on SQLite and PostgreSQL
+    alike). Its booleans are :class:`~pydantic.StrictBool` (``"yes"`` or ``0`` is no boolean)."""
 
     model_config = ConfigDict(extra="forbid")
+
+    _storable = field_validator("*", mode="before")(_storable)
+
+
+def _whole(value):
+    """A path or query value as a whole number: digits only (``1.0``, ``+1``, ``1_0`` are not)."""
+    if isinstance(value, str) and not (value.isascii() and value.isdigit()):
+        raise ValueError("must be a whole number, digits only")
+    return value
+
+
+#: An integer path or query parameter, written in digits only: ``/tokens/1.0`` is no token id.
+WholeNumber = Annotated[int, BeforeValidator(_whole)]
 
 
 def _finite(value: float | None) -> float | None:
@@ -63,7 +114,7 @@ class MqttFeed(BaseModel):
     duplicates: int = Field(description="rows already stored (a message delivered again)")
     dropped: dict[str, int] = Field(
         description="messages dropped, by reason: bad_topic, malformed_json, invalid_rows, "
-        "coach_mismatch, unknown_coach, not_live",
+        "coach_mismatch, unknown_coach, not_live, outside_horizon",
         examples=[{"unknown_coach": 2}],
     )
     setpoints_published: int
@@ -78,6 +129,11 @@ class Health(BaseModel):
     preparing: list[Preparing] = Field(
         description="background work still running or failed (empty when all is done); until "
         "the predictor model is ready the coaches run under T_rule"
+    )
+    telemetry_refused: dict[str, int] = Field(
+        description="telemetry rows refused since start (HTTP and MQTT), by reason: "
+        "outside_horizon (older than the coach's newest row less the backfill horizon)",
+        examples=[{"outside_horizon": 1}],
     )
     mqtt: MqttFeed | None = Field(default=None, description="null without --mqtt")
 
@@ -190,7 +246,7 @@ class CoachCreate(Strict):
     train_id: str = Field(
         min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.-]+$", examples=["124"]
     )
-    ddpc_active: bool = Field(default=False, examples=[True])
+    ddpc_active: StrictBool = Field(default=False, examples=[True])
 
 
 class TimeSeries(BaseModel):
@@ -240,7 +296,7 @@ class TelemetryRow(Strict):
         "the HVAC units alone (the meter the savings headline uses) are the difference",
     )
     mode: Mode = Field(default="regular")
-    connected: bool = True
+    connected: StrictBool = True
 
     @model_validator(mode="after")
     def _floor_within_power(self) -> TelemetryRow:
@@ -313,7 +369,9 @@ class SetpointHistory(BaseModel):
 
 class OverrideIn(Strict):
     t_ref_c: float = Field(examples=[21.5], description="°C, within T_rule ± 2 K")
-    duration_min: float = Field(gt=0, le=24 * 60, examples=[60])
+    duration_min: float = Field(
+        ge=MIN_OVERRIDE_MIN, le=24 * 60, examples=[60], description="at least 1 min, at most 24 h"
+    )
     reason: str = Field(min_length=1, max_length=500, examples=["passengers report it is cold"])
 
     _check = field_validator("t_ref_c")(_finite)
@@ -335,7 +393,7 @@ class OverrideOut(BaseModel):
 class ControllerChange(Strict):
     """Switch the DDPC layer on or off for a coach."""
 
-    active: bool = Field(examples=[False])
+    active: StrictBool = Field(examples=[False])
     reason: str = Field(min_length=1, max_length=500, examples=["maintenance of the HVAC"])
 
 
@@ -588,10 +646,10 @@ class TokenIn(Strict):
 
     expires_in_days: float | None = Field(
         default=None,
-        gt=0,
+        ge=MIN_EXPIRES_DAYS,
         le=3650,
-        description="the token stops authenticating this many days after its creation "
-        "(default: valid until revoked)",
+        description="the token stops authenticating this many days after its creation, at "
+        "least a minute (default: valid until revoked)",
         examples=[90],
     )
 
@@ -634,10 +692,17 @@ class CoachHealth(BaseModel):
 
 class RetrainIn(Strict):
     reason: str = Field(min_length=1, max_length=500, examples=["the winter's first month"])
-    days: float | None = Field(default=None, gt=0, le=3650, description="the last N days")
+    days: float | None = Field(
+        default=None,
+        gt=0,
+        le=366,
+        description="the last N days (default: 28 without since; the window is at most 366)",
+    )
     since: datetime | None = Field(default=None, description="telemetry from this time")
     coaches: CoachIds | None = Field(default=None, max_length=10_000)
-    force: bool = Field(default=False, description="register even a fit worse than the active")
+    force: StrictBool = Field(
+        default=False, description="register even a fit worse than the active"
+    )
 
 
 class RetrainStatus(BaseModel):
