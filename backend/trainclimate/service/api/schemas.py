@@ -45,35 +45,37 @@ MIN_EXPIRES_DAYS = 1 / 1440
 MIN_OVERRIDE_MIN = 1.0
 
 
-def _storable(value):
-    """``value`` if every string in it (nested in lists and objects too) can be stored: no NUL
-    character (PostgreSQL refuses it in text) and no lone surrogate (not UTF-8); else
-    ValueError."""
-    if isinstance(value, str):
-        if "\x00" in value:
-            raise ValueError("must not contain a NUL character")
-        try:
-            value.encode("utf-8")
-        except UnicodeEncodeError:
-            raise ValueError("must be valid Unicode (a lone surrogate is not)") from None
-    elif isinstance(value, list | tuple):
-        for item in value:
-            _storable(item)
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            _storable(key)
-            _storable(item)
-    return value
+def _storable(text: str, where: str) -> None:
+    """ValueError unless ``text`` can be stored: no NUL character (PostgreSQL refuses it in
+    text) and no lone surrogate (not UTF-8)."""
+    if "\x00" in text:
+        raise ValueError(f"{where}: must not contain a NUL character")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError(f"{where}: must be valid Unicode (a lone surrogate is not)") from None
 
 
 class Strict(BaseModel):
     """A request body: unknown fields are an error (a typo must not be silently ignored), and no
-    string in it may hold a NUL character or a lone surrogate (422 on SQLite and PostgreSQL
-    alike). Its booleans are :class:`~pydantic.StrictBool` (``"yes"`` or ``0`` is no boolean)."""
+    string in it — a field's, or an item of a field's list — may hold a NUL character or a lone
+    surrogate (422 on SQLite and PostgreSQL alike; a nested body checks its own). Its booleans
+    are :class:`~pydantic.StrictBool` (``"yes"`` or ``0`` is no boolean)."""
 
     model_config = ConfigDict(extra="forbid")
 
-    _storable = field_validator("*", mode="before")(_storable)
+    @model_validator(mode="before")
+    @classmethod
+    def _storable_text(cls, data):
+        if isinstance(data, dict):
+            for key, value in data.items():
+                if isinstance(value, str):
+                    _storable(value, key)
+                elif isinstance(value, list):
+                    for item in value:
+                        if isinstance(item, str):
+                            _storable(item, key)
+        return data
 
 
 def _whole(value):
