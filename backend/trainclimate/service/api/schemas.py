@@ -85,8 +85,10 @@ def _whole(value):
     return value
 
 
-#: An integer path or query parameter, written in digits only: ``/tokens/1.0`` is no token id.
-WholeNumber = Annotated[int, BeforeValidator(_whole)]
+#: An integer path or query parameter is written in digits only (``/tokens/1.0`` is no token id):
+#: ``Annotated[int, Path(ge=1), DIGITS_ONLY]`` — after the ``Path`` or ``Query``, whose bounds
+#: then stay in the schema as its minimum and maximum.
+DIGITS_ONLY = BeforeValidator(_whole)
 
 
 def _finite(value: float | None) -> float | None:
@@ -371,9 +373,7 @@ class SetpointHistory(BaseModel):
 
 class OverrideIn(Strict):
     t_ref_c: float = Field(examples=[21.5], description="°C, within T_rule ± 2 K")
-    duration_min: float = Field(
-        ge=MIN_OVERRIDE_MIN, le=24 * 60, examples=[60], description="at least 1 min, at most 24 h"
-    )
+    duration_min: float = Field(ge=MIN_OVERRIDE_MIN, le=24 * 60, examples=[60], description="min")
     reason: str = Field(min_length=1, max_length=500, examples=["passengers report it is cold"])
 
     _check = field_validator("t_ref_c")(_finite)

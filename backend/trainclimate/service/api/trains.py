@@ -61,12 +61,9 @@ def train_comparison(
     start: AwareDatetime | None = None,
     end: AwareDatetime | None = None,
     window_min: Annotated[
-        schemas.WholeNumber,
-        Query(
-            ge=WINDOW_MIN[0],
-            le=WINDOW_MIN[1],
-            description="the window, whole minutes within 5 … 1440 (a day)",
-        ),
+        int,
+        Query(ge=WINDOW_MIN[0], le=WINDOW_MIN[1], description="the window, whole minutes"),
+        schemas.DIGITS_ONLY,
     ] = 30,
 ) -> dict:
     """The train's pair: per window (30 min by default; whole minutes, 5 … 1440) the coach that

@@ -65,7 +65,7 @@ def list_tokens(s: DB, _: Admin) -> list:
     responses={**AUTH, **NOT_FOUND},
 )
 def revoke_token(
-    token_id: Annotated[schemas.WholeNumber, Path(ge=1, le=INT32_MAX)], s: DB, who: Admin
+    token_id: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY], s: DB, who: Admin
 ):
     """Revoke a token: it no longer authenticates; audited."""
     t = commands.revoke_token(s, who, token_id)
