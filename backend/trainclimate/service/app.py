@@ -142,8 +142,7 @@ def _error(status: int):
 def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
     """422 with pydantic's errors, as FastAPI gives them; an error that cannot be sent as it is
     (its input a NaN or an infinity, or text with a lone surrogate) loses the input and its
-    context, and any text left in it that is not valid Unicode is escaped (``\\ud800``): the
-    answer to a malformed request never fails itself."""
+    context, so the answer to a malformed request never fails itself."""
     errors = []
     for error in jsonable_encoder(exc.errors()):
         try:
@@ -151,20 +150,8 @@ def _validation_error(_request: Request, exc: RequestValidationError) -> JSONRes
         except ValueError:  # UnicodeEncodeError included
             error.pop("input", None)
             error.pop("ctx", None)
-            error = _escaped(error)
         errors.append(error)
     return JSONResponse({"detail": errors}, status_code=422)
-
-
-def _escaped(value):
-    """``value`` with every string (nested too) made valid UTF-8, lone surrogates escaped."""
-    if isinstance(value, str):
-        return value.encode("utf-8", "backslashreplace").decode("utf-8")
-    if isinstance(value, list):
-        return [_escaped(v) for v in value]
-    if isinstance(value, dict):
-        return {_escaped(k): _escaped(v) for k, v in value.items()}
-    return value
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

@@ -71,12 +71,7 @@ def register_coach(session: Session, who: Principal, coach_id: str, train_id: st
 
 
 class OutsideHorizonError(RequestError):
-    """A batch with rows older than the backfill horizon (→ 422, nothing of it stored):
-    ``rows`` how many."""
-
-    def __init__(self, message: str, rows: int) -> None:
-        super().__init__(message)
-        self.rows = rows
+    """A batch with rows older than the backfill horizon (→ 422, nothing of it stored)."""
 
 
 class Backfill:
@@ -118,8 +113,7 @@ class Backfill:
         raise OutsideHorizonError(
             f"rows[{out[0]}]: time {first.isoformat()} is outside the backfill horizon: more "
             f"than {self.horizon.total_seconds() / 86400:g} days before the newest row of coach "
-            f"{coach_id!r} ({newest.isoformat()}); {len(out)} row(s) that old, nothing stored",
-            len(out),
+            f"{coach_id!r} ({newest.isoformat()}); {len(out)} row(s) that old, nothing stored"
         )
 
 
