@@ -8,8 +8,12 @@ stored once; each test works on a copy of that database file.
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 import time
+from datetime import timedelta
 
 import numpy as np
 import pandas as pd
@@ -203,6 +207,55 @@ def test_no_telemetry_is_refused(tmp_path):
     with pytest.raises(RetrainError, match="no telemetry is stored"):
         retrain(database)
     database.dispose()
+
+
+#: A retraining in a process of its own (``force``: registered whatever its error), printing its
+#: peak of traced memory (Python's and numpy's allocations), bytes.
+PEAK = """
+import sys, tracemalloc
+from trainclimate.service.retrain import retrain
+from trainclimate.service.store.db import Database
+db = Database(sys.argv[1])
+tracemalloc.start()
+result = retrain(db, force=True)
+print(tracemalloc.get_traced_memory()[1], result.window[0].isoformat())
+"""
+
+
+def test_a_stray_row_a_year_old_leaves_the_retraining_flat(demo_day, tmp_path):
+    """A gateway's wrong clock stored a row a year before the rest (its first batch: nothing to
+    hold it against). The retraining reads its default window, not everything back to that row:
+    the peak memory with the row is the peak without it (it read 20 coaches × a year of minutes
+    before), and so is the window."""
+    peaks, starts = {}, {}
+    for name in ("clean", "stray"):
+        path = tmp_path / f"{name}.db"
+        shutil.copy(demo_day, path)
+        url = f"sqlite:///{path}"
+        if name == "stray":
+            database = Database(url)
+            with database.transaction() as s:
+                newest = s.scalars(
+                    select(Telemetry)
+                    .where(Telemetry.coach_id == "D1-A")
+                    .order_by(Telemetry.time.desc())
+                ).first()
+                columns = {c.key: getattr(newest, c.key) for c in Telemetry.__table__.columns}
+                del columns["id"]
+                s.add(Telemetry(**{**columns, "time": newest.time - timedelta(days=365)}))
+            database.dispose()
+        done = subprocess.run(
+            [sys.executable, "-c", PEAK, url],
+            capture_output=True,
+            text=True,
+            env=os.environ,
+            timeout=600,
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        peak, start = done.stdout.split()
+        peaks[name], starts[name] = int(peak), start
+    assert starts["stray"] == starts["clean"]
+    assert peaks["stray"] / peaks["clean"] < 1.05, peaks
 
 
 def test_shadow_predictions_never_change_an_issued_setpoint(demo_day, tmp_path):

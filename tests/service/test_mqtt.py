@@ -37,6 +37,7 @@ from trainclimate.service.adapters.mqtt import (
     parse_rows,
 )
 from trainclimate.service.store import commands
+from trainclimate.service.store.commands import Backfill
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import Setpoint, Telemetry
 from trainclimate.service.store.telemetry import to_wire
@@ -44,6 +45,7 @@ from trainclimate.service.store.tokens import Principal
 
 MQTT_URL = os.environ.get("TRAINCLIMATE_TEST_MQTT_URL", "mqtt://127.0.0.1:1883")
 VALID_FOR = timedelta(minutes=10)
+HORIZON = timedelta(days=7)
 SYSTEM = Principal("test", "admin")
 
 
@@ -88,7 +90,9 @@ def bridges(db, broker):
     made: list[MqttBridge] = []
 
     def make() -> MqttBridge:
-        bridge = MqttBridge(db, broker, client_id=client_id, valid_for=VALID_FOR)
+        bridge = MqttBridge(
+            db, broker, client_id=client_id, valid_for=VALID_FOR, backfill=Backfill(HORIZON)
+        )
         made.append(bridge)
         bridge.start()
         wait_for(lambda: bridge.status.connected, 10, "the bridge's connection")
@@ -249,6 +253,24 @@ def test_bad_messages_are_counted_and_dropped(db, bridges, publisher, broker, ca
     assert len(dropped) == 8 and any("(unknown_coach): no coach '99-Z'" in m for m in dropped)
 
 
+def test_rows_outside_the_backfill_horizon_are_dropped_as_over_http(db, broker):
+    """The bridge's handling of a message, without a broker: a message with a row older than the
+    coach's newest less the horizon is dropped whole (reason outside_horizon) and its rows are
+    counted where the HTTP API counts its own; a topic whose coach id holds a NUL is no coach's
+    (on PostgreSQL too, where such text fails)."""
+    backfill = Backfill(HORIZON)
+    bridge = MqttBridge(db, broker, client_id="unused", valid_for=VALID_FOR, backfill=backfill)
+    topic = broker.topic("7-A", "telemetry")
+    bridge.handle(topic, json.dumps([to_wire(r) for r in flat_rows(1, 3)]).encode())
+    stray = [to_wire(flat_row(T0 - timedelta(days=365))), to_wire(flat_row(at(4)))]
+    bridge.handle(topic, json.dumps({"rows": stray}).encode())
+    bridge.handle(broker.topic("7\x00A", "telemetry"), json.dumps(stray[1]).encode())
+    assert bridge.status.rows_stored == 3
+    assert bridge.status.dropped == {"outside_horizon": 1, "bad_topic": 1}
+    assert backfill.refused == {"outside_horizon": 1}
+    assert telemetry_times(db, "7-A") == [at(1), at(2), at(3)]
+
+
 @needs_broker
 def test_setpoints_are_published_retained(db, bridges, broker):
     bridge = bridges()
@@ -404,7 +426,9 @@ def test_the_acl_lets_a_gateway_use_only_its_own_coaches(db, tmp_path):
         service = Broker.from_url(
             mosquitto.url, username="trainclimate-service", password="service-pw"
         )
-        bridge = MqttBridge(db, service, client_id="acl-service", valid_for=VALID_FOR)
+        bridge = MqttBridge(
+            db, service, client_id="acl-service", valid_for=VALID_FOR, backfill=Backfill(HORIZON)
+        )
         bridge.start()
         wait_for(lambda: bridge.status.connected, 10, "the service's connection")
         gateway = Broker.from_url(mosquitto.url, username="gateway-126", password="gateway-pw")

@@ -30,13 +30,13 @@ def _time(value: str, flag: str):
 def cmd_model_retrain(args: argparse.Namespace) -> None:
     """``model retrain``: fit on the stored telemetry, register a candidate (see
     :mod:`trainclimate.service.retrain`)."""
-    from trainclimate.service.retrain import RetrainError, retrain
+    from trainclimate.service.retrain import MAX_DAYS, RetrainError, retrain
     from trainclimate.service.store.db import Database
 
     if args.days is not None and args.since is not None:
         raise UsageError("give --days N or --since ISO, not both")
-    if args.days is not None and not args.days > 0:
-        raise UsageError("--days must be positive")
+    if args.days is not None and not 0 < args.days <= MAX_DAYS:
+        raise UsageError(f"--days must be positive, at most {MAX_DAYS:g}")
     if args.sampling_min < 1 or args.rho < 2 or args.horizon < 1:
         raise UsageError("--sampling-min ≥ 1, --rho ≥ 2 and --horizon ≥ 1")
     since = _time(args.since, "--since") if args.since else None
@@ -94,7 +94,12 @@ def register(sub) -> None:
         "model's shadow until an admin activates it)",
     )
     p.add_argument("--db", default=None, help="database URL (default: the embedded SQLite)")
-    p.add_argument("--days", type=float, default=None, help="the last N days of telemetry")
+    p.add_argument(
+        "--days",
+        type=float,
+        default=None,
+        help="the last N days of telemetry (default 28 without --since; at most 366)",
+    )
     p.add_argument("--since", default=None, help="telemetry from this time (ISO 8601, UTC)")
     p.add_argument("--coaches", default=None, help="these coaches only (comma-separated)")
     p.add_argument("--sampling-min", type=int, default=5)

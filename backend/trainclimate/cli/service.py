@@ -32,10 +32,19 @@ def cmd_serve(args: argparse.Namespace) -> None:
     from sqlalchemy.engine import make_url
 
     from trainclimate.service.app import create_app
-    from trainclimate.service.settings import REPLICA_NAME_MAX, Settings
+    from trainclimate.service.settings import (
+        MAX_BACKFILL_HORIZON_DAYS,
+        REPLICA_NAME_MAX,
+        Settings,
+    )
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
         raise UsageError("--speedup must be positive")
+    horizon = args.backfill_horizon_days
+    if horizon is not None and not 0 < horizon <= MAX_BACKFILL_HORIZON_DAYS:
+        raise UsageError(
+            f"--backfill-horizon-days takes days in (0, {MAX_BACKFILL_HORIZON_DAYS:g}]"
+        )
     broker = mqtt_broker(args)
     if args.coach_params is not None:
         if args.fleet != "demo":
@@ -54,6 +63,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         speedup=args.speedup,
         predictor_path=args.predictor,
         demo_coach_params=args.coach_params,
+        **({"backfill_horizon_days": horizon} if horizon is not None else {}),
         **(
             {
                 "mqtt_url": args.mqtt,
@@ -149,9 +159,14 @@ def _create_token(
         db.dispose()
 
 
+#: The longest user name (the ``users.name`` column).
+NAME_MAX = 100
+
+
 def cmd_token_create(args: argparse.Namespace) -> None:
     """``token create``: a new token for a new user or an existing one of the same role, shown
     once (or written to ``--out``); a gateway's is scoped to ``--coaches``."""
+    from trainclimate.service.api.schemas import MIN_EXPIRES_DAYS
     from trainclimate.service.store.tokens import check_scope
 
     coaches = None
@@ -165,13 +180,23 @@ def cmd_token_create(args: argparse.Namespace) -> None:
         check_scope(args.role, coaches)
     except ValueError as exc:
         raise UsageError(f"--coaches: {exc}") from None
-    expires_at = None
-    if args.expires is not None:
-        if not (np.isfinite(args.expires) and 0 < args.expires <= 3650):
-            raise UsageError("--expires takes a number of days in (0, 3650]")
-        expires_at = datetime.now(UTC) + timedelta(days=args.expires)
+    if args.name is not None and not (0 < len(args.name) <= NAME_MAX and args.name.isprintable()):
+        raise UsageError(f"--name must be 1 to {NAME_MAX} printable characters")
+    if args.expires is not None and not (
+        np.isfinite(args.expires) and MIN_EXPIRES_DAYS <= args.expires <= 3650
+    ):
+        raise UsageError(
+            f"--expires takes a number of days in [{MIN_EXPIRES_DAYS:.6f}, 3650] "
+            "(a minute to ten years)"
+        )
     url = migrated_database(db_url(args))
-    data = _create_token(url, args.role, args.name, coaches, expires_at)
+    expires_at = None
+    if args.expires is not None:  # from now, once the database is ready
+        expires_at = datetime.now(UTC) + timedelta(days=args.expires)
+    try:
+        data = _create_token(url, args.role, args.name, coaches, expires_at)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     out = out_file(args.out, "the token file")
     if out is not None:  # for another process to read (the compose demo's gateways): owner-only
         out.touch(mode=0o600)
@@ -276,6 +301,8 @@ def cmd_gateway(args: argparse.Namespace) -> None:
 
 def register(sub) -> None:
     """Add ``serve``, ``token create`` and ``gateway`` to ``sub``."""
+    from trainclimate.service.settings import BACKFILL_HORIZON_DAYS
+
     p = add_command(sub, "serve", cmd_serve, "run the service (API, dashboard, control loop)")
     p.add_argument(
         "--db",
@@ -307,6 +334,13 @@ def register(sub) -> None:
         "--mqtt-client-id",
         default="trainclimate-service",
         help="the service's client id: its persistent session on the broker",
+    )
+    p.add_argument(
+        "--backfill-horizon-days",
+        type=float,
+        default=None,
+        help="refuse live telemetry rows older than their coach's newest row less this many "
+        f"days (default {BACKFILL_HORIZON_DAYS:g}; $TRAINCLIMATE_BACKFILL_HORIZON_DAYS)",
     )
     p.add_argument(
         "--replica-name",

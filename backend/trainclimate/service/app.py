@@ -28,7 +28,7 @@ from sqlalchemy.exc import OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 
 from trainclimate import __version__
-from trainclimate.service import api
+from trainclimate.service import api, docpages
 from trainclimate.service.adapters import demo
 from trainclimate.service.adapters.mqtt import Broker, MqttBridge
 from trainclimate.service.api.hardening import (
@@ -38,6 +38,7 @@ from trainclimate.service.api.hardening import (
     AuthFailureThrottle,
     BodySizeLimit,
     FailureCounter,
+    RefuseNul,
     SecurityHeaders,
     Slots,
     pace_threads,
@@ -48,6 +49,7 @@ from trainclimate.service.retrain import RetrainJob
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.cache import ReadCache
+from trainclimate.service.store.commands import Backfill
 from trainclimate.service.store.db import Database, head_revision, migrate
 from trainclimate.sim.params import load_params
 
@@ -85,7 +87,7 @@ async def lifespan(app: FastAPI):
     scheduler = Scheduler(db, settings)
     app.state.db, app.state.scheduler, app.state.preparation = db, scheduler, preparation
     app.state.retrain = RetrainJob(db, settings.sampling_min)
-    app.state.mqtt = mqtt_bridge(db, settings)
+    app.state.mqtt = mqtt_bridge(db, settings, app.state.backfill)
     if app.state.mqtt is not None:
         scheduler.listeners.append(app.state.mqtt.publish_setpoints)
         app.state.mqtt.start()
@@ -110,9 +112,10 @@ async def lifespan(app: FastAPI):
         db.dispose()
 
 
-def mqtt_bridge(db: Database, settings: Settings) -> MqttBridge | None:
+def mqtt_bridge(db: Database, settings: Settings, backfill: Backfill) -> MqttBridge | None:
     """With ``--mqtt URL``: the MQTT feed's bridge (not yet started); its setpoints are valid for
-    as long as the HTTP pull's."""
+    as long as the HTTP pull's, and it takes rows within the same ``backfill`` horizon as
+    ``POST /telemetry``."""
     if settings.mqtt_url is None:
         return None
     broker = Broker.from_url(
@@ -123,7 +126,9 @@ def mqtt_bridge(db: Database, settings: Settings) -> MqttBridge | None:
         prefix=settings.mqtt_prefix,
     )
     valid_for = settings.stale_periods * timedelta(minutes=settings.sampling_min)
-    return MqttBridge(db, broker, client_id=settings.mqtt_client_id, valid_for=valid_for)
+    return MqttBridge(
+        db, broker, client_id=settings.mqtt_client_id, valid_for=valid_for, backfill=backfill
+    )
 
 
 def _error(status: int):
@@ -135,13 +140,14 @@ def _error(status: int):
 
 
 def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
-    """422 with pydantic's errors, as FastAPI gives them, but an input JSON cannot carry (a NaN
-    or an infinity sent as such) is left out of the answer rather than failing it."""
+    """422 with pydantic's errors, as FastAPI gives them; an error that cannot be sent as it is
+    (its input a NaN or an infinity, or text with a lone surrogate) loses the input and its
+    context, so the answer to a malformed request never fails itself."""
     errors = []
     for error in jsonable_encoder(exc.errors()):
         try:
-            json.dumps(error, allow_nan=False)
-        except ValueError:
+            json.dumps(error, allow_nan=False, ensure_ascii=False).encode("utf-8")
+        except ValueError:  # UnicodeEncodeError included
             error.pop("input", None)
             error.pop("ctx", None)
         errors.append(error)
@@ -162,9 +168,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "model management admin."
         ),
         lifespan=lifespan,
+        docs_url=None,  # served by docpages, from the service itself
+        redoc_url=None,
     )
     app.state.settings = settings
     app.include_router(api.router)
+    docpages.install(app)
     for exc, status in api.ERROR_STATUS.items():
         app.add_exception_handler(exc, _error(status))
     # a database that does not answer, or whose connections are all in use: 503 with
@@ -179,13 +188,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_methods=["GET", "POST", "PUT", "DELETE"],
             allow_headers=["Authorization", "Content-Type"],
         )
-    # outermost last: the headers on every answer (429, 413 and 503 included), then the
-    # throttle, the body limit, the admission and the rerun of requests that lost a race
+    # outermost last: the headers on every answer (429, 422, 413 and 503 included), then the
+    # throttle, the refusal of a NUL in the path or query, the body limit, the admission and the
+    # rerun of requests that lost a race
     app.state.read_cache = ReadCache(settings.read_cache_size)
+    app.state.backfill = Backfill(timedelta(days=settings.backfill_horizon_days))
     app.state.admission = Slots(settings.worker_threads, settings.overload_wait_s)
     app.add_middleware(RetryConflicts)
     app.add_middleware(Admission, slots=app.state.admission)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(RefuseNul)
     app.state.auth_failures = FailureCounter(
         settings.auth_failures_burst, settings.auth_failures_window_s
     )

@@ -23,6 +23,15 @@ MQTT_PREFIX = "trainclimate/v1"
 LOOP_READY_MIN_S = 10.0
 #: The longest replica name (the ``setpoints.replica`` column).
 REPLICA_NAME_MAX = 64
+#: The default limit of a request body: above the largest valid telemetry batch (10 000 rows,
+#: every field at its longest: 5 500 058 bytes as ``json.dumps`` writes it, 5 200 056 compact;
+#: ``tests/service/api/test_hardening.py`` measures it). [bytes]
+MAX_BODY_BYTES = 6 * 1024 * 1024
+#: How far back the live feed's telemetry is taken by default, before its coach's newest row
+#: (a week: a gateway's 10 000-row batch spans 6.9 days). [days]
+BACKFILL_HORIZON_DAYS = 7.0
+#: The longest backfill horizon that can be set (ten years). [days]
+MAX_BACKFILL_HORIZON_DAYS = 3650.0
 
 
 def default_replica_name() -> str:
@@ -45,7 +54,10 @@ class Settings(BaseSettings):
     before the model health flags drift;
     ``cors_origins`` other origins allowed to call the API (default none: the dashboard is served
     by the same origin); ``predictor_path`` a model file (default: the cached default model);
-    ``max_body_bytes`` the largest request body accepted (larger: 413); after
+    ``max_body_bytes`` the largest request body accepted (larger: 413; the default fits the
+    largest valid telemetry batch, :data:`MAX_BODY_BYTES`); ``backfill_horizon_days`` how far
+    back the live feed's rows are taken: a row older than its coach's newest less this many
+    days is refused (:class:`~trainclimate.service.store.commands.Backfill`); after
     ``auth_failures_burst`` failed authentications within ``auth_failures_window_s`` seconds,
     a client address's requests with a token answer 429 (see
     :mod:`trainclimate.service.api.hardening`); ``worker_threads`` the threads running the
@@ -80,7 +92,10 @@ class Settings(BaseSettings):
     frontend_dir: Path = Field(
         default_factory=lambda: Path(__file__).resolve().parents[3] / "frontend"
     )
-    max_body_bytes: int = Field(default=2 * 1024 * 1024, gt=0)
+    max_body_bytes: int = Field(default=MAX_BODY_BYTES, gt=0)
+    backfill_horizon_days: float = Field(
+        default=BACKFILL_HORIZON_DAYS, gt=0, le=MAX_BACKFILL_HORIZON_DAYS
+    )
     auth_failures_burst: int = Field(default=20, gt=0)
     auth_failures_window_s: float = Field(default=60.0, gt=0)
     worker_threads: int = Field(default=WORKER_THREADS, gt=0)

@@ -73,7 +73,7 @@ def test_an_oversized_body_is_refused_and_nothing_stored(client, tokens, setting
     limit = settings.max_body_bytes
     rows = [to_wire(r) for r in flat_rows(1, 30)]
     body = json.dumps({"coach_id": "A", "rows": rows}).encode()
-    while len(body) < 3_000_000:  # valid telemetry (duplicates aside), just too much of it
+    while len(body) <= limit + 1_000_000:  # valid telemetry (duplicates aside), too much of it
         rows = rows + rows
         body = json.dumps({"coach_id": "A", "rows": rows}).encode()
     headers = {**op, "Content-Type": "application/json"}
@@ -86,7 +86,7 @@ def test_an_oversized_body_is_refused_and_nothing_stored(client, tokens, setting
     # the same without Content-Length (chunked): counted as it streams in
     chunked = client.post(
         f"{API}/telemetry",
-        content=iter([body[:1_000_000], body[1_000_000:]]),
+        content=iter([body[: limit // 2], body[limit // 2 :]]),
         headers=headers,
     )
     assert chunked.status_code == 413

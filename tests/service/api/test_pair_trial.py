@@ -40,8 +40,10 @@ def _crossover_train(client, op, train: str, ratio: float, saving: float, days: 
     for d in range(days):
         first = d * DAY
         on, off = (f"{train}-A", f"{train}-B") if d % 2 == 0 else (f"{train}-B", f"{train}-A")
-        decided(client, on, first, first + HOURS - 5)
-        decided(client, off, first, first + HOURS - 5, "rule", "inactive")
+        # through the day's last row's tick: else the live loop may issue it between two days,
+        # on the coach activated in the database, and move that day's switch
+        decided(client, on, first, first + HOURS)
+        decided(client, off, first, first + HOURS, "rule", "inactive")
         level = 10.0 * np.exp(rng.normal(0, 0.2))
         b = level * (1 - saving if d % 2 else 1.0) * np.exp(rng.normal(0, 0.01))
         a = level * ratio * (1 - saving if d % 2 == 0 else 1.0) * np.exp(rng.normal(0, 0.01))

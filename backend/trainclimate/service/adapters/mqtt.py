@@ -21,7 +21,9 @@ back-off and acknowledges nothing, so the broker keeps the rest (Mosquitto holds
 ``max_queued_messages`` per client, 1 000 by default: raise it for a large fleet).
 
 **Bad messages** — a topic that names no coach, malformed JSON, rows the HTTP API would refuse
-(422), a coach not registered, a coach of the simulated demo fleet — are counted by reason in
+(422; a row older than the backfill horizon among them, reason ``outside_horizon``, its rows
+counted with the HTTP API's in :class:`~trainclimate.service.store.commands.Backfill`), a coach
+not registered, a coach of the simulated demo fleet — are counted by reason in
 :attr:`MqttBridge.status` (shown by ``GET /api/v1/health``), logged with the reason, acknowledged
 and dropped; they never stop the feed. A broker that goes away is reconnected with back-off
 (1 s doubling to 60 s) while the HTTP API keeps serving.
@@ -46,11 +48,12 @@ from sqlalchemy.exc import OperationalError
 from trainclimate.service.api.schemas import TelemetryRow
 from trainclimate.service.settings import MQTT_PREFIX
 from trainclimate.service.store import commands
-from trainclimate.service.store.commands import ConflictError
+from trainclimate.service.store.commands import Backfill, ConflictError, OutsideHorizonError
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import Coach
 from trainclimate.service.store.queries import NotFoundError, newest_setpoint, setpoint_view
 from trainclimate.service.store.telemetry import from_wire
+from trainclimate.service.store.tokens import COACH_ID
 
 log = logging.getLogger(__name__)
 
@@ -123,12 +126,12 @@ class Broker:
         return f"{self.prefix}/coaches/{coach_id}/{kind}"
 
     def coach_of(self, topic: str, kind: str) -> str | None:
-        """The coach id a ``kind`` topic names, None if it names none."""
+        """The coach id a ``kind`` topic names, None if it names none (or no valid coach id)."""
         head, tail = f"{self.prefix}/coaches/", f"/{kind}"
         if not (topic.startswith(head) and topic.endswith(tail)):
             return None
         coach_id = topic[len(head) : -len(tail)]
-        return coach_id if coach_id and "/" not in coach_id else None
+        return coach_id if COACH_ID.match(coach_id) else None
 
     def client(self, client_id: str, *, persistent: bool = False, manual_ack: bool = False):
         """A paho client for this broker (not yet connected): credentials, TLS, and reconnection
@@ -216,10 +219,12 @@ class MqttBridge:
         *,
         client_id: str,
         valid_for: timedelta,
+        backfill: Backfill,
     ):
         self.db = db
         self.broker = broker
         self.valid_for = valid_for
+        self.backfill = backfill
         self.status = MqttStatus(broker=broker.address)
         self._inbox: queue.Queue = queue.Queue()
         self._stop = threading.Event()
@@ -301,7 +306,9 @@ class MqttBridge:
             rows = parse_rows(payload, coach_id)
             try:
                 with self.db.transaction() as session:
-                    stored, duplicates = commands.ingest(session, coach_id, rows)
+                    stored, duplicates = commands.ingest(session, coach_id, rows, self.backfill)
+            except OutsideHorizonError as exc:
+                raise MessageError(Backfill.REASON, str(exc)) from None
             except NotFoundError as exc:
                 raise MessageError("unknown_coach", str(exc)) from None
             except ConflictError as exc:

@@ -19,8 +19,8 @@ router = APIRouter()
 def audit_log(
     s: DB,
     _: Viewer,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0, le=INT32_MAX)] = 0,
+    limit: Annotated[int, Query(ge=1, le=1000), schemas.DIGITS_ONLY] = 100,
+    offset: Annotated[int, Query(ge=0, le=INT32_MAX), schemas.DIGITS_ONLY] = 0,
     target: Annotated[str | None, Query(max_length=64)] = None,
 ) -> list:
     """The audit log, newest first."""

@@ -2,7 +2,8 @@
 :func:`trainclimate.service.app.create_app` (outermost first):
 
 - :class:`SecurityHeaders` — the Content Security Policy and the other security headers on every
-  response, the API's and the dashboard's (a 500 included);
+  response, the API's and the dashboard's (a 500 included), and ``Cache-Control: no-store`` on
+  the API's (a new token's secret among them);
 - :class:`AuthFailureThrottle` — after ``auth_failures_burst`` failed authentications (401 to a
   request that carried an ``Authorization`` header) within ``auth_failures_window_s`` from one
   client address, that address's requests with a token answer 429 (``Retry-After``) until the
@@ -10,6 +11,7 @@
 - :class:`BodySizeLimit` — a request body over ``max_body_bytes`` answers 413, read off
   ``Content-Length`` when given, else counted while it streams in (chunked), never read whole
   first;
+- :class:`RefuseNul` — a NUL character in the path or the query string answers 422;
 - :class:`Admission` — at most ``worker_threads`` API requests at once (:class:`Slots`); one
   more waits up to ``overload_wait_s`` for a slot, first come first served, and else answers
   503 with ``Retry-After``, so that an overloaded service says so at once instead of answering
@@ -30,6 +32,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from urllib.parse import unquote_to_bytes
 
 from anyio import to_thread
 from starlette.datastructures import Headers, MutableHeaders
@@ -53,10 +56,14 @@ SECURITY_HEADERS = {
     "X-Frame-Options": "DENY",
     "Referrer-Policy": "no-referrer",
 }
+#: The API's answers are for one token's holder, and one of them carries a new token's secret
+#: (``POST /api/v1/tokens``): no cache, the browser's or a proxy's, may keep any of them.
+API_CACHE_CONTROL = "no-store"
 
 
 class SecurityHeaders:
-    """Adds :data:`SECURITY_HEADERS` to every HTTP response. An exception escaping the app
+    """Adds :data:`SECURITY_HEADERS` to every HTTP response, and ``Cache-Control``
+    (:data:`API_CACHE_CONTROL`) to every answer under ``/api/``. An exception escaping the app
     before it answered is answered here (500, with the headers) and raised again, so that the
     server still logs it."""
 
@@ -76,6 +83,8 @@ class SecurityHeaders:
                 headers = MutableHeaders(scope=message)
                 for name, value in SECURITY_HEADERS.items():
                     headers[name] = value
+                if scope.get("path", "").startswith("/api/"):
+                    headers["Cache-Control"] = API_CACHE_CONTROL
             await send(message)
 
         try:
@@ -145,6 +154,28 @@ class BodySizeLimit:
             if started:
                 raise
             await self._refuse(scope, receive, send)
+
+
+class RefuseNul:
+    """422 ``{"detail": …}`` for a request whose path or query string holds a NUL character
+    (``%00``; the app is not called): no id, reason or file name holds one, and PostgreSQL
+    refuses it in text, so it is refused alike on every database and for every route."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and (
+            "\x00" in scope.get("path", "")
+            or b"\x00" in unquote_to_bytes(scope.get("query_string", b""))
+        ):
+            response = JSONResponse(
+                {"detail": "the path or query string holds a NUL character (%00)"},
+                status_code=422,
+            )
+            await response(scope, receive, send)
+            return
+        await self.app(scope, receive, send)
 
 
 class FailureCounter:

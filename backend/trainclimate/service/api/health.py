@@ -23,7 +23,8 @@ router = APIRouter()
 @router.get("/health", response_model=schemas.Health, tags=["health"])
 def health(request: Request) -> dict:
     """Liveness, without authentication, and what the service is still preparing (e.g. the
-    predictor model, with how far it is), and the MQTT feed's state and counts."""
+    predictor model, with how far it is), the telemetry rows refused since start, and the MQTT
+    feed's state and counts."""
     status = request.app.state.preparation.status
     mqtt = request.app.state.mqtt
     preparing = [status] if status.state != "done" else []
@@ -32,6 +33,7 @@ def health(request: Request) -> dict:
         "version": __version__,
         "database": request.app.state.db.dialect,
         "preparing": preparing,
+        "telemetry_refused": request.app.state.backfill.refused,
         "mqtt": dataclasses.asdict(mqtt.status) if mqtt is not None else None,
     }
 

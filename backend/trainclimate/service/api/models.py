@@ -88,7 +88,7 @@ def retrain_status(request: Request, _: Viewer) -> dict:
     responses={**AUTH, **NOT_FOUND},
 )
 def activate_model(
-    version: Annotated[int, Path(ge=1, le=INT32_MAX)],
+    version: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY],
     reason: Annotated[str, Query(min_length=1, max_length=500)],
     s: DB,
     who: Admin,
@@ -121,7 +121,7 @@ def active_model_health(request: Request, s: DB, _: Viewer, hours: Hours = 24.0)
     responses={**AUTH, **NOT_FOUND},
 )
 def get_model_health(
-    version: Annotated[int, Path(ge=1, le=INT32_MAX)],
+    version: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY],
     request: Request,
     s: DB,
     _: Viewer,

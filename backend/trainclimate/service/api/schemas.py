@@ -6,7 +6,16 @@ import math
 from datetime import UTC, date, datetime, timedelta
 from typing import Annotated, Literal
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    AwareDatetime,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StrictBool,
+    field_validator,
+    model_validator,
+)
 
 from trainclimate.service.store.attention import KINDS
 from trainclimate.service.store.queries import STATUSES
@@ -36,12 +45,58 @@ PLAN_DESCRIPTION = (
 #: How far ahead of the server's clock a telemetry row may be stamped (clock skew).
 MAX_AHEAD = timedelta(minutes=5)
 EARLIEST_ROW = datetime(2000, 1, 1, tzinfo=UTC)
+#: The shortest life of an expiring token (a minute): one that expires before it can be used is
+#: a mistake. [days]
+MIN_EXPIRES_DAYS = 1 / 1440
+#: The shortest override: a shorter one would start and end at once, and still cancel the
+#: override in force. [min]
+MIN_OVERRIDE_MIN = 1.0
+
+
+def _storable(text: str, where: str) -> None:
+    """ValueError unless ``text`` can be stored: no NUL character (PostgreSQL refuses it in
+    text) and no lone surrogate (not UTF-8)."""
+    if "\x00" in text:
+        raise ValueError(f"{where}: must not contain a NUL character")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError(f"{where}: must be valid Unicode (a lone surrogate is not)") from None
 
 
 class Strict(BaseModel):
-    """Unknown fields are an error (a typo must not be silently ignored)."""
+    """A request body: unknown fields are an error (a typo must not be silently ignored), and no
+    string in it — a field's, or an item of a field's list — may hold a NUL character or a lone
+    surrogate (422 on SQLite and PostgreSQL alike; a nested body checks its own). Its booleans
+    are :class:`~pydantic.StrictBool` (``"yes"`` or ``0`` is no boolean)."""
 
     model_config = ConfigDict(extra="forbid")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _storable_text(cls, data):
+        if isinstance(data, dict):
+            for key, value in data.items():
+                if isinstance(value, str):
+                    _storable(value, key)
+                elif isinstance(value, list):
+                    for item in value:
+                        if isinstance(item, str):
+                            _storable(item, key)
+        return data
+
+
+def _whole(value):
+    """A path or query value as a whole number: digits only (``1.0``, ``+1``, ``1_0`` are not)."""
+    if isinstance(value, str) and not (value.isascii() and value.isdigit()):
+        raise ValueError("must be a whole number, digits only")
+    return value
+
+
+#: An integer path or query parameter is written in digits only (``/tokens/1.0`` is no token id):
+#: ``Annotated[int, Path(ge=1), DIGITS_ONLY]`` — after the ``Path`` or ``Query``, whose bounds
+#: then stay in the schema as its minimum and maximum.
+DIGITS_ONLY = BeforeValidator(_whole)
 
 
 def _finite(value: float | None) -> float | None:
@@ -71,7 +126,7 @@ class MqttFeed(BaseModel):
     duplicates: int = Field(description="rows already stored (a message delivered again)")
     dropped: dict[str, int] = Field(
         description="messages dropped, by reason: bad_topic, malformed_json, invalid_rows, "
-        "coach_mismatch, unknown_coach, not_live",
+        "coach_mismatch, unknown_coach, not_live, outside_horizon",
         examples=[{"unknown_coach": 2}],
     )
     setpoints_published: int
@@ -86,6 +141,11 @@ class Health(BaseModel):
     preparing: list[Preparing] = Field(
         description="background work still running or failed (empty when all is done); until "
         "the predictor model is ready the coaches run under T_rule"
+    )
+    telemetry_refused: dict[str, int] = Field(
+        description="telemetry rows refused since start (HTTP and MQTT), by reason: "
+        "outside_horizon (older than the coach's newest row less the backfill horizon)",
+        examples=[{"outside_horizon": 1}],
     )
     mqtt: MqttFeed | None = Field(default=None, description="null without --mqtt")
 
@@ -249,7 +309,7 @@ class CoachCreate(Strict):
         "coaches only",
         examples=["124"],
     )
-    ddpc_active: bool = Field(default=False, examples=[True])
+    ddpc_active: StrictBool = Field(default=False, examples=[True])
 
 
 class TimeSeries(BaseModel):
@@ -299,7 +359,7 @@ class TelemetryRow(Strict):
         "the HVAC units alone (the meter the savings headline uses) are the difference",
     )
     mode: Mode = Field(default="regular")
-    connected: bool = True
+    connected: StrictBool = True
 
     @model_validator(mode="after")
     def _floor_within_power(self) -> TelemetryRow:
@@ -372,7 +432,7 @@ class SetpointHistory(BaseModel):
 
 class OverrideIn(Strict):
     t_ref_c: float = Field(examples=[21.5], description="°C, within T_rule ± 2 K")
-    duration_min: float = Field(gt=0, le=24 * 60, examples=[60])
+    duration_min: float = Field(ge=MIN_OVERRIDE_MIN, le=24 * 60, examples=[60], description="min")
     reason: str = Field(min_length=1, max_length=500, examples=["passengers report it is cold"])
 
     _check = field_validator("t_ref_c")(_finite)
@@ -394,7 +454,7 @@ class OverrideOut(BaseModel):
 class ControllerChange(Strict):
     """Switch the DDPC layer on or off for a coach."""
 
-    active: bool = Field(examples=[False])
+    active: StrictBool = Field(examples=[False])
     reason: str = Field(min_length=1, max_length=500, examples=["maintenance of the HVAC"])
 
 
@@ -661,10 +721,10 @@ class TokenIn(Strict):
 
     expires_in_days: float | None = Field(
         default=None,
-        gt=0,
+        ge=MIN_EXPIRES_DAYS,
         le=3650,
-        description="the token stops authenticating this many days after its creation "
-        "(default: valid until revoked)",
+        description="the token stops authenticating this many days after its creation, at "
+        "least a minute (default: valid until revoked)",
         examples=[90],
     )
 
@@ -724,10 +784,17 @@ class CoachHealth(BaseModel):
 
 class RetrainIn(Strict):
     reason: str = Field(min_length=1, max_length=500, examples=["the winter's first month"])
-    days: float | None = Field(default=None, gt=0, le=3650, description="the last N days")
+    days: float | None = Field(
+        default=None,
+        gt=0,
+        le=366,
+        description="the last N days (default: 28 without since; the window is at most 366)",
+    )
     since: datetime | None = Field(default=None, description="telemetry from this time")
     coaches: CoachIds | None = Field(default=None, max_length=10_000)
-    force: bool = Field(default=False, description="register even a fit worse than the active")
+    force: StrictBool = Field(
+        default=False, description="register even a fit worse than the active"
+    )
 
 
 class RetrainStatus(BaseModel):

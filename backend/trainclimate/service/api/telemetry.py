@@ -3,7 +3,7 @@ the coach's setpoint now, is in :mod:`.coaches`)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 
 from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
@@ -25,10 +25,14 @@ router = APIRouter()
     tags=["live feed"],
     responses={**AUTH, **NOT_FOUND, **CONFLICT},
 )
-def post_telemetry(batch: schemas.TelemetryBatch, s: DB, _: GatewayOrOperatorTelemetry) -> dict:
+def post_telemetry(
+    batch: schemas.TelemetryBatch, request: Request, s: DB, _: GatewayOrOperatorTelemetry
+) -> dict:
     """A gateway's batch of 1-minute rows for one coach; rows already stored are skipped. A
     gateway token may send it for the coaches of its scope. 409 for a coach of the demo
-    fleet."""
+    fleet; 422 for a batch with a row older than the backfill horizon (its coach's newest row,
+    stored or sent, less 7 days by default), naming the first such row (counted in
+    ``GET /health``'s ``telemetry_refused``)."""
     rows = [from_wire(r.model_dump()) for r in batch.rows]
-    stored, dup = commands.ingest(s, batch.coach_id, rows)
+    stored, dup = commands.ingest(s, batch.coach_id, rows, request.app.state.backfill)
     return {"received": len(rows), "stored": stored, "duplicates": dup}

@@ -16,6 +16,9 @@ from trainclimate.service.store import commands, comparison, plans, queries
 from trainclimate.service.store.models import Train
 
 router = APIRouter()
+#: The comparison's window, whole minutes: at least the controller's period (a shorter one has
+#: no setpoint of its own and multiplies the work), at most a day. [min]
+WINDOW_MIN = (5, 24 * 60)
 
 
 @router.get("/trains", response_model=list[schemas.TrainOut], tags=["trains"], responses=AUTH)
@@ -89,14 +92,18 @@ def train_comparison(
     _: Viewer,
     start: AwareDatetime | None = None,
     end: AwareDatetime | None = None,
-    window_min: Annotated[float, Query(gt=0, le=24 * 60)] = 30.0,
+    window_min: Annotated[
+        int,
+        Query(ge=WINDOW_MIN[0], le=WINDOW_MIN[1], description="the window, whole minutes"),
+        schemas.DIGITS_ONLY,
+    ] = 30,
 ) -> dict:
-    """The train's pair: per window (30 min by default) the coach that ran the layer, the
-    energies and the saving, or why the window does not count; the totals over the counted
-    windows; the trial estimate over the range's service days — crossover when each coach had
-    activated days (the coaches' own difference cancels), corrected by reference days, or the
-    naive figure labelled as confounded — with its 95 % bootstrap interval, the days still
-    needed for ±2 points and ASHRAE Guideline 14's criterion."""
+    """The train's pair: per window (30 min by default; whole minutes, 5 … 1440) the coach that
+    ran the layer, the energies and the saving, or why the window does not count; the totals
+    over the counted windows; the trial estimate over the range's service days — crossover when
+    each coach had activated days (the coaches' own difference cancels), corrected by reference
+    days, or the naive figure labelled as confounded — with its 95 % bootstrap interval, the days
+    still needed for ±2 points and ASHRAE Guideline 14's criterion."""
     train = queries.train_or_404(s, train_id)
     c0, _c1 = queries.pair_or_422(train)
     start, end = queries.time_range(s, c0, start, end)

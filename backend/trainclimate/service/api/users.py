@@ -72,7 +72,9 @@ def list_tokens(s: DB, _: Admin) -> list:
     tags=["users"],
     responses={**AUTH, **NOT_FOUND},
 )
-def revoke_token(token_id: Annotated[int, Path(ge=1, le=INT32_MAX)], s: DB, who: Admin):
+def revoke_token(
+    token_id: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY], s: DB, who: Admin
+):
     """Revoke a token: it no longer authenticates; audited."""
     t = commands.revoke_token(s, who, token_id)
     return _info(t, s.get(User, t.user_id))

@@ -4,9 +4,10 @@ model activation, token and role change in the audit log with who, when and why.
 
 from __future__ import annotations
 
+import threading
 from datetime import datetime, timedelta
 
-from sqlalchemy import select, update
+from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
@@ -112,9 +113,59 @@ def check_train_scope(session: Session, who: Principal, train_id: str) -> None:
         )
 
 
-def ingest(session: Session, coach_id: str, rows: list[dict]) -> tuple[int, int]:
+class OutsideHorizonError(RequestError):
+    """A batch with rows older than the backfill horizon (→ 422, nothing of it stored)."""
+
+
+class Backfill:
+    """How far back the live feed's telemetry is taken, over HTTP and MQTT alike: a row older
+    than its coach's newest row — stored, or in the same batch — less ``horizon`` is refused, so
+    that a gateway's wrong clock (a row dated 2000-01-01) cannot stretch what the queries and the
+    next retraining read. ``refused`` counts the rows refused since start, by reason (one
+    reason: ``outside_horizon``); the server's threads share it."""
+
+    REASON = "outside_horizon"
+
+    def __init__(self, horizon: timedelta) -> None:
+        self.horizon = horizon
+        self._refused: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    @property
+    def refused(self) -> dict[str, int]:
+        """A copy of the counts: reason → rows refused since start."""
+        with self._lock:
+            return dict(self._refused)
+
+    def check(self, session: Session, coach_id: str, rows: list[dict]) -> None:
+        """:class:`OutsideHorizonError` (counted), naming the first row out and why, if any of
+        ``rows`` (a batch of ``coach_id``, not empty) is older than the horizon allows."""
+        stored = session.scalar(
+            select(func.max(Telemetry.time)).where(Telemetry.coach_id == coach_id)
+        )
+        newest = max(r["time"] for r in rows)
+        if stored is not None and stored > newest:
+            newest = stored
+        floor = newest - self.horizon
+        out = [i for i, r in enumerate(rows) if r["time"] < floor]
+        if not out:
+            return
+        with self._lock:
+            self._refused[self.REASON] = self._refused.get(self.REASON, 0) + len(out)
+        first = rows[out[0]]["time"]
+        raise OutsideHorizonError(
+            f"rows[{out[0]}]: time {first.isoformat()} is outside the backfill horizon: more "
+            f"than {self.horizon.total_seconds() / 86400:g} days before the newest row of coach "
+            f"{coach_id!r} ({newest.isoformat()}); {len(out)} row(s) that old, nothing stored"
+        )
+
+
+def ingest(
+    session: Session, coach_id: str, rows: list[dict], backfill: Backfill | None = None
+) -> tuple[int, int]:
     """Store a batch of telemetry, advance the live fleet's clock and note the arrival
-    (:mod:`.liveness`). Returns (stored, duplicates)."""
+    (:mod:`.liveness`). Returns (stored, duplicates). With ``backfill``, a batch with a row
+    older than its horizon is refused whole (:class:`OutsideHorizonError`)."""
     coach = coach_or_404(session, coach_id)
     if coach.fleet != "live":
         # the demo fleet writes its coaches' rows itself, without skipping any: a row posted
@@ -122,6 +173,8 @@ def ingest(session: Session, coach_id: str, rows: list[dict]) -> tuple[int, int]
         raise ConflictError(f"coach {coach_id!r} is simulated by the {coach.fleet} fleet")
     if not rows:
         return 0, 0
+    if backfill is not None:
+        backfill.check(session, coach.id, rows)
     newest = max(r["time"] for r in rows)
     stored = insert_rows(session, coach.id, rows)
     # the clock is created by the first post ever, concurrent ones included
