@@ -21,10 +21,10 @@ Topics, under a prefix (``trainclimate/v1`` unless ``--mqtt-prefix`` says otherw
 
 **Who sent it.** A subscriber never learns which broker user published a message, so the message
 carries its gateway's token, checked in the transaction that stores its rows as the HTTP API
-checks a bearer token: unknown, revoked or expired (``revoked``), or not for the topic's coach
-(``forbidden``: a gateway token of other coaches, a viewer's), and the message is dropped. The
-token travels inside the message, so only the service may read the telemetry topics (the broker's
-ACL) and the broker should be reached over TLS.
+checks a bearer token: a token unknown, revoked or expired (``revoked``) or not for the topic's
+coach (``forbidden``: a gateway token of other coaches, a viewer's) drops the message. The token
+travels inside the message, so only the service may read the telemetry topics (the broker's ACL)
+and the broker should be reached over TLS.
 
 **Exactly once into the database.** The bridge's session with the broker is persistent (a fixed
 client id, clean session off) and it acknowledges a message only once its rows are committed
