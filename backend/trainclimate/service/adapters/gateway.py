@@ -20,9 +20,9 @@ of that clock it
 
 At start it registers its coaches over HTTP (``POST /api/v1/coaches``; an existing coach is left
 as it is); while the server cannot be reached it runs on, keeps its telemetry and tries again every
-minute; at the end it keeps trying for a minute more to send what is left. A refusal (a bad token,
-a coach of another train, a coach its gateway token is not scoped to) stops it with the server's
-answer. Those are all the calls it makes: a ``gateway`` token scoped to its coaches
+minute; at the end it keeps trying for a minute more to have what is left confirmed. A refusal (a
+bad token, a coach of another train, a coach its gateway token is not scoped to) stops it with the
+server's answer. Those are all the calls it makes: a ``gateway`` token scoped to its coaches
 (``trainclimate token create --role gateway --coaches …``) is all it needs.
 """
 
@@ -466,7 +466,8 @@ class Gateway:
 
     def _flush(self, patience_s: float = 60.0) -> None:
         """At the end: send what is still kept, retrying every second for ``patience_s`` s (wall
-        time) while the server is unreachable; what is left then is counted in ``rows_unsent``."""
+        time) while the server is unreachable or has not confirmed it; what is left then is
+        counted in ``rows_unsent``."""
         deadline = time.monotonic() + patience_s
         while any(self.buffer.values()) and time.monotonic() < deadline:
             if self.registered or self.register():
@@ -475,4 +476,4 @@ class Gateway:
                 time.sleep(1.0)
         self.stats.rows_unsent = sum(len(rows) for rows in self.buffer.values())
         if self.stats.rows_unsent:
-            log.error("%d telemetry rows could not be sent", self.stats.rows_unsent)
+            log.error("%d telemetry rows were never confirmed", self.stats.rows_unsent)
