@@ -608,10 +608,8 @@ def test_revoking_a_gateway_token_disconnects_its_broker_client(
             mosquitto.url, username=first["mqtt_username"], password=first["token"]
         )
         assert connection_answer(revoked) == "Not authorized"
-        assert (
-            httpx.get(f"{api}/coaches/9-A/setpoint", headers=_bearer(first["token"])).status_code
-            == 401
-        )
+        reply = httpx.get(f"{api}/coaches/9-A/setpoint", headers=_bearer(first["token"]))
+        assert reply.status_code == 401
         # the revoked token in a message of another gateway's client: refused by the service
         other = GatewayClient(mosquitto.url, second, ["9-A"])
         gateways.append(other)
@@ -626,7 +624,8 @@ def test_revoking_a_gateway_token_disconnects_its_broker_client(
             clients = BrokerClients(
                 Broker.from_url(mosquitto.url, username=ADMIN[0], password=ADMIN[1])
             )
-            assert clients.sweep(db) == [second["mqtt_username"]]
+            swept = clients.sweep(db)  # unless the service's own sweep (every minute) came first
+            assert swept in ([second["mqtt_username"]], [])
         finally:
             db.dispose()
         wait_for(lambda: other.disconnected, 10, "the swept gateway's disconnection")

@@ -64,13 +64,27 @@ class BrokerClients:
         self.timeout_s = timeout_s
 
     def add(self, session: Session, token: str, coaches: list[str]) -> str:
-        """Create the broker client of the gateway ``token`` just issued in ``session`` (a client
+        """Create the broker client of the gateway ``token`` just made in ``session`` (a client
         of the same name is replaced); returns its user name. :class:`DynsecError` if the plugin
         does not create it."""
         session.flush()
-        issued = select(ApiToken.id).where(ApiToken.token_hash == hash_token(token))
-        name = username(session.scalar(issued))
-        acls = [
+        made = select(ApiToken.id).where(ApiToken.token_hash == hash_token(token))
+        name = username(session.scalar(made))
+        client = {"command": "createClient", "username": name, "password": token}
+        try:
+            self._run(
+                *_deletions([name]),
+                {"command": "createRole", "rolename": name, "acls": self.acls(coaches)},
+                client | {"roles": [{"rolename": name}]},
+            )
+        except DynsecError as exc:
+            raise DynsecError(f"the broker did not create the gateway's client: {exc}") from None
+        return name
+
+    def acls(self, coaches: list[str]) -> list[dict]:
+        """A gateway's ACLs: publish its coaches' telemetry, subscribe to their setpoints and
+        confirmations (everything else the plugin denies by default)."""
+        return [
             {"acltype": acltype, "topic": self.broker.topic(coach, kind), "allow": True}
             for coach in coaches
             for acltype, kind in (
@@ -79,16 +93,6 @@ class BrokerClients:
                 ("subscribeLiteral", "stored"),
             )
         ]
-        client = {"command": "createClient", "username": name, "password": token}
-        try:
-            self._run(
-                *_deletions([name]),
-                {"command": "createRole", "rolename": name, "acls": acls},
-                client | {"roles": [{"rolename": name}]},
-            )
-        except DynsecError as exc:
-            raise DynsecError(f"the broker did not create the gateway's client: {exc}") from None
-        return name
 
     def remove(self, token_id: int) -> None:
         """Delete the broker client of gateway token ``token_id`` and its role (the plugin
