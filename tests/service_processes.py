@@ -100,46 +100,81 @@ def token_cli(db_url: str, role: str, env: dict[str, str], *options: str) -> str
 
 #: The compose demo's broker configuration (Mosquitto's config and ACL).
 MOSQUITTO_DEPLOY = Path(__file__).resolve().parents[1] / "deploy" / "mosquitto"
+#: Where Debian installs Mosquitto's dynamic security plugin.
+DYNSEC_PLUGIN = Path("/usr/lib/x86_64-linux-gnu/mosquitto_dynamic_security.so")
 
 
 class Mosquitto:
-    """A private Mosquitto broker (the machine's ``mosquitto``) on a free port, configured as the
-    compose demo's (``deploy/mosquitto``: no anonymous users, its ACL) with ``users`` {name:
-    password} in a password file that ``mosquitto_passwd`` writes; its paths under ``tmp``."""
+    """A private Mosquitto broker (the machine's ``mosquitto``) on a free port, configured as
+    ``deploy/mosquitto/{config}`` says (the compose demo's: no anonymous users, its ACL) with
+    ``users`` {name: password} in a password file that ``mosquitto_passwd`` writes, or — with
+    ``admin`` (name, password) — the dynamic security plugin, its file made by ``mosquitto_ctrl
+    dynsec init``; ``settings`` replace or add lines of the config; its paths under ``tmp``.
+    It can be killed (SIGKILL) and started again on the same port with the same data."""
 
-    def __init__(self, tmp: Path, users: dict[str, str]):
+    def __init__(
+        self,
+        tmp: Path,
+        users: dict[str, str] | None = None,
+        *,
+        config: str = "mosquitto.conf",
+        admin: tuple[str, str] | None = None,
+        settings: dict[str, str] | None = None,
+    ):
         if not (shutil.which("mosquitto") or Path("/usr/sbin/mosquitto").exists()):
             pytest.skip("no mosquitto binary on this machine (apt-get install mosquitto)")
         self.port = free_port()
         self.url = f"mqtt://127.0.0.1:{self.port}"
+        self.tmp = tmp
         tmp.mkdir(parents=True, exist_ok=True)
-        passwd = tmp / "passwd"
+        (tmp / "data").mkdir(exist_ok=True)
+        where = {
+            "listener": f"{self.port} 127.0.0.1",
+            "password_file": str(self._passwords(users or {})),
+            "acl_file": str(tmp / "acl"),
+            "persistence_location": f"{tmp / 'data'}/",
+            "plugin": str(DYNSEC_PLUGIN),
+            "plugin_opt_config_file": str(tmp / "dynamic-security.json"),
+            **(settings or {}),
+        }
+        shutil.copy(MOSQUITTO_DEPLOY / "acl", tmp / "acl")
+        if admin is not None:
+            if not DYNSEC_PLUGIN.exists():
+                pytest.skip(f"no dynamic security plugin at {DYNSEC_PLUGIN}")
+            init = [str(tmp / "dynamic-security.json"), *admin]
+            subprocess.run(
+                ["mosquitto_ctrl", "dynsec", "init", *init], check=True, capture_output=True
+            )
+        lines = []
+        for line in (MOSQUITTO_DEPLOY / config).read_text().splitlines():
+            key = line.split(" ", 1)[0]
+            lines.append(f"{key} {where.pop(key)}" if key in where else line)
+        lines += [f"{key} {value}" for key, value in (settings or {}).items() if key in where]
+        lines.append(f"user {getpass.getuser()}")  # as root it would switch to "mosquitto"
+        (tmp / "mosquitto.conf").write_text("\n".join(lines) + "\n")
+        self.log = tmp / "mosquitto.log"
+        self.start()
+
+    def _passwords(self, users: dict[str, str]) -> Path:
+        passwd = self.tmp / "passwd"
         for i, (name, password) in enumerate(users.items()):
             create = ["-c"] if i == 0 else []
             subprocess.run(
                 ["mosquitto_passwd", *create, "-b", str(passwd), name, password], check=True
             )
-        (tmp / "data").mkdir(exist_ok=True)
-        shutil.copy(MOSQUITTO_DEPLOY / "acl", tmp / "acl")
-        where = {
-            "listener": f"{self.port} 127.0.0.1",
-            "password_file": str(passwd),
-            "acl_file": str(tmp / "acl"),
-            "persistence_location": f"{tmp / 'data'}/",
-        }
-        lines = []
-        for line in (MOSQUITTO_DEPLOY / "mosquitto.conf").read_text().splitlines():
-            key = line.split(" ", 1)[0]
-            lines.append(f"{key} {where[key]}" if key in where else line)
-        lines.append(f"user {getpass.getuser()}")  # as root it would switch to "mosquitto"
-        (tmp / "mosquitto.conf").write_text("\n".join(lines) + "\n")
+        return passwd
+
+    def start(self) -> Mosquitto:
+        """Start the broker (again) and wait until it listens."""
         binary = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-        self.log = tmp / "mosquitto.log"
-        with self.log.open("wb") as out:
+        with self.log.open("ab") as out:
             self.proc = subprocess.Popen(
-                [binary, "-c", str(tmp / "mosquitto.conf")], stdout=out, stderr=subprocess.STDOUT
+                [binary, "-c", str(self.tmp / "mosquitto.conf")],
+                stdout=out,
+                stderr=subprocess.STDOUT,
             )
         wait_for(self._listening, 10, f"mosquitto on port {self.port}")
+        return self
 
     def _listening(self) -> bool:
         if self.proc.poll() is not None:
@@ -150,6 +185,24 @@ class Mosquitto:
         except OSError:
             return False
 
-    def stop(self) -> None:
-        self.proc.terminate()
+    def ctrl(self, admin: tuple[str, str], *command: str) -> str:
+        """``mosquitto_ctrl dynsec COMMAND…`` against this broker as ``admin``: its output."""
+        connect = ["-h", "127.0.0.1", "-p", str(self.port), "-u", admin[0], "-P", admin[1]]
+        done = subprocess.run(
+            ["mosquitto_ctrl", *connect, "dynsec", *command],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        assert done.returncode == 0 and "Error" not in done.stdout, done.stdout + done.stderr
+        return done.stdout
+
+    def kill(self) -> None:
+        """SIGKILL: nothing saved that was not saved already."""
+        self.proc.send_signal(signal.SIGKILL)
         self.proc.wait(timeout=10)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(timeout=10)

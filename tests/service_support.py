@@ -181,6 +181,23 @@ def count(url: str, model, **where) -> int:
         db.dispose()
 
 
+def rows_per_minute(url: str) -> dict[tuple[str, datetime], int]:
+    """How many telemetry rows each (coach, time) has in the database at ``url``."""
+    from sqlalchemy import func, select
+
+    from trainclimate.service.store.db import Database
+    from trainclimate.service.store.models import Telemetry
+
+    db = Database(url)
+    try:
+        with db.transaction() as s:
+            q = select(Telemetry.coach_id, Telemetry.time, func.count())
+            q = q.group_by(Telemetry.coach_id, Telemetry.time)
+            return {(coach, t): n for coach, t, n in s.execute(q)}
+    finally:
+        db.dispose()
+
+
 def decided(
     client, coach_id: str, first: int, last: int, source: str = "ddpc", reason: str = "ok"
 ) -> None:

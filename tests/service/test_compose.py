@@ -180,6 +180,7 @@ def test_the_broker_users_are_the_acl_users_and_each_gateway_has_its_coaches_onl
     assert acl[backend.mqtt_username] == [
         f"topic read {prefix}/coaches/+/telemetry",
         f"topic write {prefix}/coaches/+/setpoint",
+        f"topic write {prefix}/coaches/+/stored",
     ]
     mqtt_gateways = 0
     for name in GATEWAYS:
@@ -193,7 +194,7 @@ def test_the_broker_users_are_the_acl_users_and_each_gateway_has_its_coaches_onl
         assert sorted(acl[args.mqtt_username]) == sorted(
             f"topic {access} {prefix}/coaches/{coach}/{kind}"
             for coach in args.coaches.split(",")
-            for access, kind in (("write", "telemetry"), ("read", "setpoint"))
+            for access, kind in (("write", "telemetry"), ("read", "setpoint"), ("read", "stored"))
         )
     assert mqtt_gateways == 1
 

@@ -1,15 +1,21 @@
 """The MQTT live feed against the real broker (Mosquitto on 127.0.0.1:1883, or
 ``$TRAINCLIMATE_TEST_MQTT_URL``), each test under its own topic prefix:
 
-- the broker URL and the telemetry message's three forms, and what is refused;
+- the broker URL and the telemetry message (a batch with its gateway's token), and what is
+  refused;
 - the bridge stores rows exactly once across its own reconnection (the broker keeps what arrived
   while it was away) and a resent message changes nothing;
 - bad messages are counted by reason, logged and dropped, and the feed goes on;
+- a message's token is checked as the HTTP API checks it: a revoked one is refused at once;
+  a stored batch is confirmed to its gateway;
 - setpoints are published retained (a gateway connecting later gets them), also the ones issued
   while the broker was away (republished on connection);
 - a database that is unavailable delays the acknowledgement, never loses the message;
 - ``serve --mqtt`` and ``gateway --mqtt`` as real processes with a gateway token: every row
-  stored, the setpoints published back and applied.
+  stored, the setpoints published back and applied; and every row stored exactly once when the
+  broker is killed (kill -9, nothing saved) while the service is away;
+- on a private broker with the dynamic security plugin (``serve --mqtt-dynsec``), a gateway
+  token gets its own broker client, and revoking the token disconnects it.
 """
 
 from __future__ import annotations
@@ -18,30 +24,33 @@ import json
 import os
 import socket
 import subprocess
+import time
 import uuid
 from datetime import timedelta
 from urllib.parse import urlsplit
 
+import httpx
 import pytest
 from sqlalchemy import func, select
 from sqlalchemy.exc import OperationalError
 
 from service_processes import CLI, Mosquitto, token_cli
-from service_support import T0, at, flat_row, flat_rows, wait_for
+from service_support import T0, at, flat_row, flat_rows, rows_per_minute, wait_for
 from trainclimate.service.adapters import demo
+from trainclimate.service.adapters.dynsec import BrokerClients
 from trainclimate.service.adapters.mqtt import (
     Broker,
     BrokerError,
     MessageError,
     MqttBridge,
-    parse_rows,
+    parse_batch,
 )
 from trainclimate.service.store import commands
 from trainclimate.service.store.commands import Backfill
 from trainclimate.service.store.db import Database, migrate
-from trainclimate.service.store.models import Setpoint, Telemetry
+from trainclimate.service.store.models import ApiToken, Setpoint, Telemetry
 from trainclimate.service.store.telemetry import to_wire
-from trainclimate.service.store.tokens import Principal
+from trainclimate.service.store.tokens import Principal, create_token, hash_token
 
 MQTT_URL = os.environ.get("TRAINCLIMATE_TEST_MQTT_URL", "mqtt://127.0.0.1:1883")
 VALID_FOR = timedelta(minutes=10)
@@ -80,6 +89,24 @@ def db(db_url):
         demo.register(s)
     yield database
     database.dispose()
+
+
+def new_token(db: Database, role: str, coaches: list[str] | None = None) -> str:
+    """A new token of ``role`` (a gateway's scoped to ``coaches``)."""
+    with db.transaction() as s:
+        token, _ = create_token(s, role, None, coaches)
+    return token
+
+
+@pytest.fixture
+def gateway(db) -> str:
+    """A gateway token for 7-A and 7-B."""
+    return new_token(db, "gateway", ["7-A", "7-B"])
+
+
+def batch(token: str, rows: list[dict], **extra) -> dict:
+    """A telemetry message: the token and the rows (stored format), ``extra`` keys added."""
+    return {"token": token, "rows": [to_wire(r) for r in rows], **extra}
 
 
 @pytest.fixture
@@ -191,33 +218,41 @@ def test_broker_url_refused(url, prefix, message):
         Broker.from_url(url, prefix=prefix)
 
 
-def test_a_message_may_hold_one_row_a_list_or_a_batch():
+def test_a_message_is_a_batch_with_its_token():
     rows = [to_wire(r) for r in flat_rows(1, 3)]
-    assert parse_rows(json.dumps(rows[0]).encode(), "7-A") == [flat_row(at(1))]
-    assert parse_rows(json.dumps(rows).encode(), "7-A") == flat_rows(1, 3)
-    batch = {"coach_id": "7-A", "rows": rows}
-    assert parse_rows(json.dumps(batch).encode(), "7-A") == flat_rows(1, 3)
+    got = parse_batch(json.dumps({"token": "tc_x", "rows": rows}).encode(), "7-A")
+    assert (got.token, got.id, got.rows, got.through) == ("tc_x", None, flat_rows(1, 3), at(3))
+    message = {"token": "tc_x", "id": "gw-1", "coach_id": "7-A", "rows": rows}
+    assert parse_batch(json.dumps(message).encode(), "7-A").id == "gw-1"
+    # a row or a list of rows carries no token: refused
+    for payload in (rows[0], rows, {"rows": rows}, {"token": "", "rows": rows}):
+        with pytest.raises(MessageError) as refused:
+            parse_batch(json.dumps(payload).encode(), "7-A")
+        assert refused.value.reason == "no_token"
     # the wire format is the HTTP API's: the same limits
     bad = {**rows[0], "t_room_c": [21.0, 21.0, 95.0]}
     with pytest.raises(MessageError, match=r"t_room_c: .* within −40…70 °C") as refused:
-        parse_rows(json.dumps(bad).encode(), "7-A")
+        parse_batch(json.dumps({"token": "tc_x", "rows": [bad]}).encode(), "7-A")
+    assert refused.value.reason == "invalid_rows"
+    with pytest.raises(MessageError, match="id: String should have at most 64") as refused:
+        parse_batch(json.dumps({"token": "tc_x", "id": "x" * 65, "rows": rows}).encode(), "7-A")
     assert refused.value.reason == "invalid_rows"
 
 
 # --- the bridge against the broker ----------------------------------------------------------
 @needs_broker
-def test_rows_are_stored_exactly_once_across_a_reconnection(db, bridges, publisher):
+def test_rows_are_stored_exactly_once_across_a_reconnection(db, bridges, publisher, gateway):
     first = bridges()
-    publisher.telemetry("7-A", [to_wire(r) for r in flat_rows(1, 2)])
+    publisher.telemetry("7-A", batch(gateway, flat_rows(1, 2)))
     wait_for(lambda: first.status.rows_stored == 2, 10, "the first message")
     first.stop()
     # while the service is away: a new message, and the first one again (a gateway resending)
-    publisher.telemetry("7-A", [to_wire(r) for r in flat_rows(3, 4)])
-    publisher.telemetry("7-A", [to_wire(r) for r in flat_rows(1, 2)])
+    publisher.telemetry("7-A", batch(gateway, flat_rows(3, 4)))
+    publisher.telemetry("7-A", batch(gateway, flat_rows(1, 2)))
     second = bridges()  # the same persistent session: the broker kept both
     wait_for(lambda: second.status.messages == 2, 10, "the messages kept by the broker")
     assert (second.status.rows_stored, second.status.duplicates) == (2, 2)
-    publisher.telemetry("7-A", [to_wire(flat_row(at(4)))])  # resent while connected
+    publisher.telemetry("7-A", batch(gateway, [flat_row(at(4))]))  # resent while connected
     wait_for(lambda: second.status.messages == 3, 10, "the resent row")
     assert (second.status.rows_stored, second.status.duplicates) == (2, 3)
     assert telemetry_times(db, "7-A") == [at(m) for m in (1, 2, 3, 4)]
@@ -227,19 +262,22 @@ def test_rows_are_stored_exactly_once_across_a_reconnection(db, bridges, publish
 @needs_broker
 def test_bad_messages_are_counted_and_dropped(db, bridges, publisher, broker, caplog):
     bridge = bridges()
+    operator = new_token(db, "operator")  # may send any coach's rows, as over HTTP
     good = to_wire(flat_row(at(1)))
     publisher.telemetry("7-A", b"{not json")
-    publisher.telemetry("7-A", {**good, "t_amb_c": float("nan")})  # json.dumps writes NaN
-    publisher.telemetry("7-A", {**good, "occupancy_pct": -5})
-    publisher.telemetry("7-A", {"rows": []})
-    publisher.telemetry("7-A", {"coach_id": "7-B", "rows": [good]})
-    publisher.telemetry("99-Z", good)
-    publisher.telemetry("D1-A", good)  # simulated by the demo fleet
-    publisher.telemetry("", good)  # prefix/coaches//telemetry: no coach
-    publisher.telemetry("7-B", good)  # and the feed goes on
-    wait_for(lambda: bridge.status.messages == 9, 10, "nine messages")
+    publisher.telemetry("7-A", good)  # a row without its gateway's token
+    publisher.telemetry("7-A", {"token": operator, "rows": [{**good, "t_amb_c": float("nan")}]})
+    publisher.telemetry("7-A", {"token": operator, "rows": [{**good, "occupancy_pct": -5}]})
+    publisher.telemetry("7-A", {"token": operator, "rows": []})
+    publisher.telemetry("7-A", {"token": operator, "coach_id": "7-B", "rows": [good]})
+    publisher.telemetry("99-Z", {"token": operator, "rows": [good]})
+    publisher.telemetry("D1-A", {"token": operator, "rows": [good]})  # the demo fleet's
+    publisher.telemetry("", {"token": operator, "rows": [good]})  # prefix/coaches//telemetry
+    publisher.telemetry("7-B", {"token": operator, "rows": [good]})  # and the feed goes on
+    wait_for(lambda: bridge.status.messages == 10, 10, "ten messages")
     assert bridge.status.dropped == {
         "malformed_json": 1,
+        "no_token": 1,
         "invalid_rows": 3,
         "coach_mismatch": 1,
         "unknown_coach": 1,
@@ -250,7 +288,63 @@ def test_bad_messages_are_counted_and_dropped(db, bridges, publisher, broker, ca
     assert telemetry_times(db, "7-A") == [] and telemetry_times(db, "D1-A") == []
     assert bridge.status.connected
     dropped = [r.getMessage() for r in caplog.records if "dropped a message" in r.getMessage()]
-    assert len(dropped) == 8 and any("(unknown_coach): no coach '99-Z'" in m for m in dropped)
+    assert len(dropped) == 9 and any("(unknown_coach): no coach '99-Z'" in m for m in dropped)
+    assert not any(operator in m for m in dropped)  # a token is never logged
+
+
+@needs_broker
+def test_a_token_is_checked_as_over_http_and_a_revoked_one_refused_at_once(
+    db, bridges, publisher, broker, gateway
+):
+    """The token a message carries must be valid and for the topic's coach (a gateway token
+    scoped to it, or an operator's): revoked, a gateway token of other coaches and a viewer's
+    are refused and counted; a batch with an id is confirmed on ``…/stored`` once stored."""
+    bridge = bridges()
+    confirmations = Confirmations(broker, ["7-A"])
+    try:
+        publisher.telemetry("7-A", batch(gateway, flat_rows(1, 2), id="gw-1"))
+        wait_for(lambda: bridge.status.rows_stored == 2, 10, "the valid token's rows")
+        wait_for(lambda: confirmations.got, 10, "the confirmation")
+        assert confirmations.got == [
+            {"coach_id": "7-A", "id": "gw-1", "through": at(2).isoformat()}
+            | {"rows": 2, "stored": 2, "duplicates": 0}
+        ]
+        with db.transaction() as s:
+            token_id = s.scalar(
+                select(ApiToken.id).where(ApiToken.token_hash == hash_token(gateway))
+            )
+            commands.revoke_token(s, SYSTEM, token_id)
+        publisher.telemetry("7-A", batch(gateway, flat_rows(3, 4), id="gw-2"))
+        other = new_token(db, "gateway", ["7-B"])
+        publisher.telemetry("7-A", batch(other, flat_rows(3, 4), id="gw-3"))
+        publisher.telemetry("7-A", batch(new_token(db, "viewer"), flat_rows(3, 4)))
+        publisher.telemetry("7-A", batch("tc_" + "x" * 43, flat_rows(3, 4)))  # unknown
+        wait_for(lambda: bridge.status.messages == 5, 10, "five messages")
+        assert bridge.status.dropped == {"revoked": 2, "forbidden": 2}
+        assert telemetry_times(db, "7-A") == [at(1), at(2)]
+        assert [c["id"] for c in confirmations.got] == ["gw-1"]  # a refused batch: none
+        assert bridge.status.confirmations_published == 1
+    finally:
+        confirmations.close()
+
+
+class Confirmations:
+    """A gateway's view of the service's confirmations (``…/stored``) for ``coach_ids``."""
+
+    def __init__(self, broker: Broker, coach_ids: list[str]):
+        self.got: list[dict] = []
+        subscribed = []
+        self.client = broker.client(f"test-confirmations-{uuid.uuid4().hex[:10]}")
+        self.client.on_message = lambda _c, _u, msg: self.got.append(json.loads(msg.payload))
+        self.client.on_subscribe = lambda *_: subscribed.append(True)
+        self.client.connect(broker.host, broker.port)
+        self.client.subscribe([(broker.topic(c, "stored"), 1) for c in coach_ids])
+        self.client.loop_start()
+        wait_for(lambda: subscribed, 10, "the subscription to the confirmations")
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
 
 
 def test_rows_outside_the_backfill_horizon_are_dropped_as_over_http(db, broker):
@@ -319,7 +413,7 @@ def test_setpoints_issued_while_away_are_published_on_connection(db, bridges, br
 
 
 @needs_broker
-def test_an_unavailable_database_delays_the_message_never_loses_it(db, bridges, publisher):
+def test_an_unavailable_database_delays_the_message_never_loses_it(db, bridges, publisher, gateway):
     bridge = bridges()
     handle, calls = bridge.handle, []
 
@@ -330,7 +424,7 @@ def test_an_unavailable_database_delays_the_message_never_loses_it(db, bridges, 
         handle(topic, payload)
 
     bridge.handle = flaky
-    publisher.telemetry("7-A", [to_wire(r) for r in flat_rows(1, 3)])
+    publisher.telemetry("7-A", batch(gateway, flat_rows(1, 3)))
     wait_for(lambda: bridge.status.rows_stored == 3, 10, "the retried message")
     assert len(calls) == 2 and bridge.status.database_retries == 1
     assert "database is locked" in bridge.status.last_error
@@ -394,9 +488,254 @@ def test_gateway_over_mqtt_end_to_end(db_url, servers, proc_env, broker):
 
 
 def _health(server) -> dict:
-    import httpx
-
     return httpx.get(f"{server.url}/api/v1/health", timeout=5).json()
+
+
+def test_no_row_is_lost_when_the_broker_crashes_while_the_service_is_away(
+    servers, proc_env, tmp_path
+):
+    """``serve --mqtt`` and ``gateway --mqtt`` on a private broker as the compose demo's, except
+    that it saves nothing before it stops (``autosave_interval 0``): the service is stopped, the
+    gateway goes on publishing (the broker acknowledges it), the broker is killed with kill -9
+    (what it held for the service is lost) and started again, then the service. The gateway
+    keeps every row until the service confirms it, so every coach and minute is stored, once."""
+    db_url = f"sqlite:///{tmp_path / 'trainclimate.db'}"  # the gateway's part: one database
+    users = {"trainclimate-service": "service-pw", "gateway-126": "gateway-pw"}
+    mosquitto = Mosquitto(tmp_path / "broker", users, settings={"autosave_interval": "0"})
+    env = {**proc_env, "TRAINCLIMATE_MQTT_PASSWORD": "service-pw"}
+    mqtt = ["--mqtt", mosquitto.url, "--mqtt-username", "trainclimate-service"]
+    server = servers(db_url, *mqtt, env=env).start()
+    spy = None
+    try:
+        wait_for(lambda: _health(server)["mqtt"]["connected"], 30, "the service's connection")
+        token = token_cli(db_url, "gateway", proc_env, "--coaches", "126-A,126-B")
+        gateway = _gateway_process(server.url, token, mosquitto.url, proc_env, tmp_path)
+        wait_for(lambda: _health(server)["mqtt"]["rows_stored"] >= 20, 120, "rows stored")
+        server.stop()
+        spy = Spy(
+            Broker.from_url(mosquitto.url, username="trainclimate-service", password="service-pw")
+        )
+        wait_for(lambda: spy.rows, 60, "rows published while the service is away")
+        time.sleep(5)  # the outage goes on: the gateway keeps its new rows
+        mosquitto.kill()  # what it held for the service was in memory only
+        away = spy.rows
+        mosquitto.start()
+        server.start(timeout=120)
+        out, err = gateway.communicate(timeout=420)
+        assert gateway.returncode == 0, err[-4000:]
+        stats = json.loads(out)
+        assert stats["rows_unsent"] == 0
+        minutes = stats["minutes"]
+        expected = {(coach, at(m)) for coach in ("126-A", "126-B") for m in range(1, minutes + 1)}
+        stored = rows_per_minute(db_url)
+        lost = expected - set(stored)
+        duplicated = {key: n for key, n in stored.items() if n > 1}
+        extra = set(stored) - expected
+        print(
+            f"rows published while the service was away: {away}; expected {len(expected)}, "
+            f"stored {sum(stored.values())}, lost {len(lost)}, duplicated {len(duplicated)}"
+        )
+        assert (lost, duplicated, extra) == (set(), {}, set())
+        assert stats["rows_sent"] == len(expected)
+        feed = wait_for(
+            lambda: (h := _health(server)["mqtt"])["rows_stored"] and h, 10, "the feed's counts"
+        )
+        assert feed["dropped"] == {}
+    finally:
+        if spy is not None:
+            spy.close()
+        server.stop()
+        mosquitto.stop()
+
+
+def _gateway_process(url: str, token: str, broker: str, env: dict, tmp_path) -> subprocess.Popen:
+    """``trainclimate gateway --mqtt`` for train 126: two hours of its clock at 60×."""
+    command = [*CLI, "gateway", "--server", url, "--coaches", "126-A,126-B", "--token", token]
+    command += ["--hours", "2", "--speedup", "60", "--quiet", "--json"]
+    command += ["--mqtt", broker, "--mqtt-username", "gateway-126"]
+    gateway_env = {**env, "TRAINCLIMATE_MQTT_PASSWORD": "gateway-pw"}
+    return subprocess.Popen(
+        command, env=gateway_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+class Spy:
+    """Counts the rows published on every coach's telemetry topic (a client of its own)."""
+
+    def __init__(self, broker: Broker):
+        self.rows = 0
+        self.client = broker.client(f"test-spy-{uuid.uuid4().hex[:10]}")
+        self.client.on_message = self._on_message
+        self.client.connect(broker.host, broker.port)
+        self.client.subscribe(broker.topic("+", "telemetry"), qos=1)
+        self.client.loop_start()
+
+    def _on_message(self, _client, _userdata, msg) -> None:
+        self.rows += len(json.loads(msg.payload)["rows"])
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+#: The plugin's admin on the private broker (``mosquitto_ctrl dynsec init``).
+ADMIN = ("admin", "admin-pw")
+
+
+def test_revoking_a_gateway_token_disconnects_its_broker_client(
+    db_url, servers, proc_env, tmp_path
+):
+    """On a private broker with the dynamic security plugin (``deploy/mosquitto/
+    mosquitto-dynsec.conf``; the service's client made with ``mosquitto_ctrl`` as
+    docs/deployment.md says) and ``serve --mqtt-dynsec``: a gateway token made through the API
+    gets its own broker client (its password the token), which publishes its coaches' telemetry,
+    gets their confirmations and setpoints, and nothing of other coaches. Revoking the token
+    disconnects it and refuses it the broker at once, as HTTP answers 401; a message carrying the
+    revoked token sent by another client is refused and counted (``revoked``); and the sweep
+    deletes the client of a token revoked while the service did not tell the broker."""
+    mosquitto = Mosquitto(tmp_path / "broker", config="mosquitto-dynsec.conf", admin=ADMIN)
+    service_client(mosquitto, "trainclimate/v1", "service-pw")
+    env = {
+        **proc_env,
+        "TRAINCLIMATE_MQTT_PASSWORD": "service-pw",
+        "TRAINCLIMATE_MQTT_DYNSEC_USERNAME": ADMIN[0],
+        "TRAINCLIMATE_MQTT_DYNSEC_PASSWORD": ADMIN[1],
+        "TRAINCLIMATE_SCHEDULER_INTERVAL_S": "0.05",
+    }
+    mqtt = ["--mqtt", mosquitto.url, "--mqtt-username", "trainclimate-service", "--mqtt-dynsec"]
+    server = servers(db_url, *mqtt, env=env).start()
+    api = f"{server.url}/api/v1"
+    gateways: list[GatewayClient] = []
+    try:
+        wait_for(lambda: _health(server)["mqtt"]["connected"], 30, "the service's connection")
+        admin = {"Authorization": f"Bearer {token_cli(db_url, 'admin', proc_env)}"}
+        first, second = (_gateway_token(api, admin, ["9-A", "9-B"]) for _ in range(2))
+        assert first["mqtt_username"].startswith("tc-gateway-")
+        for coach in ("9-A", "9-B"):
+            body = {"id": coach, "train_id": "9", "ddpc_active": coach == "9-A"}
+            reply = httpx.post(f"{api}/coaches", json=body, headers=_bearer(first["token"]))
+            assert reply.status_code in (200, 201), reply.text
+        gateway = GatewayClient(mosquitto.url, first, ["9-A", "9-B"])
+        gateways.append(gateway)
+        assert gateway.granted == [True] * 4
+        assert not GatewayClient(mosquitto.url, second, ["8-A"]).closed().granted[0]  # not its own
+        for coach in ("9-A", "9-B"):
+            gateway.publish(coach, batch(first["token"], flat_rows(1, 12), id=f"{coach}-1"))
+        wait_for(lambda: len(gateway.confirmed) == 2, 30, "the confirmations")
+        wait_for(lambda: "9-A" in gateway.setpoints, 60, "a setpoint of 9-A")
+        token_id = _token_id(api, admin, first["token"])
+        assert httpx.delete(f"{api}/tokens/{token_id}", headers=admin).status_code == 200
+        wait_for(lambda: gateway.disconnected, 10, "the revoked gateway's disconnection")
+        revoked = Broker.from_url(
+            mosquitto.url, username=first["mqtt_username"], password=first["token"]
+        )
+        assert connection_answer(revoked) == "Not authorized"
+        reply = httpx.get(f"{api}/coaches/9-A/setpoint", headers=_bearer(first["token"]))
+        assert reply.status_code == 401
+        # the revoked token in a message of another gateway's client: refused by the service
+        other = GatewayClient(mosquitto.url, second, ["9-A"])
+        gateways.append(other)
+        other.publish("9-A", batch(first["token"], flat_rows(13, 14), id="9-A-2"))
+        feed = wait_for(lambda: (h := _health(server)["mqtt"])["dropped"] and h, 30, "the refusal")
+        assert feed["dropped"] == {"revoked": 1} and feed["rows_stored"] == 24
+        # a token revoked behind the broker's back (the broker away): the sweep deletes its client
+        db = Database(db_url)
+        try:
+            with db.transaction() as s:
+                commands.revoke_token(s, SYSTEM, _token_id(api, admin, second["token"]))
+            clients = BrokerClients(
+                Broker.from_url(mosquitto.url, username=ADMIN[0], password=ADMIN[1])
+            )
+            swept = clients.sweep(db)  # unless the service's own sweep (every minute) came first
+            assert swept in ([second["mqtt_username"]], [])
+        finally:
+            db.dispose()
+        wait_for(lambda: other.disconnected, 10, "the swept gateway's disconnection")
+        assert "tc-gateway-" not in mosquitto.ctrl(ADMIN, "listClients")
+    finally:
+        for g in gateways:
+            g.close()
+        server.stop()
+        mosquitto.stop()
+
+
+def service_client(mosquitto: Mosquitto, prefix: str, password: str) -> None:
+    """The service's broker client and role, made with ``mosquitto_ctrl`` (docs/deployment.md)."""
+    name = "trainclimate-service"
+    mosquitto.ctrl(ADMIN, "createRole", name)
+    for acltype, kind in (
+        ("subscribePattern", "telemetry"),
+        ("publishClientSend", "setpoint"),
+        ("publishClientSend", "stored"),
+    ):
+        mosquitto.ctrl(ADMIN, "addRoleACL", name, acltype, f"{prefix}/coaches/+/{kind}", "allow")
+    mosquitto.ctrl(ADMIN, "createClient", name, "-p", password)
+    mosquitto.ctrl(ADMIN, "addClientRole", name, name)
+
+
+def _bearer(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+def _gateway_token(api: str, admin: dict, coaches: list[str]) -> dict:
+    """``POST /tokens`` of a gateway token for ``coaches``: the answer."""
+    reply = httpx.post(f"{api}/tokens", json={"role": "gateway", "coaches": coaches}, headers=admin)
+    assert reply.status_code == 201, reply.text
+    return reply.json()
+
+
+def _token_id(api: str, admin: dict, token: str) -> int:
+    """The id of ``token`` (found by its prefix in ``GET /tokens``)."""
+    listed = httpx.get(f"{api}/tokens", headers=admin).json()
+    [token_id] = [t["id"] for t in listed if t["prefix"] == token[:10]]
+    return token_id
+
+
+class GatewayClient:
+    """A gateway on its own broker client (``mqtt_username``, the token as its password),
+    subscribed to the setpoints and confirmations of ``coaches``: ``granted`` per subscription,
+    the ``setpoints`` and ``confirmed`` batch ids received, ``disconnected`` once the broker
+    cut it off."""
+
+    def __init__(self, url: str, token: dict, coaches: list[str]):
+        self.broker = Broker.from_url(url, username=token["mqtt_username"], password=token["token"])
+        self.setpoints: dict[str, dict] = {}
+        self.confirmed: list[str] = []
+        self.granted: list[bool] = []
+        self.disconnected = False
+        self.client = self.broker.client(f"test-{token['mqtt_username']}-{uuid.uuid4().hex[:6]}")
+        self.client.on_message = self._on_message
+        self.client.on_subscribe = lambda _c, _u, _m, reasons, _p: self.granted.extend(
+            not r.is_failure for r in reasons
+        )
+        self.client.on_disconnect = lambda *_: setattr(self, "disconnected", True)
+        self.client.reconnect_delay_set(60, 60)  # no reconnection within the test
+        self.client.connect(self.broker.host, self.broker.port)
+        kinds = ("setpoint", "stored")
+        topics = [(self.broker.topic(c, kind), 1) for c in coaches for kind in kinds]
+        self.client.subscribe(topics)
+        self.client.loop_start()
+        wait_for(lambda: len(self.granted) == len(topics), 10, "the subscriptions' answer")
+
+    def _on_message(self, _client, _userdata, msg) -> None:
+        coach = self.broker.coach_of(msg.topic, "setpoint")
+        if coach is not None:
+            self.setpoints[coach] = json.loads(msg.payload)
+        else:
+            self.confirmed.append(json.loads(msg.payload)["id"])
+
+    def publish(self, coach: str, message: dict) -> None:
+        topic = self.broker.topic(coach, "telemetry")
+        self.client.publish(topic, json.dumps(message), qos=1).wait_for_publish(10)
+
+    def closed(self) -> GatewayClient:
+        """Disconnected (returned, to read what it got)."""
+        self.close()
+        return self
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
 
 
 def test_serve_refuses_a_bad_broker_url(proc_env, model_file):
@@ -414,9 +753,9 @@ def test_serve_refuses_a_bad_broker_url(proc_env, model_file):
 # --- the broker's ACL (deploy/mosquitto, as the compose demo runs it) -----------------------
 def test_the_acl_lets_a_gateway_use_only_its_own_coaches(db, tmp_path):
     """On a broker configured as the compose demo's (no anonymous users; the ACL), the gateway
-    of train 126 publishes its coaches' telemetry and reads their setpoints; what it publishes
-    for another coach never reaches the service, it cannot read other setpoints, and a wrong
-    password or no user is refused."""
+    of train 126 publishes its coaches' telemetry and reads their setpoints and confirmations;
+    what it publishes for another coach never reaches the service, it cannot read other
+    setpoints, and a wrong password or no user is refused."""
     users = {"trainclimate-service": "service-pw", "gateway-126": "gateway-pw"}
     mosquitto = Mosquitto(tmp_path / "broker", users)
     try:
@@ -432,11 +771,15 @@ def test_the_acl_lets_a_gateway_use_only_its_own_coaches(db, tmp_path):
         bridge.start()
         wait_for(lambda: bridge.status.connected, 10, "the service's connection")
         gateway = Broker.from_url(mosquitto.url, username="gateway-126", password="gateway-pw")
+        token = new_token(db, "operator")  # the broker's ACL alone keeps it to its coaches
+        confirmations = Confirmations(gateway, ["126-A"])
         publisher = Publisher(gateway)
-        publisher.telemetry("125-A", to_wire(flat_row(at(1))))  # another train's coach: denied
-        publisher.telemetry("126-A", to_wire(flat_row(at(1))))
+        publisher.telemetry("125-A", batch(token, [flat_row(at(1))]))  # another train's: denied
+        publisher.telemetry("126-A", batch(token, [flat_row(at(1))], id="126-1"))
         wait_for(lambda: bridge.status.rows_stored == 1, 10, "the gateway's own row")
+        wait_for(lambda: confirmations.got, 10, "its confirmation")
         publisher.close()
+        confirmations.close()
         assert bridge.status.messages == 1  # the other never reached the service
         assert telemetry_times(db, "126-A") == [at(1)] and telemetry_times(db, "125-A") == []
         rows = [

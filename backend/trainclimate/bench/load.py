@@ -122,9 +122,10 @@ def run(
             feed = None
             if broker is not None:
                 live = [f"L{i // 2 + 1}-{'AB'[i % 2]}" for i in range(mqtt_coaches)]
-                register_live(base, _token(url, env, "gateway", "--coaches", ",".join(live)), live)
+                gateway = _token(url, env, "gateway", "--coaches", ",".join(live))
+                register_live(base, gateway, live)
                 start = datetime.now(UTC).replace(second=0, microsecond=0) - timedelta(days=1)
-                feed = MqttFeed(broker, live, start, SPEEDUP, seed)
+                feed = MqttFeed(broker, gateway, live, start, SPEEDUP, seed)
             step(1)
             baseline = asyncio.run(_load(base, headers, fleet, 1, n_baseline, seed))
             step(1)

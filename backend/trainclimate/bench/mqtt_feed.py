@@ -25,17 +25,25 @@ class MqttFeed:
     """Gateways feeding the service over MQTT while the HTTP clients ask: ``coaches`` live
     coaches (pairs, one MQTT client per train as its gateway) each publish one telemetry row
     per minute of a clock running ``speedup`` times faster than real time, QoS 1, on their
-    topics under ``broker``'s prefix. The service (``serve --mqtt``) stores them and its live
-    loop ticks on them.
+    topics under ``broker``'s prefix, with the gateway ``token`` for them (no batch id: no
+    confirmation asked). The service (``serve --mqtt``) stores them and its live loop ticks on
+    them.
 
     ``publish_s`` holds each message's time from publishing to the broker's acknowledgement
     (PUBACK) [s]; ``published`` counts the rows sent, ``unacknowledged`` those the broker never
     acknowledged; ``minutes`` the clock minutes fed."""
 
     def __init__(
-        self, broker, coach_ids: list[str], start: datetime, speedup: float, seed: int = 0
+        self,
+        broker,
+        token: str,
+        coach_ids: list[str],
+        start: datetime,
+        speedup: float,
+        seed: int = 0,
     ):
         self.broker = broker
+        self.token = token
         self.speedup = speedup
         self.ids = coach_ids
         self.start_time = start
@@ -90,7 +98,7 @@ class MqttFeed:
             t = self.start_time + timedelta(minutes=self.minutes + 1)
             for client, coaches in self.clients:
                 for coach in coaches:
-                    payload = json.dumps(self._row(t, coach))
+                    payload = json.dumps({"token": self.token, "rows": [self._row(t, coach)]})
                     sent = time.perf_counter()
                     info = client.publish(self.broker.topic(coach, "telemetry"), payload, qos=1)
                     self._sent[(id(client), info.mid)] = sent

@@ -72,11 +72,13 @@ def cmd_serve(args: argparse.Namespace) -> None:
                 "mqtt_ca_file": broker.ca_file,
                 "mqtt_prefix": broker.prefix,
                 "mqtt_client_id": args.mqtt_client_id,
+                "mqtt_dynsec": args.mqtt_dynsec,
             }
             if broker is not None
             else {}
         ),
     )
+    _check_dynsec(args, settings)
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
     migrated_database(settings.database_url)  # else one line, not a traceback
     lines = [f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})"]
@@ -108,6 +110,19 @@ def cmd_serve(args: argparse.Namespace) -> None:
         target=_announce, args=(server, args, lines, announce), name="announce", daemon=True
     ).start()
     server.run()
+
+
+def _check_dynsec(args: argparse.Namespace, settings) -> None:
+    """``--mqtt-dynsec`` needs ``--mqtt`` and the plugin admin's credentials."""
+    if not args.mqtt_dynsec:
+        return
+    if args.mqtt is None:
+        raise UsageError("--mqtt-dynsec needs --mqtt: the broker whose clients it keeps")
+    if not (settings.mqtt_dynsec_username and settings.mqtt_dynsec_password):
+        raise UsageError(
+            "--mqtt-dynsec needs the dynamic security plugin's admin: set"
+            " TRAINCLIMATE_MQTT_DYNSEC_USERNAME and TRAINCLIMATE_MQTT_DYNSEC_PASSWORD"
+        )
 
 
 def _announce(server, args: argparse.Namespace, stderr_lines: list[str], what) -> None:
@@ -341,6 +356,13 @@ def register(sub) -> None:
         default=None,
         help="refuse live telemetry rows older than their coach's newest row less this many "
         f"days (default {BACKFILL_HORIZON_DAYS:g}; $TRAINCLIMATE_BACKFILL_HORIZON_DAYS)",
+    )
+    p.add_argument(
+        "--mqtt-dynsec",
+        action="store_true",
+        help="give each gateway token its own broker client (Mosquitto's dynamic security "
+        "plugin), deleted when the token is revoked; the plugin admin's credentials from "
+        "$TRAINCLIMATE_MQTT_DYNSEC_USERNAME and $TRAINCLIMATE_MQTT_DYNSEC_PASSWORD",
     )
     p.add_argument(
         "--replica-name",

@@ -3,9 +3,10 @@
 At start (the lifespan): the Alembic migrations are applied, the ``--predictor FILE`` model is
 registered if the database has none, the demo fleet is registered if asked for, and threads
 start: the live fleet's loop, with ``--fleet demo`` the demo fleet, with ``--mqtt URL`` the MQTT
-feed (:mod:`trainclimate.service.adapters.mqtt`), and, if the database still has no model, its
-preparation in the background (:mod:`trainclimate.service.preparation`; the coaches run under
-T_rule until it is ready). They stop with the server.
+feed (:mod:`trainclimate.service.adapters.mqtt`) and with ``--mqtt-dynsec`` the sweep of the
+gateways' broker clients (:mod:`trainclimate.service.adapters.dynsec`), and, if the database
+still has no model, its preparation in the background (:mod:`trainclimate.service.preparation`;
+the coaches run under T_rule until it is ready). They stop with the server.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from trainclimate import __version__
 from trainclimate.service import api, docpages
 from trainclimate.service.adapters import demo
+from trainclimate.service.adapters.dynsec import BrokerClients, DynsecError
 from trainclimate.service.adapters.mqtt import Broker, MqttBridge
 from trainclimate.service.api.hardening import (
     DATABASE_RETRY_AFTER_S,
@@ -93,6 +95,10 @@ async def lifespan(app: FastAPI):
         app.state.mqtt.start()
     stop = app.state.stop = threading.Event()  # set: every loop of this replica stops
     threads = [threading.Thread(target=scheduler.run_live, args=(stop,), name="live-loop")]
+    app.state.broker_clients = broker_clients(settings)
+    if app.state.broker_clients is not None:
+        sweep = app.state.broker_clients.run
+        threads.append(threading.Thread(target=sweep, args=(db, stop), name="mqtt-dynsec"))
     scheduler.beat("live", scheduler.period_s)  # counted as running from its start
     if settings.fleet == "demo":
         coach = load_params(settings.demo_coach_params) if settings.demo_coach_params else None
@@ -112,23 +118,36 @@ async def lifespan(app: FastAPI):
         db.dispose()
 
 
+def mqtt_broker(settings: Settings, username: str | None, password: str | None) -> Broker:
+    """The broker of ``--mqtt URL``, as ``username`` with ``password``."""
+    return Broker.from_url(
+        settings.mqtt_url,
+        username=username,
+        password=password,
+        ca_file=settings.mqtt_ca_file,
+        prefix=settings.mqtt_prefix,
+    )
+
+
 def mqtt_bridge(db: Database, settings: Settings, backfill: Backfill) -> MqttBridge | None:
     """With ``--mqtt URL``: the MQTT feed's bridge (not yet started); its setpoints are valid for
     as long as the HTTP pull's, and it takes rows within the same ``backfill`` horizon as
     ``POST /telemetry``."""
     if settings.mqtt_url is None:
         return None
-    broker = Broker.from_url(
-        settings.mqtt_url,
-        username=settings.mqtt_username,
-        password=settings.mqtt_password,
-        ca_file=settings.mqtt_ca_file,
-        prefix=settings.mqtt_prefix,
-    )
+    broker = mqtt_broker(settings, settings.mqtt_username, settings.mqtt_password)
     valid_for = settings.stale_periods * timedelta(minutes=settings.sampling_min)
     return MqttBridge(
         db, broker, client_id=settings.mqtt_client_id, valid_for=valid_for, backfill=backfill
     )
+
+
+def broker_clients(settings: Settings) -> BrokerClients | None:
+    """With ``--mqtt-dynsec``: the gateway tokens' broker clients, kept as the plugin's admin."""
+    if not settings.mqtt_dynsec:
+        return None
+    admin = mqtt_broker(settings, settings.mqtt_dynsec_username, settings.mqtt_dynsec_password)
+    return BrokerClients(admin)
 
 
 def _error(status: int):
@@ -181,6 +200,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(OperationalError, database_error(DATABASE_RETRY_AFTER_S))
     app.add_exception_handler(PoolTimeoutError, database_error(OVERLOAD_RETRY_AFTER_S))
     app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(DynsecError, _error(503))  # a gateway token's broker client
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,

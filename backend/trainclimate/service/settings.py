@@ -71,7 +71,11 @@ class Settings(BaseSettings):
     telemetry from and publish setpoints to, with its ``mqtt_username``, ``mqtt_password``
     (env ``TRAINCLIMATE_MQTT_PASSWORD``), ``mqtt_ca_file``, topic ``mqtt_prefix`` and the
     service's ``mqtt_client_id`` (its persistent session: see
-    :mod:`trainclimate.service.adapters.mqtt`); ``replica_name`` (``--replica-name``,
+    :mod:`trainclimate.service.adapters.mqtt`); ``mqtt_dynsec`` (``--mqtt-dynsec``) gives each
+    gateway token a broker client of its own through Mosquitto's dynamic security plugin, as its
+    admin ``mqtt_dynsec_username`` with ``mqtt_dynsec_password`` (env
+    ``TRAINCLIMATE_MQTT_DYNSEC_USERNAME``, ``…_PASSWORD``; see
+    :mod:`trainclimate.service.adapters.dynsec`); ``replica_name`` (``--replica-name``,
     default ``host:pid``) names this process in the setpoints it decides (replicas sharing one
     PostgreSQL database split the coaches); ``loop_ready_s`` how long after its last completed
     iteration a loop of this replica still counts as running for ``/api/v1/ready`` (default: two
@@ -107,6 +111,9 @@ class Settings(BaseSettings):
     mqtt_ca_file: Path | None = None
     mqtt_prefix: str = MQTT_PREFIX
     mqtt_client_id: str = "trainclimate-service"
+    mqtt_dynsec: bool = False
+    mqtt_dynsec_username: str | None = None
+    mqtt_dynsec_password: str | None = None
     replica_name: str = Field(
         default_factory=default_replica_name, min_length=1, max_length=REPLICA_NAME_MAX
     )

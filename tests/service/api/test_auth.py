@@ -223,7 +223,8 @@ def test_tokens_through_the_api(client, tokens, settings):
     reply = client.post(f"{API}/tokens", json={"role": "viewer", "name": "alice"}, headers=admin)
     assert reply.status_code == 201
     created = reply.json()
-    assert set(created) == {"token", "name", "role", "coaches", "expires_at"}
+    assert set(created) == {"token", "name", "role", "coaches", "expires_at", "mqtt_username"}
+    assert created["mqtt_username"] is None  # without serve --mqtt-dynsec
     assert (created["name"], created["role"], created["coaches"]) == ("alice", "viewer", None)
     assert created["expires_at"] is None
     alice = {"Authorization": f"Bearer {created['token']}"}

@@ -1,32 +1,48 @@
 """The MQTT live feed: the broker and its topics, and the service's side of the feed
 (:class:`MqttBridge`, started by ``serve --mqtt URL``). The gateway's side is
-:class:`trainclimate.service.adapters.gateway.MqttLink`.
+:class:`trainclimate.service.adapters.gateway.MqttLink`; the broker's own client for each gateway
+token, with Mosquitto's dynamic security plugin, is :mod:`.dynsec`.
 
 Topics, under a prefix (``trainclimate/v1`` unless ``--mqtt-prefix`` says otherwise):
 
 - ``{prefix}/coaches/{coach_id}/telemetry`` — a gateway publishes its coach's 1-minute rows, QoS 1,
-  in the wire format of ``POST /api/v1/telemetry``'s rows: one row object, a list of rows, or a
-  batch object ``{"rows": [...]}`` (whose ``coach_id``, if given, must be the topic's).
+  as a batch object ``{"token": "tc_…", "id": "…", "rows": [...]}``: its gateway token, an
+  optional batch id (1–64 characters) and the rows in the wire format of
+  ``POST /api/v1/telemetry`` (an optional ``coach_id`` must be the topic's).
+- ``{prefix}/coaches/{coach_id}/stored`` — the service confirms each batch with an ``id`` once its
+  rows are committed, QoS 1, not retained: ``{"coach_id", "id", "through", "rows", "stored",
+  "duplicates"}`` (``through`` the batch's newest row time). A gateway that sends its unconfirmed
+  rows oldest first, each batch starting at its oldest unconfirmed row, may drop every row up to
+  ``through`` when the confirmation of one of its own batches arrives: those were in that batch.
 - ``{prefix}/coaches/{coach_id}/setpoint`` — the service publishes every setpoint it issues to a
   live coach, **retained**, QoS 1, as the JSON of ``GET /api/v1/coaches/{id}/setpoint``
   (``coach_id``, ``tick``, ``t_ref_c``, ``t_rule_c``, ``source``, ``reason``, ``valid_until``). A
   gateway that (re)connects gets its coaches' newest setpoint at once.
 
-**Exactly once.** The bridge's session with the broker is persistent (a fixed client id, clean
-session off) and it acknowledges a message only once its rows are committed (paho's manual
-acknowledgement). A message not yet stored when the service, its connection or the broker went
-away is delivered again, and rows already stored (same coach and time) are skipped, so a resent
-message changes nothing. While the database is unavailable the bridge retries the message with
-back-off and acknowledges nothing, so the broker keeps the rest (Mosquitto holds up to
-``max_queued_messages`` per client, 1 000 by default: raise it for a large fleet).
+**Who sent it.** A subscriber never learns which broker user published a message, so the message
+carries its gateway's token, checked in the transaction that stores its rows as the HTTP API
+checks a bearer token: a token unknown, revoked or expired (``revoked``) or not for the topic's
+coach (``forbidden``: a gateway token of other coaches, a viewer's) drops the message. The token
+travels inside the message, so only the service may read the telemetry topics (the broker's ACL)
+and the broker should be reached over TLS.
 
-**Bad messages** — a topic that names no coach, malformed JSON, rows the HTTP API would refuse
-(422; a row older than the backfill horizon among them, reason ``outside_horizon``, its rows
-counted with the HTTP API's in :class:`~trainclimate.service.store.commands.Backfill`), a coach
-not registered, a coach of the simulated demo fleet — are counted by reason in
-:attr:`MqttBridge.status` (shown by ``GET /api/v1/health``), logged with the reason, acknowledged
-and dropped; they never stop the feed. A broker that goes away is reconnected with back-off
-(1 s doubling to 60 s) while the HTTP API keeps serving.
+**Exactly once into the database.** The bridge's session with the broker is persistent (a fixed
+client id, clean session off) and it acknowledges a message only once its rows are committed
+(paho's manual acknowledgement). A message not yet stored when the service, its connection or the
+broker went away is delivered again, and rows already stored (same coach and time) are skipped,
+so a resent message changes nothing. While the database is unavailable the bridge retries the
+message with back-off and acknowledges nothing, so the broker keeps the rest (Mosquitto holds up
+to ``max_queued_messages`` per client, 1 000 by default: raise it for a large fleet). What the
+broker holds only in memory is lost if it crashes: a gateway keeps its rows until the service
+confirms them (``…/stored``) and sends again what was never confirmed.
+
+**Bad messages** — a topic that names no coach, malformed JSON, no token, a token refused, rows
+the HTTP API would refuse (422; a row older than the backfill horizon among them, reason
+``outside_horizon``, its rows counted with the HTTP API's in
+:class:`~trainclimate.service.store.commands.Backfill`), a coach not registered, a coach of the
+simulated demo fleet — are counted by reason in :attr:`MqttBridge.status` (shown by ``GET /api/v1/health``), logged with the
+reason, acknowledged and dropped (never confirmed); they never stop the feed. A broker that goes
+away is reconnected with back-off (1 s doubling to 60 s) while the HTTP API keeps serving.
 """
 
 from __future__ import annotations
@@ -36,16 +52,17 @@ import logging
 import queue
 import threading
 from dataclasses import dataclass, field
-from datetime import timedelta
+from datetime import datetime, timedelta
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
 import paho.mqtt.client as paho
-from pydantic import TypeAdapter, ValidationError
+from pydantic import BaseModel, Field, ValidationError
 from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
+from sqlalchemy.orm import Session
 
-from trainclimate.service.api.schemas import TelemetryRow
+from trainclimate.service.api.schemas import MAX_BATCH_ROWS, TelemetryRow
 from trainclimate.service.settings import MQTT_PREFIX
 from trainclimate.service.store import commands
 from trainclimate.service.store.commands import Backfill, ConflictError, OutsideHorizonError
@@ -53,13 +70,19 @@ from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import Coach
 from trainclimate.service.store.queries import NotFoundError, newest_setpoint, setpoint_view
 from trainclimate.service.store.telemetry import from_wire
-from trainclimate.service.store.tokens import COACH_ID
+from trainclimate.service.store.tokens import COACH_ID, authenticate
 
 log = logging.getLogger(__name__)
 
 #: Reconnection back-off, s: from the first to the longest wait.
 BACKOFF_S = (1, 60)
-_ROWS = TypeAdapter(list[TelemetryRow])
+
+
+class _Envelope(BaseModel):
+    """A telemetry message's batch id and rows (the token and coach are checked apart)."""
+
+    id: str | None = Field(default=None, min_length=1, max_length=64)
+    rows: list[TelemetryRow] = Field(min_length=1, max_length=MAX_BATCH_ROWS)
 
 
 class BrokerError(ValueError):
@@ -157,8 +180,9 @@ class MqttStatus:
     """The bridge's state and counts since the service started: ``connected`` to ``broker``
     (the telemetry subscription confirmed; ``connections`` how many times); ``messages`` handled
     (stored or dropped), ``rows_stored``, ``duplicates`` (rows already stored), ``dropped`` by
-    reason, ``setpoints_published``, ``database_retries`` (a message retried while the database
-    was unavailable) and the ``last_error``."""
+    reason, ``setpoints_published``, ``confirmations_published`` (batches confirmed on
+    ``…/stored``), ``database_retries`` (a message retried while the database was unavailable)
+    and the ``last_error``."""
 
     broker: str
     connected: bool = False
@@ -168,6 +192,7 @@ class MqttStatus:
     duplicates: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
     setpoints_published: int = 0
+    confirmations_published: int = 0
     database_retries: int = 0
     last_error: str | None = None
 
@@ -180,31 +205,54 @@ class MessageError(Exception):
         self.reason = reason
 
 
-def parse_rows(payload: bytes, coach_id: str) -> list[dict]:
-    """The stored-row dicts of a telemetry message for ``coach_id`` (see the module docstring for
-    its three forms); :class:`MessageError` if it is not valid JSON or a row is out of range."""
+@dataclass(frozen=True)
+class Batch:
+    """A telemetry message as the service takes it: the sender's ``token``, the batch ``id``
+    (None: the sender wants no confirmation) and the stored-row dicts."""
+
+    token: str
+    id: str | None
+    rows: list[dict]
+
+    @property
+    def through(self) -> datetime:
+        """The newest row's time."""
+        return max(r["time"] for r in self.rows)
+
+
+def parse_batch(payload: bytes, coach_id: str) -> Batch:
+    """The batch a telemetry message for ``coach_id`` holds (see the module docstring);
+    :class:`MessageError` if it is not JSON, carries no token, names another coach, or its id
+    or a row is out of range."""
     try:
         data = json.loads(payload)
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise MessageError("malformed_json", f"not JSON: {exc}") from None
-    if isinstance(data, dict) and "rows" in data:
-        if data.get("coach_id", coach_id) != coach_id:
-            raise MessageError(
-                "coach_mismatch", f"coach_id {data['coach_id']!r} is not the topic's"
-            )
-        data = data["rows"]
-    if isinstance(data, dict):
-        data = [data]
-    if not isinstance(data, list) or not data:
-        raise MessageError("invalid_rows", 'expected a row, a list of rows or {"rows": [...]}')
+    token = data.get("token") if isinstance(data, dict) else None
+    if not isinstance(token, str) or not token:
+        raise MessageError("no_token", 'expected {"token": …, "rows": [...]}: no token')
+    if data.get("coach_id", coach_id) != coach_id:
+        raise MessageError("coach_mismatch", f"coach_id {data['coach_id']!r} is not the topic's")
     try:
-        rows = _ROWS.validate_python(data)
+        envelope = _Envelope.model_validate({k: data.get(k) for k in ("id", "rows")})
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
         detail = f"{len(exc.errors())} error(s), first {where}: {first['msg']}"
         raise MessageError("invalid_rows", detail) from None
-    return [from_wire(r.model_dump()) for r in rows]
+    rows = [from_wire(r.model_dump()) for r in envelope.rows]
+    return Batch(token=token, id=envelope.id, rows=rows)
+
+
+def authorize(session: Session, token: str, coach_id: str) -> None:
+    """As ``POST /api/v1/telemetry`` checks its bearer token: the token must be valid (else
+    ``revoked``: unknown, revoked or expired) and a gateway token scoped to ``coach_id`` or an
+    operator's or above (else ``forbidden``); :class:`MessageError` if not."""
+    who = authenticate(session, token)
+    if who is None:
+        raise MessageError("revoked", "the token is unknown, revoked or expired")
+    if not (who.serves(coach_id) or who.can("operator")):
+        raise MessageError("forbidden", f"the token is not for coach {coach_id!r}")
 
 
 class MqttBridge:
@@ -297,16 +345,20 @@ class MqttBridge:
                 self.client.ack(msg.mid, msg.qos)
 
     def handle(self, topic: str, payload: bytes) -> None:
-        """Store one telemetry message (counted; a bad one dropped with its reason). Raises
-        only :class:`~sqlalchemy.exc.OperationalError` (the database is unavailable)."""
+        """Store one telemetry message and confirm it (counted; a bad one dropped with its
+        reason). Raises only :class:`~sqlalchemy.exc.OperationalError` (the database is
+        unavailable)."""
         try:
             coach_id = self.broker.coach_of(topic, "telemetry")
             if coach_id is None:
                 raise MessageError("bad_topic", f"topic {topic!r} names no coach")
-            rows = parse_rows(payload, coach_id)
+            batch = parse_batch(payload, coach_id)
             try:
                 with self.db.transaction() as session:
-                    stored, duplicates = commands.ingest(session, coach_id, rows, self.backfill)
+                    authorize(session, batch.token, coach_id)
+                    stored, duplicates = commands.ingest(
+                        session, coach_id, batch.rows, self.backfill
+                    )
             except OutsideHorizonError as exc:
                 raise MessageError(Backfill.REASON, str(exc)) from None
             except NotFoundError as exc:
@@ -319,6 +371,24 @@ class MqttBridge:
             return
         self.status.rows_stored += stored
         self.status.duplicates += duplicates
+        if batch.id is not None:
+            self._confirm(coach_id, batch, stored, duplicates)
+
+    def _confirm(self, coach_id: str, batch: Batch, stored: int, duplicates: int) -> None:
+        """Tell the gateway its batch is stored (``…/stored``). Not connected: lost, and the
+        gateway sends the batch again, which is then confirmed."""
+        payload = {
+            "coach_id": coach_id,
+            "id": batch.id,
+            "through": batch.through.isoformat(),
+            "rows": len(batch.rows),
+            "stored": stored,
+            "duplicates": duplicates,
+        }
+        topic = self.broker.topic(coach_id, "stored")
+        info = self.client.publish(topic, json.dumps(payload), qos=1)
+        if info.rc == paho.MQTT_ERR_SUCCESS:
+            self.status.confirmations_published += 1
 
     # --- setpoints out ------------------------------------------------------------------------
     def publish_setpoints(self, fleet: str, rows: list[dict]) -> None:

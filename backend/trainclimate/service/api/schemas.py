@@ -44,6 +44,8 @@ PLAN_DESCRIPTION = (
 
 #: How far ahead of the server's clock a telemetry row may be stamped (clock skew).
 MAX_AHEAD = timedelta(minutes=5)
+#: The most rows in one telemetry batch (``POST /api/v1/telemetry``, an MQTT message).
+MAX_BATCH_ROWS = 10_000
 EARLIEST_ROW = datetime(2000, 1, 1, tzinfo=UTC)
 #: The shortest life of an expiring token (a minute): one that expires before it can be used is
 #: a mistake. [days]
@@ -125,11 +127,13 @@ class MqttFeed(BaseModel):
     rows_stored: int
     duplicates: int = Field(description="rows already stored (a message delivered again)")
     dropped: dict[str, int] = Field(
-        description="messages dropped, by reason: bad_topic, malformed_json, invalid_rows, "
-        "coach_mismatch, unknown_coach, not_live, outside_horizon",
+        description="messages dropped, by reason: bad_topic, malformed_json, no_token, "
+        "invalid_rows, coach_mismatch, revoked (the token unknown, revoked or expired), "
+        "forbidden (the token not for the coach), unknown_coach, not_live, outside_horizon",
         examples=[{"unknown_coach": 2}],
     )
     setpoints_published: int
+    confirmations_published: int = Field(description="batches confirmed to their gateway")
     database_retries: int
     last_error: str | None
 
@@ -397,7 +401,7 @@ class TelemetryBatch(Strict):
     """A gateway's batch for one coach (resending a batch changes nothing)."""
 
     coach_id: str = Field(examples=["124-A"])
-    rows: list[TelemetryRow] = Field(min_length=1, max_length=10000)
+    rows: list[TelemetryRow] = Field(min_length=1, max_length=MAX_BATCH_ROWS)
 
 
 class TelemetryAccepted(BaseModel):
@@ -735,6 +739,11 @@ class TokenOut(BaseModel):
     role: Role
     coaches: list[str] | None = Field(description="a gateway token's coaches; else null")
     expires_at: datetime | None = Field(description="null: it does not expire")
+    mqtt_username: str | None = Field(
+        default=None,
+        description="with serve --mqtt-dynsec, a gateway token's own broker user (its password "
+        "is the token); else null",
+    )
 
 
 class Me(BaseModel):

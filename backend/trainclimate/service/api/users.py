@@ -6,8 +6,9 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
-from fastapi import APIRouter, Path
+from fastapi import APIRouter, Path, Request
 from sqlalchemy import func, select
+from sqlalchemy.orm import Session
 
 from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
@@ -39,12 +40,13 @@ def me(who: Viewer) -> dict:
     tags=["users"],
     responses={**AUTH, **CONFLICT},
 )
-def create_token(body: schemas.TokenIn, s: DB, who: Admin) -> dict:
+def create_token(body: schemas.TokenIn, s: DB, who: Admin, request: Request) -> dict:
     """A new token (shown once) for a user, created with the role if new. An existing user's
     token has the user's role: another role is 409, and no other token changes (a user's role
     changes only by ``PUT /users/{name}/role``). A gateway token is scoped to ``coaches`` (it may
     register them, push their telemetry and pull their setpoints, nothing else); audited with
-    the role and scope."""
+    the role and scope. With ``serve --mqtt-dynsec`` a gateway token gets its own broker client
+    (``mqtt_username``; 503 and no token if the broker does not create it)."""
     expires_at = None
     if body.expires_in_days is not None:
         expires_at = datetime.now(UTC) + timedelta(days=body.expires_in_days)
@@ -55,7 +57,17 @@ def create_token(body: schemas.TokenIn, s: DB, who: Admin) -> dict:
         "role": user.role,
         "coaches": body.coaches,
         "expires_at": expires_at,
+        "mqtt_username": _add_broker_client(request, s, token, body.coaches),
     }
+
+
+def _add_broker_client(request: Request, s: Session, token: str, coaches: list[str] | None):
+    """With ``--mqtt-dynsec``, a gateway token's broker client: its user name (else None; if the
+    broker does not create it, 503 and the transaction rolls back)."""
+    clients = request.app.state.broker_clients
+    if clients is None or coaches is None:
+        return None
+    return clients.add(s, token, coaches)
 
 
 @router.get("/tokens", response_model=list[schemas.TokenInfo], tags=["users"], responses=AUTH)
@@ -73,10 +85,18 @@ def list_tokens(s: DB, _: Admin) -> list:
     responses={**AUTH, **NOT_FOUND},
 )
 def revoke_token(
-    token_id: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY], s: DB, who: Admin
+    token_id: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY],
+    s: DB,
+    who: Admin,
+    request: Request,
 ):
-    """Revoke a token: it no longer authenticates; audited."""
+    """Revoke a token: it no longer authenticates, over HTTP or MQTT; audited. With ``serve
+    --mqtt-dynsec`` a gateway token's broker client is deleted and disconnected too (if the
+    broker cannot be reached, by the next sweep)."""
     t = commands.revoke_token(s, who, token_id)
+    clients = request.app.state.broker_clients
+    if clients is not None and t.coaches is not None:
+        clients.remove(token_id)
     return _info(t, s.get(User, t.user_id))
 
 
