@@ -36,13 +36,14 @@ to ``max_queued_messages`` per client, 1 000 by default: raise it for a large fl
 broker holds only in memory is lost if it crashes: a gateway keeps its rows until the service
 confirms them (``…/stored``) and sends again what was never confirmed.
 
-**Bad messages** — a topic that names no coach, malformed JSON, no token, a token refused, rows
-the HTTP API would refuse (422; a row older than the backfill horizon among them, reason
+**Bad messages** — a topic that names no coach, malformed JSON, no token, a token refused, rows the
+HTTP API would refuse (422; a row older than the backfill horizon among them, reason
 ``outside_horizon``, its rows counted with the HTTP API's in
 :class:`~trainclimate.service.store.commands.Backfill`), a coach not registered, a coach of the
-simulated demo fleet — are counted by reason in :attr:`MqttBridge.status` (shown by ``GET /api/v1/health``), logged with the
-reason, acknowledged and dropped (never confirmed); they never stop the feed. A broker that goes
-away is reconnected with back-off (1 s doubling to 60 s) while the HTTP API keeps serving.
+simulated demo fleet — are counted by reason in :attr:`MqttBridge.status` (shown by ``GET
+/api/v1/health``), logged with the reason, acknowledged and dropped (never confirmed); they never
+stop the feed. A broker that goes away is reconnected with back-off (1 s doubling to 60 s) while the
+HTTP API keeps serving.
 """
 
 from __future__ import annotations

@@ -24,14 +24,14 @@ viewer, writes operator, users and models admin. A gateway token (`trainclimate 
 gateway --coaches 124-A,124-B`) is scoped to its coaches: it may register them, push their telemetry
 and pull their setpoints, nothing else. Times are ISO 8601 with an offset (UTC in answers);
 temperatures °C, power kW, energy kWh, irradiance W/m². Errors are JSON `{"detail": …}`: 401 no
-valid token, 403 too low a role (or a coach or train outside a gateway token's scope), 404 no
-such coach, train or record, 409 a conflict with the stored state, 413 a request body over the
-limit (6 MiB by default: the largest valid telemetry batch fits), 422 a malformed request or a
-value out of range (with the reason), 429 too many failed authentications from the client address (with
-`Retry-After`), 503 the database does not answer. Input is strict: an id in the path and a number
-in the query are digits only (`/tokens/1.0` is 422), a boolean is `true` or `false` (not `"yes"`
-or `0`), and a NUL character or a lone surrogate in the path, the query or a JSON string is 422.
-Every write is one transaction: a request that fails changes nothing. No answer may be cached
+valid token, 403 too low a role (or a coach or train outside a gateway token's scope), 404 no such
+coach, train or record, 409 a conflict with the stored state, 413 a request body over the limit (6
+MiB by default: the largest valid telemetry batch fits), 422 a malformed request or a value out of
+range (with the reason), 429 too many failed authentications from the client address (with
+`Retry-After`), 503 the database does not answer. Input is strict: an id in the path and a number in
+the query are digits only (`/tokens/1.0` is 422), a boolean is `true` or `false` (not `"yes"` or
+`0`), and a NUL character or a lone surrogate in the path, the query or a JSON string is 422. Every
+write is one transaction: a request that fails changes nothing. No answer may be cached
 (`Cache-Control: no-store`).
 
 ```sh
