@@ -158,3 +158,12 @@ def test_trains_pool_into_the_fleet():
     # pooling narrows the interval below any train's
     assert high - low < min(e.savings_ci95_pct[1] - e.savings_ci95_pct[0] for e in estimates)
     assert pool([confounded])["savings_ci95_pct"] is None
+
+
+def test_one_train_pooled_alone_keeps_its_interval():
+    e = estimate(_crossover(8, 0.06, 1.1, 0.03, 5))
+    fleet = pool([e])
+    assert fleet["savings_pct"] == pytest.approx(e.savings_pct)
+    assert fleet["savings_ci95_pct"][1] - fleet["savings_ci95_pct"][0] == pytest.approx(
+        e.savings_ci95_pct[1] - e.savings_ci95_pct[0]
+    )

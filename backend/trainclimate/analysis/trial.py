@@ -423,7 +423,10 @@ def _effect(coef: float, a: np.ndarray, b: np.ndarray, axis: int = -1) -> tuple:
 def pool(estimates: list[TrialEstimate]) -> dict:
     """The fleet's savings from its trains' estimates: a random-effects meta-analysis
     (DerSimonian and Laird) of those with an interval (``crossover`` and ``fixed_reference``);
-    ``fixed_naive`` trains are not pooled (confounded) and are counted apart.
+    ``fixed_naive`` trains are not pooled (confounded) and are counted apart. Each train enters
+    with the standard error its 95 % interval implies (half its width over 1.96), so that a
+    train's small-sample uncertainty (the bootstrap-t's wider quantiles) carries into the pool
+    and one train pooled alone keeps its own interval.
 
     Parameters
     ----------
@@ -453,7 +456,8 @@ def pool(estimates: list[TrialEstimate]) -> dict:
         out["savings_ci95_reason"] = "no train has an interval yet"
         return out
     y = np.array([e.savings_pct for e in usable])
-    v = np.array([e.standard_error_pct for e in usable]) ** 2
+    z = float(stats.norm.ppf(0.975))
+    v = np.array([(e.savings_ci95_pct[1] - e.savings_ci95_pct[0]) / (2 * z) for e in usable]) ** 2
     w = 1.0 / v
     fixed = float(np.sum(w * y) / np.sum(w))
     q = float(np.sum(w * (y - fixed) ** 2))
@@ -462,7 +466,6 @@ def pool(estimates: list[TrialEstimate]) -> dict:
     w_star = 1.0 / (v + tau2)
     mean = float(np.sum(w_star * y) / np.sum(w_star))
     se = float(math.sqrt(1.0 / np.sum(w_star)))
-    z = float(stats.norm.ppf(0.975))
     out.update(
         savings_pct=mean,
         savings_ci95_pct=[mean - z * se, mean + z * se],
