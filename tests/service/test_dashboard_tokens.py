@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 import re
 import time
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from types import SimpleNamespace
 from zoneinfo import ZoneInfo
 
@@ -43,10 +43,11 @@ def bearer(token: str) -> dict[str, str]:
 def server(tmp_path_factory, model_file):
     """The service without a fleet. ``tokens``: a viewer's, an operator's and an admin's
     (``browser-ROLE``), and ``other_admin``: a second admin's (``admin-two``), from the store.
-    Issued by the admin through the API, each user with one token: ``gateways-124`` (coaches
-    124-A and 124-B, 30 days), ``short-lived`` (1 s), ``old-kiosk`` (then revoked by the admin),
-    ``lost-laptop`` and one named like markup. ``ids``: each user's token id; ``issued``: the
-    ``POST /tokens`` replies by user."""
+    ``short-lived`` (1 s: shorter than the API issues, so from the store too). Issued by the
+    admin through the API, each user with one token: ``gateways-124`` (coaches 124-A and 124-B,
+    30 days), ``old-kiosk`` (then revoked by the admin), ``lost-laptop`` and one named like
+    markup. ``ids``: each user's token id; ``issued``: the ``POST /tokens`` replies by user (the
+    short-lived one's token and expiry)."""
     home = tmp_path_factory.mktemp("dashboard-tokens")
     db_url = f"sqlite:///{home / 'trainclimate.db'}"
     env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
@@ -62,9 +63,11 @@ def server(tmp_path_factory, model_file):
         roles = ("viewer", "operator", "admin")
         srv.tokens = {role: create_token(s, role, f"browser-{role}")[0] for role in roles}
         srv.other_admin = create_token(s, "admin", "admin-two")[0]
+        short_until = datetime.now(UTC) + timedelta(seconds=1)
+        short = create_token(s, "viewer", "short-lived", expires_at=short_until)[0]
     db.dispose()
     admin = bearer(srv.tokens["admin"])
-    srv.issued = {}
+    srv.issued = {"short-lived": {"token": short, "expires_at": short_until.isoformat()}}
     for body in (
         {
             "role": "gateway",
@@ -72,7 +75,6 @@ def server(tmp_path_factory, model_file):
             "coaches": ["124-A", "124-B"],
             "expires_in_days": 30,
         },
-        {"role": "viewer", "name": "short-lived", "expires_in_days": 1 / 86400},
         {"role": "viewer", "name": "old-kiosk"},
         {"role": "viewer", "name": "lost-laptop"},
         {"role": "viewer", "name": MARKUP_NAME},

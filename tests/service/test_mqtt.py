@@ -347,7 +347,7 @@ class Confirmations:
         self.client.loop_stop()
 
 
-def test_rows_outside_the_backfill_horizon_are_dropped_as_over_http(db, broker):
+def test_rows_outside_the_backfill_horizon_are_dropped_as_over_http(db, broker, gateway):
     """The bridge's handling of a message, without a broker: a message with a row older than the
     coach's newest less the horizon is dropped whole (reason outside_horizon) and its rows are
     counted where the HTTP API counts its own; a topic whose coach id holds a NUL is no coach's
@@ -355,10 +355,12 @@ def test_rows_outside_the_backfill_horizon_are_dropped_as_over_http(db, broker):
     backfill = Backfill(HORIZON)
     bridge = MqttBridge(db, broker, client_id="unused", valid_for=VALID_FOR, backfill=backfill)
     topic = broker.topic("7-A", "telemetry")
-    bridge.handle(topic, json.dumps([to_wire(r) for r in flat_rows(1, 3)]).encode())
-    stray = [to_wire(flat_row(T0 - timedelta(days=365))), to_wire(flat_row(at(4)))]
-    bridge.handle(topic, json.dumps({"rows": stray}).encode())
-    bridge.handle(broker.topic("7\x00A", "telemetry"), json.dumps(stray[1]).encode())
+    bridge.handle(topic, json.dumps(batch(gateway, flat_rows(1, 3))).encode())
+    stray = [flat_row(T0 - timedelta(days=365)), flat_row(at(4))]
+    bridge.handle(topic, json.dumps(batch(gateway, stray)).encode())
+    bridge.handle(
+        broker.topic("7\x00A", "telemetry"), json.dumps(batch(gateway, stray[1:])).encode()
+    )
     assert bridge.status.rows_stored == 3
     assert bridge.status.dropped == {"outside_horizon": 1, "bad_topic": 1}
     assert backfill.refused == {"outside_horizon": 1}

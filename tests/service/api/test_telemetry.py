@@ -56,6 +56,7 @@ def test_register_a_coach(client, tokens, settings):
     assert train == {
         "id": "124",
         "name": "124",
+        "plan": "fixed",
         "coaches": ["124-A", "124-B"],
         "activated": ["124-A"],
         "deactivated": ["124-B"],
