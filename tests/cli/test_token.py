@@ -48,3 +48,17 @@ def test_serve_refuses_a_backfill_horizon_out_of_range(tmp_path, capsys):
         assert main(["serve", "--db", db, "--backfill-horizon-days", days]) == 2, days
         err = capsys.readouterr().err
         assert err == "trainclimate: error: --backfill-horizon-days takes days in (0, 3650]\n"
+
+
+def test_serve_refuses_forwarded_allow_ips_that_are_not_addresses(tmp_path, capsys):
+    db = f"sqlite:///{tmp_path / 'tc.db'}"
+    for ips, bad in (
+        ("proxy.local", "proxy.local"),
+        ("10.0.0.1,*", "*"),
+        ("10.0.0/33", "10.0.0/33"),
+    ):
+        assert main(["serve", "--db", db, "--forwarded-allow-ips", ips]) == 2, ips
+        err = capsys.readouterr().err
+        assert err == (
+            f"trainclimate: error: --forwarded-allow-ips: {bad!r} is not an IP address or network\n"
+        )

@@ -36,6 +36,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         MAX_BACKFILL_HORIZON_DAYS,
         REPLICA_NAME_MAX,
         Settings,
+        trusted_proxies,
     )
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
@@ -56,6 +57,12 @@ def cmd_serve(args: argparse.Namespace) -> None:
         0 < len(args.replica_name) <= REPLICA_NAME_MAX and args.replica_name.isprintable()
     ):
         raise UsageError(f"--replica-name must be 1 to {REPLICA_NAME_MAX} printable characters")
+    proxies = None
+    if args.forwarded_allow_ips is not None:
+        try:
+            proxies = trusted_proxies(args.forwarded_allow_ips)
+        except ValueError as exc:
+            raise UsageError(f"--forwarded-allow-ips: {exc}") from None
     settings = Settings(
         **({"replica_name": args.replica_name} if args.replica_name else {}),
         database_url=db_url(args),
@@ -64,6 +71,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         predictor_path=args.predictor,
         demo_coach_params=args.coach_params,
         **({"backfill_horizon_days": horizon} if horizon is not None else {}),
+        **({"forwarded_allow_ips": proxies} if proxies is not None else {}),
         **(
             {
                 "mqtt_url": args.mqtt,
@@ -88,7 +96,11 @@ def cmd_serve(args: argparse.Namespace) -> None:
     if args.new_token:
         token = _create_token(settings.database_url, args.new_token, f"demo-{args.new_token}")
     app = create_app(settings)
-    config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level)
+    # X-Forwarded-For only from the trusted proxies, which the app itself handles (create_app):
+    # uvicorn's own handling, on by default, would trust 127.0.0.1
+    config = uvicorn.Config(
+        app, host=args.host, port=args.port, log_level=args.log_level, proxy_headers=False
+    )
     server = uvicorn.Server(config)
 
     def announce() -> dict:
@@ -363,6 +375,14 @@ def register(sub) -> None:
         help="give each gateway token its own broker client (Mosquitto's dynamic security "
         "plugin), deleted when the token is revoked; the plugin admin's credentials from "
         "$TRAINCLIMATE_MQTT_DYNSEC_USERNAME and $TRAINCLIMATE_MQTT_DYNSEC_PASSWORD",
+    )
+    p.add_argument(
+        "--forwarded-allow-ips",
+        default=None,
+        metavar="IPS",
+        help="the reverse proxies whose X-Forwarded-For names the client, comma-separated IP "
+        "addresses or networks (default none: the header is ignored; "
+        "$TRAINCLIMATE_FORWARDED_ALLOW_IPS)",
     )
     p.add_argument(
         "--replica-name",

@@ -27,6 +27,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
+from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from trainclimate import __version__
 from trainclimate.service import api, docpages
@@ -46,6 +47,7 @@ from trainclimate.service.api.hardening import (
     pace_threads,
 )
 from trainclimate.service.api.retry import RetryConflicts, database_error
+from trainclimate.service.api.security import valid_authorization
 from trainclimate.service.preparation import ModelPreparation, has_model, register_predictor
 from trainclimate.service.retrain import RetrainJob
 from trainclimate.service.scheduler import Scheduler
@@ -208,9 +210,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_methods=["GET", "POST", "PUT", "DELETE"],
             allow_headers=["Authorization", "Content-Type"],
         )
-    # outermost last: the headers on every answer (429, 422, 413 and 503 included), then the
-    # throttle, the refusal of a NUL in the path or query, the body limit, the admission and the
-    # rerun of requests that lost a race
+    # outermost last: with trusted proxies the client they name (uvicorn's proxy headers), the
+    # headers on every answer (429, 422, 413 and 503 included), then the throttle, the refusal
+    # of a NUL in the path or query, the body limit, the admission and the rerun of requests
+    # that lost a race
     app.state.read_cache = ReadCache(settings.read_cache_size)
     app.state.backfill = Backfill(timedelta(days=settings.backfill_horizon_days))
     app.state.admission = Slots(settings.worker_threads, settings.overload_wait_s)
@@ -221,8 +224,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.auth_failures = FailureCounter(
         settings.auth_failures_burst, settings.auth_failures_window_s
     )
-    app.add_middleware(AuthFailureThrottle, counter=app.state.auth_failures)
+    app.add_middleware(
+        AuthFailureThrottle,
+        counter=app.state.auth_failures,
+        verify=lambda authorization: valid_authorization(app.state.db, authorization),
+    )
     app.add_middleware(SecurityHeaders)
+    if settings.forwarded_allow_ips:
+        app.add_middleware(ProxyHeadersMiddleware, trusted_hosts=settings.forwarded_allow_ips)
     if (settings.frontend_dir / "index.html").exists():
         # Plotly.js from the installed plotly package: the dashboard needs no CDN and no build
         app.add_api_route(

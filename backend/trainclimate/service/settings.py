@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import socket
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import Field, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
@@ -39,6 +41,20 @@ def default_replica_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"[:REPLICA_NAME_MAX]
 
 
+def trusted_proxies(value: str | list[str]) -> list[str]:
+    """The trusted proxies' addresses of ``value`` (a comma-separated list, or a list): each an IP
+    address (``10.0.0.5``, ``::1``) or a network (``10.0.0.0/24``), blanks dropped; anything else
+    is a :class:`ValueError` naming it (uvicorn would silently compare it as text)."""
+    items = value.split(",") if isinstance(value, str) else value
+    proxies = [item.strip() for item in items if item.strip()]
+    for item in proxies:
+        try:
+            ipaddress.ip_network(item, strict=False)
+        except ValueError:
+            raise ValueError(f"{item!r} is not an IP address or network") from None
+    return proxies
+
+
 def default_database_url() -> str:
     """The embedded default: a SQLite file under ``$TRAINCLIMATE_HOME``."""
     return f"sqlite:///{home() / 'trainclimate.db'}"
@@ -59,9 +75,13 @@ class Settings(BaseSettings):
     back the live feed's rows are taken: a row older than its coach's newest less this many
     days is refused (:class:`~trainclimate.service.store.commands.Backfill`); after
     ``auth_failures_burst`` failed authentications within ``auth_failures_window_s`` seconds,
-    a client address's requests with a token answer 429 (see
-    :mod:`trainclimate.service.api.hardening`); ``worker_threads`` the threads running the
-    API's requests (anyio's limit), as many requests admitted at once, and the database pool
+    a client address's requests whose token fails answer 429 (see
+    :mod:`trainclimate.service.api.hardening`); ``forwarded_allow_ips``
+    (``--forwarded-allow-ips``; env ``TRAINCLIMATE_FORWARDED_ALLOW_IPS``, comma-separated;
+    default none) the reverse proxies whose ``X-Forwarded-For`` names the client
+    (:func:`trusted_proxies`): the address the throttle counts; from any other peer the header
+    is ignored; ``worker_threads`` the threads running the API's requests (anyio's limit), as
+    many requests admitted at once, and the database pool
     sized to them (:mod:`trainclimate.service.store.db`); a request beyond them waits up to
     ``overload_wait_s`` seconds for its turn, else answers 503; ``read_cache_size`` the answers
     kept, a view per coach, a comparison per train and range, the fleet summary's sums per train
@@ -102,6 +122,7 @@ class Settings(BaseSettings):
     )
     auth_failures_burst: int = Field(default=20, gt=0)
     auth_failures_window_s: float = Field(default=60.0, gt=0)
+    forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(default_factory=list)
     worker_threads: int = Field(default=WORKER_THREADS, gt=0)
     overload_wait_s: float = Field(default=1.0, ge=0)
     read_cache_size: int = Field(default=2048, ge=0)
@@ -125,6 +146,11 @@ class Settings(BaseSettings):
         if value not in (None, "demo"):
             raise ValueError("fleet must be 'demo' or empty")
         return value
+
+    @field_validator("forwarded_allow_ips", mode="before")
+    @classmethod
+    def _proxies(cls, value: str | list[str]) -> list[str]:
+        return trusted_proxies(value)
 
     @field_validator("speedup", "sampling_min", "scheduler_interval_s")
     @classmethod

@@ -1,7 +1,8 @@
 """The hardening middleware, on SQLite and on PostgreSQL: the security headers on every answer
 (API, dashboard, errors), the request body limit (Content-Length and chunked: 413, nothing
 stored) and the throttle of failed authentications per client address (429 with Retry-After,
-other addresses served, free again once the window passes)."""
+other addresses and every valid token served, free again once the window passes;
+``X-Forwarded-For`` read only from a trusted proxy, checked on a real server)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import json
 import logging
 import time
 
+import httpx
 import pytest
 from fastapi.testclient import TestClient
 
@@ -20,7 +22,10 @@ from trainclimate.service.api.hardening import (
     FailureCounter,
 )
 from trainclimate.service.app import create_app
+from trainclimate.service.settings import Settings
+from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import Telemetry
+from trainclimate.service.store.tokens import create_token
 
 WRONG = {"Authorization": "Bearer tc_not-a-token"}
 
@@ -152,8 +157,8 @@ def test_failed_authentications_are_throttled_per_address(client, tokens, settin
     assert 1 <= wait <= settings.auth_failures_window_s
     blocked = [r for r in caplog.records if "failed authentications" in r.getMessage()]
     assert len(blocked) == 1 and "testclient" in blocked[0].getMessage()
-    # the blocked address: even a valid token waits; without a token the dashboard is served
-    assert client.get(f"{API}/coaches", headers=tokens["viewer"]).status_code == 429
+    # the blocked address: a valid token is served; without a token the dashboard is served
+    assert client.get(f"{API}/coaches", headers=tokens["viewer"]).status_code == 200
     assert client.get("/").status_code == 200
     assert client.get(f"{API}/health").status_code == 200
     # another address is served, and its failures and successes leave the first one's count
@@ -167,6 +172,62 @@ def test_failed_authentications_are_throttled_per_address(client, tokens, settin
     assert client.get(f"{API}/coaches", headers=tokens["viewer"]).status_code == 200
 
 
+def test_a_valid_token_is_served_from_a_blocked_address(client, tokens, settings):
+    """Many wrong tokens from the address that gateways and operators share (a NAT, a reverse
+    proxy) lock none of them out: a valid token is checked before anything is refused, and only
+    failed authentications answer 429 — a revoked token's among them."""
+    db = Database(settings.database_url)
+    with db.transaction() as s:
+        gateway = {"Authorization": f"Bearer {create_token(s, 'gateway', 'gw', ['G-A'])[0]}"}
+    db.dispose()
+    operator, admin, revoked = tokens["operator"], tokens["admin"], tokens["viewer"]
+    listed = client.get(f"{API}/tokens", headers=admin).json()
+    viewer_id = next(t["id"] for t in listed if t["user"] == "test-viewer")
+    assert client.delete(f"{API}/tokens/{viewer_id}", headers=admin).is_success
+    statuses = [client.get(f"{API}/coaches", headers=WRONG).status_code for _ in range(25)]
+    assert statuses == [401] * 20 + [429] * 5
+    register_reply = client.post(
+        f"{API}/coaches", json={"id": "G-A", "train_id": "G"}, headers=gateway
+    )
+    assert register_reply.status_code == 201, register_reply.text
+    assert post_rows(client, gateway, "G-A", flat_rows(1, 3)).json()["stored"] == 3
+    assert client.get(f"{API}/coaches/G-A/setpoint", headers=gateway).status_code in (200, 404)
+    assert client.get(f"{API}/coaches", headers=operator).status_code == 200
+    reason = {"active": False, "reason": "a test"}
+    assert client.put(f"{API}/coaches/G-A/controller", json=reason, headers=operator).is_success
+    for headers in (WRONG, revoked, {"Authorization": "Basic dXNlcjpwdw=="}):
+        reply = client.get(f"{API}/coaches", headers=headers)
+        assert reply.status_code == 429 and int(reply.headers["retry-after"]) >= 1, headers
+
+
+def wrong_from(server, forwarded_for: str, peer: str = "127.0.0.1") -> int:
+    """The status of a wrong token sent to ``server`` from ``peer`` (a loopback address) with
+    ``X-Forwarded-For: forwarded_for``."""
+    headers = {**WRONG, "X-Forwarded-For": forwarded_for}
+    with httpx.Client(transport=httpx.HTTPTransport(local_address=peer), timeout=10) as c:
+        return c.get(f"{server.url}{API}/coaches", headers=headers).status_code
+
+
+@pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)
+def test_forwarded_for_counts_only_from_a_trusted_proxy(db_url, servers):
+    """``trainclimate serve --forwarded-allow-ips`` over real HTTP, its proxy 127.0.0.2. From
+    127.0.0.1, not a trusted proxy (uvicorn's own default trusts it), ``X-Forwarded-For`` is
+    ignored: wrong tokens claiming 21 different clients are one client's, refused at the 21st.
+    From the proxy the header names the client: one client's 21st wrong token is refused,
+    another's is not."""
+    server = servers(db_url, "--forwarded-allow-ips", "10.9.9.0/24, 127.0.0.2").start()
+    statuses = [wrong_from(server, f"198.51.100.{i}") for i in range(21)]
+    assert statuses == [401] * 20 + [429]
+    statuses = [wrong_from(server, "203.0.113.7", peer="127.0.0.2") for _ in range(21)]
+    assert statuses == [401] * 20 + [429]
+    assert wrong_from(server, "203.0.113.8", peer="127.0.0.2") == 401
+    # the client is the last address before the trusted proxies: an earlier one is the client's
+    assert wrong_from(server, "203.0.113.8, 203.0.113.7", peer="127.0.0.2") == 429
+    assert wrong_from(server, "203.0.113.7, 10.9.9.1", peer="127.0.0.2") == 429
+    output = server.output()
+    assert "127.0.0.1: 20 failed" in output and "203.0.113.7: 20 failed" in output
+
+
 @pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)
 def test_the_throttle_settings_apply(settings):
     settings = settings.model_copy(update={"auth_failures_burst": 3, "auth_failures_window_s": 10})
@@ -174,6 +235,16 @@ def test_the_throttle_settings_apply(settings):
         statuses = [c.get(f"{API}/coaches", headers=WRONG).status_code for _ in range(5)]
         assert statuses == [401, 401, 401, 429, 429]
         assert int(c.get(f"{API}/coaches", headers=WRONG).headers["retry-after"]) <= 10
+
+
+def test_trusted_proxies_from_the_environment(monkeypatch):
+    monkeypatch.setenv("TRAINCLIMATE_FORWARDED_ALLOW_IPS", " 10.0.0.5, 10.1.0.0/16,,::1")
+    assert Settings().forwarded_allow_ips == ["10.0.0.5", "10.1.0.0/16", "::1"]
+    monkeypatch.setenv("TRAINCLIMATE_FORWARDED_ALLOW_IPS", "")
+    assert Settings().forwarded_allow_ips == []
+    monkeypatch.setenv("TRAINCLIMATE_FORWARDED_ALLOW_IPS", "10.0.0.5,proxy")
+    with pytest.raises(ValueError, match="'proxy' is not an IP address or network"):
+        Settings()
 
 
 def test_the_failure_counter():

@@ -6,8 +6,11 @@
   the API's (a new token's secret among them);
 - :class:`AuthFailureThrottle` — after ``auth_failures_burst`` failed authentications (401 to a
   request that carried an ``Authorization`` header) within ``auth_failures_window_s`` from one
-  client address, that address's requests with a token answer 429 (``Retry-After``) until the
-  window frees; requests without a token (the dashboard's files) are still served;
+  client, that client's requests whose token fails answer 429 (``Retry-After``) until the window
+  frees; a valid token is always served, and so are requests without a token (the dashboard's
+  files). The client is ``scope["client"]``: the connection's peer, or the address a trusted
+  proxy puts in ``X-Forwarded-For`` (uvicorn's ``ProxyHeadersMiddleware``, installed outside
+  all of these only for the proxies of ``forwarded_allow_ips``);
 - :class:`BodySizeLimit` — a request body over ``max_body_bytes`` answers 413, read off
   ``Content-Length`` when given, else counted while it streams in (chunked), never read whole
   first;
@@ -223,20 +226,42 @@ class FailureCounter:
 
 
 class AuthFailureThrottle:
-    """429 with ``Retry-After`` to requests carrying an ``Authorization`` header from an address
-    :class:`FailureCounter` blocks (the app is not called); a 401 to a request with that header
-    counts as a failure of its address. Each block is logged once, with the address."""
+    """Counts a 401 to a request carrying an ``Authorization`` header as a failure of the
+    request's client address (:class:`FailureCounter`), and refuses only failures: from an
+    address the counter blocks, the header is checked first with ``verify`` (the header's value
+    → whether it holds a valid token; run in a worker thread: one SHA-256 and one indexed read)
+    and a request that fails it answers 429 with ``Retry-After`` at once (the app is not called,
+    its body not read, and the failure not counted again), while a valid token goes on to the
+    app as from any other address. A ``verify`` that raises (the database down) leaves the
+    answer to the app. Each block is logged once, with the address."""
 
-    def __init__(self, app: ASGIApp, counter: FailureCounter) -> None:
+    def __init__(self, app: ASGIApp, counter: FailureCounter, verify: Callable[[str], bool]):
         self.app = app
         self.counter = counter
+        self.verify = verify
+
+    async def _refused(self, authorization: str, address: str) -> int | None:
+        """The seconds ``address`` must wait if it is blocked and ``authorization`` fails, else
+        ``None`` (not blocked, a valid token, or no answer from ``verify``)."""
+        wait = self.counter.retry_after(address)
+        if wait is None:
+            return None
+        try:
+            valid = await to_thread.run_sync(self.verify, authorization)
+        except Exception:  # the app answers (503 for a database that does not answer)
+            log.debug("the token of a blocked address could not be checked", exc_info=True)
+            return None
+        return None if valid else wait
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or b"authorization" not in dict(scope["headers"]):
+        authorization = (
+            Headers(scope=scope).get("authorization") if scope["type"] == "http" else None
+        )
+        if authorization is None:
             await self.app(scope, receive, send)
             return
         address = scope["client"][0] if scope.get("client") else "unknown"
-        wait = self.counter.retry_after(address)
+        wait = await self._refused(authorization, address)
         if wait is not None:
             response = JSONResponse(
                 {"detail": f"too many failed authentications; try again in {wait} s"},
@@ -250,8 +275,8 @@ class AuthFailureThrottle:
             failed = message["type"] == "http.response.start" and message["status"] == 401
             if failed and self.counter.record_failure(address):
                 log.warning(
-                    "%s: %d failed authentications within %g s; its requests with a token "
-                    "answer 429 until the window frees",
+                    "%s: %d failed authentications within %g s; its requests whose token "
+                    "fails answer 429 until the window frees",
                     address,
                     self.counter.burst,
                     self.counter.window_s,

@@ -11,8 +11,10 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from fastapi.security.utils import get_authorization_scheme_param
 from pydantic import BaseModel, ValidationError
 
+from trainclimate.service.store.db import Database
 from trainclimate.service.store.tokens import GATEWAY, Principal, authenticate
 
 bearer = HTTPBearer(auto_error=False, description="a token from `trainclimate token create`")
@@ -28,6 +30,16 @@ def _principal(request: Request, credentials: HTTPAuthorizationCredentials | Non
     if who is None:
         raise HTTPException(401, "invalid or revoked token", {"WWW-Authenticate": "Bearer"})
     return who
+
+
+def valid_authorization(db: Database, authorization: str) -> bool:
+    """Whether an ``Authorization`` header's value is ``Bearer <token>`` with a valid token, as
+    :func:`_principal` reads it (the throttle's check of a blocked address's requests)."""
+    scheme, token = get_authorization_scheme_param(authorization)
+    if scheme.lower() != "bearer" or not token:
+        return False
+    with db.sessions() as s:
+        return authenticate(s, token) is not None
 
 
 def _too_low(role: str, who: Principal) -> HTTPException:
