@@ -186,15 +186,11 @@ def _create_token(
         db.dispose()
 
 
-#: The longest user name (the ``users.name`` column).
-NAME_MAX = 100
-
-
 def cmd_token_create(args: argparse.Namespace) -> None:
     """``token create``: a new token for a new user or an existing one of the same role, shown
     once (or written to ``--out``); a gateway's is scoped to ``--coaches``."""
     from trainclimate.service.api.schemas import MIN_EXPIRES_DAYS
-    from trainclimate.service.store.tokens import check_scope
+    from trainclimate.service.store.tokens import USER_NAME_MAX, check_scope
 
     coaches = None
     if args.coaches is not None:
@@ -207,8 +203,10 @@ def cmd_token_create(args: argparse.Namespace) -> None:
         check_scope(args.role, coaches)
     except ValueError as exc:
         raise UsageError(f"--coaches: {exc}") from None
-    if args.name is not None and not (0 < len(args.name) <= NAME_MAX and args.name.isprintable()):
-        raise UsageError(f"--name must be 1 to {NAME_MAX} printable characters")
+    if args.name is not None and not (
+        0 < len(args.name) <= USER_NAME_MAX and args.name.isprintable()
+    ):
+        raise UsageError(f"--name must be 1 to {USER_NAME_MAX} printable characters")
     if args.expires is not None and not (
         np.isfinite(args.expires) and MIN_EXPIRES_DAYS <= args.expires <= 3650
     ):

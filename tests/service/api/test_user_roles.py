@@ -155,3 +155,23 @@ def test_token_create_command_keeps_the_users_role(client, tokens, settings, cap
     out = json.loads(capsys.readouterr().out)
     assert (out["name"], out["role"]) == ("test-viewer", "viewer")
     assert client.get(f"{API}/me", headers=bearer(out["token"])).json()["role"] == "viewer"
+
+
+def test_a_user_name_fits_its_audit_target(client, tokens, settings):
+    """A name is at most 48 characters: its audit target ``user:<name>`` fits the 64-character
+    column (a 60-character name was a 500 on PostgreSQL). Longer: 422, nothing created."""
+    admin = tokens["admin"]
+    longest = "n" * 48
+    reply = new_token(client, admin, "viewer", longest)
+    assert reply.status_code == 201, reply.text
+    change = {"role": "operator", "reason": "a test"}
+    reply = client.put(f"{API}/users/{longest}/role", json=change, headers=admin)
+    assert reply.status_code == 200, reply.text
+    assert [a.target for a in audit(settings, "user.role")] == [f"user:{longest}"]
+    before = listed(client, admin)
+    for length in (49, 59, 60, 100):
+        reply = new_token(client, admin, "viewer", "n" * length)
+        assert reply.status_code == 422, (length, reply.text)
+        reply = client.put(f"{API}/users/{'n' * length}/role", json=change, headers=admin)
+        assert reply.status_code == 422, (length, reply.text)
+    assert listed(client, admin) == before

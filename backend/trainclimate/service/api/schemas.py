@@ -19,6 +19,7 @@ from pydantic import (
 
 from trainclimate.service.store.attention import KINDS
 from trainclimate.service.store.queries import STATUSES
+from trainclimate.service.store.tokens import USER_NAME_MAX
 
 Role = Literal["gateway", "viewer", "operator", "admin"]
 Source = Literal["ddpc", "rule", "override", "fallback"]
@@ -703,7 +704,7 @@ class TokenIn(Strict):
     name: str | None = Field(
         default=None,
         min_length=1,
-        max_length=100,
+        max_length=USER_NAME_MAX,
         description="the token's user, created if new (default: a new user named after the role)",
         examples=["alice"],
     )

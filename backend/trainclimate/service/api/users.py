@@ -23,6 +23,7 @@ from trainclimate.service.api.deps import (
 )
 from trainclimate.service.store import commands
 from trainclimate.service.store.models import ApiToken, User
+from trainclimate.service.store.tokens import USER_NAME_MAX
 
 router = APIRouter()
 
@@ -107,7 +108,7 @@ def revoke_token(
     responses={**AUTH, **NOT_FOUND, **CONFLICT},
 )
 def set_user_role(
-    name: Annotated[str, Path(min_length=1, max_length=100)],
+    name: Annotated[str, Path(min_length=1, max_length=USER_NAME_MAX)],
     body: schemas.RoleChange,
     s: DB,
     who: Admin,

@@ -40,6 +40,9 @@ from trainclimate.service.store.upsert import insert_new
 RANK = {role: i for i, role in enumerate(ROLES)}
 PREFIX = "tc_"
 GATEWAY = "gateway"
+#: The longest user name the API and the CLI take: its audit target ``user:<name>`` fits the
+#: audit log's 64-character ``target`` column (the ``users.name`` column holds 100).
+USER_NAME_MAX = 48
 #: A coach id as the API takes it (``POST /coaches``).
 COACH_ID = re.compile(r"^[A-Za-z0-9_.-]{1,32}$")
 
