@@ -34,6 +34,7 @@ from trainclimate.service import api, docpages
 from trainclimate.service.adapters import demo
 from trainclimate.service.adapters.dynsec import BrokerClients, DynsecError
 from trainclimate.service.adapters.mqtt import Broker, MqttBridge
+from trainclimate.service.api import spec
 from trainclimate.service.api.hardening import (
     DATABASE_RETRY_AFTER_S,
     OVERLOAD_RETRY_AFTER_S,
@@ -195,6 +196,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.include_router(api.router)
     docpages.install(app)
+    spec.install(app)
     for exc, status in api.ERROR_STATUS.items():
         app.add_exception_handler(exc, _error(status))
     # a database that does not answer, or whose connections are all in use: 503 with
