@@ -396,11 +396,11 @@ def validated_range(
         if not good(b)
     ]
     for b in sorted((b for b in bands if b["t_amb_c"][0] < low), key=lambda b: -b["t_amb_c"][0]):
-        if not good(b) or b["t_amb_c"][1] < low:
+        if not good(b) or b["t_amb_c"][1] < np.floor(low / BAND_K) * BAND_K:
             break
         low = b["t_amb_c"][0]
     for b in sorted((b for b in bands if b["t_amb_c"][1] > high), key=lambda b: b["t_amb_c"][0]):
-        if not good(b) or b["t_amb_c"][0] > high:
+        if not good(b) or b["t_amb_c"][0] > np.ceil(high / BAND_K) * BAND_K:
             break
         high = b["t_amb_c"][1]
     for b in bands:
