@@ -759,6 +759,10 @@ def calibrate(
         on_holdout = {**errors(rep_h, y, p), "bands": band_errors(rep_h, y, p)}
         validated, warned = validated_range(t_amb_minutes(rep)[rep.scored], on_holdout["bands"])
         warnings += warned
+    training_days = len({local_day(t) for t in train})
+    if bootstrap > 0 and training_days < 2:
+        warnings.append("one training day: no bootstrap interval (it resamples whole days)")
+        bootstrap = 0
     if bootstrap > 0:
         replicas = _bootstrap(
             problem, best, train, replay(holdout) if holdout else None, bootstrap, seed
