@@ -104,11 +104,12 @@ def test_a_known_envelope_is_recovered_from_generated_logs(winter):
     assert fit.params.to_dict() == expected.to_dict()
 
 
-@pytest.mark.slow  # a fit of one parameter, 3 bootstrap re-fits
+@pytest.mark.slow  # a fit of one parameter
 def test_by_default_what_winter_days_do_not_identify_is_held_at_its_base(winter):
     """Among the envelope and the COP, winter days identify the envelope only: the COP is kept
-    at its base value and reported, not refused; the envelope gets a bootstrap interval, the
-    held-out days their errors per ambient band and the twin its validated range."""
+    at its base value and reported, not refused. 44A's coldest and warmest of its 3 days are
+    held out: one training day, which a bootstrap over days cannot resample (a warning); the
+    held-out days get their errors per ambient band."""
     mine = [t for t in winter if t.coach == "44A"]
     known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
     fit = cal.calibrate(
@@ -118,19 +119,10 @@ def test_by_default_what_winter_days_do_not_identify_is_held_at_its_base(winter)
         {"param": "cop_level", "reason": "nothing logged on the training days depends on it"}
     ]
     assert fit.params.cop_a == known.cop_a
-    envelope = fit.fitted["envelope_scale"]
-    low, high = envelope["ci95"]
-    assert low <= envelope["value"] <= high and low <= TRUTH["envelope_scale"] * 1.05
-    assert high >= TRUTH["envelope_scale"] * 0.95
+    assert "ci95" not in fit.fitted["envelope_scale"] and fit.bootstrap == 0
+    assert "one training day: no bootstrap interval (it resamples whole days)" in fit.warnings
     bands = fit.holdout["bands"]
     assert bands and sum(b["minutes"] for b in bands) <= fit.holdout["minutes"]
-    low, high = fit.holdout["energy_error_ci95_pct"]
-    assert low <= high
-    # the range covers the training days' conditions at least
-    train, _ = cal.split_days(mine)
-    t_amb = np.concatenate([t.d[cal.WARMUP_MIN :, 0] for t in train])
-    validated = fit.validated_t_amb_c
-    assert validated[0] <= np.percentile(t_amb, 50) <= validated[1]
 
 
 def test_winter_days_cannot_calibrate_the_compressor_a_refusal(winter):
@@ -190,7 +182,7 @@ def test_calibrate_writes_a_coach_params_file_the_simulator_takes(capsys, winter
     # the file carries the calibration's record beside the parameters
     record = json.loads(out.read_text())["twin"]
     assert record["validated_t_amb_c"] == coach["validated_t_amb_c"]
-    assert record["fitted"]["envelope_scale"]["ci95"] == coach["fitted"]["envelope_scale"]["ci95"]
+    assert record["fitted"] == coach["fitted"] and record["warnings"] == coach["warnings"]
     assert set(coach["holdout"]) >= {"t_room_mae_c", "power_mae_kw", "energy_error_pct"}
     assert coach["fitted"]["envelope_scale"]["value"] == pytest.approx(1.2, rel=0.05)
     assert load_params(out).to_dict() == coach["params"]
