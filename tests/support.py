@@ -16,6 +16,7 @@ step (mostly the sensors' noise).
 from __future__ import annotations
 
 import dataclasses
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -23,8 +24,10 @@ import numpy as np
 from trainclimate.predict import TransientPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
+from trainclimate.sim.params import CoachParams
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator
+from trainclimate.sim.twin import params_file
 
 RHO, HORIZON, SAMPLING_MIN = 12, 6, 5
 TICK_S = 300.0
@@ -132,3 +135,17 @@ def training_trajectories(seed: int = 1) -> list[SimpleNamespace]:
 def small_predictor() -> TransientPredictor:
     """The Transient Predictor at 5 min, ρ = 12, T = 6, fitted on :func:`training_trajectories`."""
     return TransientPredictor(RHO, HORIZON).fit(training_trajectories())
+
+
+def twin_file(path, validated):
+    """A calibrated twin's coach-params file at ``path`` validated for ``validated`` (°C)."""
+    coach = {
+        "coach": "124A",
+        "params": CoachParams(fan_supply_w=1300.0).to_dict(),
+        "validated_t_amb_c": validated,
+        "fitted": {"fan_supply_w": {"value": 1300.0, "std": 20.0, "ci95": [1250.0, 1360.0]}},
+        "not_identified": [{"param": "cop_level", "reason": "nothing depends on it"}],
+        "warnings": [],
+    }
+    path.write_text(json.dumps(params_file(coach)))
+    return path

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from support import twin_file
 from trainclimate.analysis.experiment import (
     ACTIVATED,
     DEACTIVATED,
@@ -407,3 +408,22 @@ def test_bad_arguments_exit_2_with_one_line(capsys, predictor_file, argv, needle
     code, out, err = run_cli(capsys, predictor_file, "--hours", "1", *argv, "--json")
     assert code == 2 and out == ""
     assert len(err.strip().splitlines()) == 1 and needle in err
+
+
+def test_experiment_run_warns_when_the_scenario_leaves_the_twins_range(
+    capsys, predictor_file, tmp_path
+):
+    args = ["--hours", "0.5", "--json"]
+    summer = twin_file(tmp_path / "summer.json", [18.0, 33.0])
+    code, out, err = run_cli(capsys, predictor_file, *args, "--coach-params", str(summer))
+    assert code == 0, err
+    [warning] = json.loads(out)["warnings"]
+    assert warning.startswith("scenario parked-heating-nov: T_amb ")
+    assert f"trainclimate: warning: {warning}" in err
+    winter = twin_file(tmp_path / "winter.json", [-15.0, 15.0])
+    code, out, err = run_cli(capsys, predictor_file, *args, "--coach-params", str(winter))
+    assert code == 0 and json.loads(out)["warnings"] == [] and "warning" not in err
+    bad = twin_file(tmp_path / "bad.json", [15.0, "x"])
+    code, out, err = run_cli(capsys, predictor_file, *args, "--coach-params", str(bad))
+    assert code == 2 and out == "" and "validated_t_amb_c must be" in err
+    assert len(err.strip().splitlines()) == 1

@@ -229,3 +229,21 @@ def _unstacked(sim: FleetSimulator):
         CoachParams(**{f.name: getattr(sim.p, f.name)[i] for f in dataclasses.fields(CoachParams)})
         for i in range(n)
     ]
+
+
+def test_a_twin_validated_for_summer_is_warned_of_on_a_november_day(tmp_path, model_file, caplog):
+    """The demo's cold November days leave a twin validated at 15–32 °C: each train's day is
+    logged once as extrapolated; a twin validated for the cold is not."""
+    fleet = demo_fleet(tmp_path, model_file)
+    day = pd.Timestamp(demo.START_LOCAL.split()[0], tz=demo.LOCAL_TZ)
+    fleet.validated_t_amb_c = [-20.0, 25.0]
+    with caplog.at_level("WARNING"):
+        fleet._build_day(day)
+    assert "validated range" not in caplog.text
+    fleet.validated_t_amb_c = [15.0, 32.0]
+    with caplog.at_level("WARNING"):
+        fleet._build_day(day)
+    warned = [m for m in caplog.messages if "validated range 15 to 32" in m]
+    assert len(warned) == len(demo.TRAINS)
+    assert warned[0].startswith(f"demo train {demo.TRAINS[0].id} on {day:%Y-%m-%d}: T_amb ")
+    fleet.db.dispose()

@@ -92,7 +92,7 @@ def test_a_known_envelope_is_recovered_from_generated_logs(winter):
     """The envelope 20 % above the default, the fans' power known (from the nameplate)."""
     mine = [t for t in winter if t.coach == "44A"]
     known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
-    fit = cal.calibrate("44A", mine, ("envelope_scale",), base=known, starts=1)
+    fit = cal.calibrate("44A", mine, ("envelope_scale",), base=known, starts=1, bootstrap=0)
     envelope = fit.fitted["envelope_scale"]
     assert envelope["value"] == pytest.approx(TRUTH["envelope_scale"], rel=0.05)
     assert 0 < envelope["std"] < 0.05
@@ -102,6 +102,27 @@ def test_a_known_envelope_is_recovered_from_generated_logs(winter):
     # the parameters are a whole coach-params set, the fitted fields replaced
     expected = cal.apply(known, {"envelope_scale": envelope["value"]})
     assert fit.params.to_dict() == expected.to_dict()
+
+
+@pytest.mark.slow  # a fit of one parameter
+def test_by_default_what_winter_days_do_not_identify_is_held_at_its_base(winter):
+    """Among the envelope and the COP, winter days identify the envelope only: the COP is kept
+    at its base value and reported, not refused. 44A's coldest and warmest of its 3 days are
+    held out: one training day, which a bootstrap over days cannot resample (a warning); the
+    held-out days get their errors per ambient band."""
+    mine = [t for t in winter if t.coach == "44A"]
+    known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
+    fit = cal.calibrate(
+        "44A", mine, base=known, starts=1, bootstrap=3, among=("envelope_scale", "cop_level")
+    )
+    assert fit.not_identified == [
+        {"param": "cop_level", "reason": "nothing logged on the training days depends on it"}
+    ]
+    assert fit.params.cop_a == known.cop_a
+    assert "ci95" not in fit.fitted["envelope_scale"] and fit.bootstrap == 0
+    assert "one training day: no bootstrap interval (it resamples whole days)" in fit.warnings
+    bands = fit.holdout["bands"]
+    assert bands and sum(b["minutes"] for b in bands) <= fit.holdout["minutes"]
 
 
 def test_winter_days_cannot_calibrate_the_compressor_a_refusal(winter):
@@ -136,6 +157,7 @@ def test_calibrate_command_errors_are_one_line_exit_2(capsys, winter_dataset, tm
         (["--coach", "44A", "124A", "--out", str(tmp_path / "p.json")], "exactly one --coach"),
         (["--coach", "99Z"], "no trajectories of coach '99Z'"),
         (["--starts", "0"], "--starts must be at least 1"),
+        (["--bootstrap", "-1"], "--bootstrap must not be negative"),
         (["--coach", "44A", "--params", "cop_level"], "depends on cop_level"),
         (["--data", str(tmp_path)], "holds no dataset"),
     ):
@@ -152,10 +174,15 @@ def test_calibrate_writes_a_coach_params_file_the_simulator_takes(capsys, winter
     data = call_json(
         capsys, "calibrate", "--data", str(winter_dataset), "--coach", "44A",
         "--params", "envelope_scale", "--base-params", str(known), "--starts", "1",
-        "--out", str(out),
+        "--bootstrap", "3", "--out", str(out),
     )  # fmt: skip
     [coach] = data["coaches"]
-    assert set(coach) >= {"coach", "params", "fitted", "train", "holdout"}
+    assert set(coach) >= {"coach", "params", "fitted", "train", "holdout", "warnings"}
+    assert coach["not_identified"] == []
+    # the file carries the calibration's record beside the parameters
+    record = json.loads(out.read_text())["twin"]
+    assert record["validated_t_amb_c"] == coach["validated_t_amb_c"]
+    assert record["fitted"] == coach["fitted"] and record["warnings"] == coach["warnings"]
     assert set(coach["holdout"]) >= {"t_room_mae_c", "power_mae_kw", "energy_error_pct"}
     assert coach["fitted"]["envelope_scale"]["value"] == pytest.approx(1.2, rel=0.05)
     assert load_params(out).to_dict() == coach["params"]
@@ -178,8 +205,53 @@ def test_envelope_cop_and_fans_differing_by_20_to_25_percent_come_back_within_15
     )
     build_dataset(tmp_path / "raw", tmp_path / "out")
     trajectories = read_trajectories(tmp_path / "out" / "trajectories_1min.parquet")
-    fit = cal.calibrate("124A+124B", trajectories, tuple(truth), starts=1)
+    fit = cal.calibrate("124A+124B", trajectories, tuple(truth), starts=1, bootstrap=0)
     for name, value in truth.items():
         assert fit.fitted[name]["value"] == pytest.approx(value, rel=0.15), name
     # the twin predicts the held-out days' HVAC energy within 5 %
     assert abs(fit.holdout["energy_error_pct"]) < 5.0 and fit.holdout["minutes"] > 1000
+
+
+def _day(date: str, t_amb_c: float, coach: str = "1A") -> Trajectory:
+    """A 2-h trajectory on the local ``date`` at a constant ``t_amb_c``."""
+    n = 120
+    time = pd.date_range(f"{date} 10:00", periods=n, freq="1min", tz="UTC")
+    d = np.column_stack([np.full(n, t_amb_c), np.zeros((n, 3)), np.full(n, 60.0)])
+    y, u = np.full((n, 3), 21.0), np.full((n, 1), 22.0)
+    return Trajectory(time, y, u, d, "c", "1", coach, 1, p_kw=np.full(n, 5.0))
+
+
+def test_the_coldest_and_the_warmest_days_are_held_out():
+    winter = {"2022-02-01": 2.0, "2022-02-02": -6.0, "2022-02-03": 5.0, "2022-02-04": 0.0}
+    summer = {"2023-07-04": 31.0, "2023-07-05": 24.0, "2023-07-06": 27.0, "2023-07-07": 22.0}
+    temps = {**winter, **summer}
+    train, held = cal.split_days([_day(d, t) for d, t in temps.items()])
+    assert sorted(t.d[0, 0] for t in held) == [-6.0, 31.0]
+    assert len(train) == 6
+    # from 12 days on a third day is held out: the next coldest
+    temps.update({"2023-07-08": 25.0, "2023-07-09": 26.0, "2022-02-05": 1.0, "2022-02-06": 3.0})
+    _, held = cal.split_days([_day(d, t) for d, t in temps.items()])
+    assert sorted(t.d[0, 0] for t in held) == [-6.0, 0.0, 31.0]
+
+
+def _band(low: float, energy_error_pct: float | None) -> dict:
+    return {"t_amb_c": [low, low + cal.BAND_K], "energy_error_pct": energy_error_pct}
+
+
+def test_the_validated_range_grows_by_good_held_out_bands_and_stops_at_a_bad_one():
+    train = np.linspace(0.0, 12.0, 1000)  # the training minutes' T_amb
+    validated, warnings = cal.validated_range(train, [])
+    assert validated == pytest.approx([0.2, 11.8], abs=0.05) and warnings == []
+    # a good band below, a bad one beyond it; a good band above
+    bands = [_band(-5.0, 2.0), _band(-10.0, -12.0), _band(10.0, 1.0), _band(15.0, 4.9)]
+    validated, warnings = cal.validated_range(train, bands)
+    assert validated == [-5.0, 20.0]
+    assert warnings == [
+        "held out at -10 to -5 °C the twin's energy is -12.0 % off (beyond ±5 %): not "
+        "validated there"
+    ]
+    # a bad band inside the training range cuts it on its side
+    validated, _ = cal.validated_range(train, [_band(10.0, 8.0)])
+    assert validated == pytest.approx([0.2, 10.0], abs=0.05)
+    validated, warnings = cal.validated_range(train, [_band(0.0, 8.0), _band(5.0, 9.0)])
+    assert validated is None and warnings[-1] == "the twin is validated at no ambient temperature"

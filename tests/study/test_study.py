@@ -298,3 +298,30 @@ def test_a_parked_summer_day_counts_its_cooling_hours(predictor):
     assert set(hours.index) <= {"parked cooling", "parked heating", "mixed mode"}
     assert "in service" not in hours and "off or slumber" not in hours
     assert (frame["regular_hours"] == frame["hours"]).all()
+
+
+def test_a_twin_validated_for_summer_warns_in_a_january_study(predictor_file, capsys, tmp_path):
+    """A fleet file (calibrate --json) whose first coach's twin was validated at 15–32 °C only:
+    the January weather leaves its range, the coach without a range gets no warning."""
+    fleet = tmp_path / "fleet.json"
+    coaches = [
+        {"coach": "124A", "params": {}, "validated_t_amb_c": [15.0, 32.0]},
+        {"coach": "44A", "params": {}},
+    ]
+    fleet.write_text(json.dumps({"coaches": coaches}))
+    argv = study_argv(predictor_file, tmp_path / "out", "--workers", "1")
+    argv[argv.index("--coaches") : argv.index("--coaches") + 2] = ["--fleet", str(fleet)]
+    argv[argv.index("--days") + 1] = "1"
+    code, out, err = call(capsys, *argv)
+    assert code == 0, err
+    [warning] = json.loads(out)["warnings"]
+    assert warning.startswith("the study's weather, 124A: T_amb ")
+    assert "leaves the twin's validated range 15 to 32 °C for " in warning
+    assert f"trainclimate: warning: {warning}" in err
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["warnings"] == [warning]
+    coaches[0]["validated_t_amb_c"] = [15.0]
+    fleet.write_text(json.dumps({"coaches": coaches}))
+    argv[argv.index("--out") + 1] = str(tmp_path / "bad")
+    code, out, err = call(capsys, *argv)
+    assert code == 2 and out == "" and len(err.splitlines()) == 1
+    assert "--fleet: coach 124A: validated_t_amb_c must be [low, high]" in err

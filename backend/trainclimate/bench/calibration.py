@@ -23,7 +23,7 @@ def run(days: int = 7, fits: tuple[tuple[str, ...], ...] = FITS) -> dict:
     """Calibrate coach :data:`COACH` on ``days`` generated winter days (its envelope 20 % above
     the default); time one replay simulation, the Jacobian's seven parameter sets as one fleet
     and as seven simulations (the baseline, in the same run), and the whole calibration of each
-    of ``fits`` (one start each; the first gives the time per coach-week)."""
+    of ``fits`` (one start each, no bootstrap; the first gives the time per coach-week)."""
     from trainclimate.data import fleetlogs
     from trainclimate.data.dataset import build_dataset
     from trainclimate.data.trajectory import read_trajectories
@@ -60,7 +60,7 @@ def run(days: int = 7, fits: tuple[tuple[str, ...], ...] = FITS) -> dict:
     for names in fits:
         t0 = time.perf_counter()
         try:
-            fit = cal.calibrate(COACH, mine, names, starts=1)
+            fit = cal.calibrate(COACH, mine, names, starts=1, bootstrap=0)
             outcome = {n: v["value"] for n, v in fit.fitted.items()}
         except cal.CalibrationError as exc:
             outcome = {"refused": str(exc)}

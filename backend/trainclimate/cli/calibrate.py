@@ -19,16 +19,20 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
     """``calibrate``: one twin per ``--coach`` (``A+B``: the trajectories of A and B as one
     coach's), fitted on its training days and judged on its held-out days."""
     from trainclimate.data.trajectory import read_trajectories
-    from trainclimate.sim import calibration
+    from trainclimate.sim import calibration, twin
     from trainclimate.sim.params import CoachParams, load_params
 
-    names = tuple(n.strip() for n in args.params.split(",") if n.strip())
-    unknown = [n for n in names if n not in calibration.CALIBRATED]
-    if not names or unknown:
-        what = f"unknown {unknown[0]!r}" if unknown else "none given"
-        raise UsageError(f"--params: {what}; choose from {', '.join(calibration.CALIBRATED)}")
+    names = None
+    if args.params is not None:
+        names = tuple(n.strip() for n in args.params.split(",") if n.strip())
+        unknown = [n for n in names if n not in calibration.CALIBRATED]
+        if not names or unknown:
+            what = f"unknown {unknown[0]!r}" if unknown else "none given"
+            raise UsageError(f"--params: {what}; choose from {', '.join(calibration.CALIBRATED)}")
     if args.starts < 1:
         raise UsageError("--starts must be at least 1")
+    if args.bootstrap < 0:
+        raise UsageError("--bootstrap must not be negative")
     if args.out and len(args.coach or []) != 1:
         raise UsageError("--out writes one coach's parameters: give exactly one --coach")
     out = out_file(args.out, "the calibrated coach parameters")
@@ -49,26 +53,39 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
             members = set(group.split("+"))
             mine = [t for t in trajectories if t.coach in members]
             try:
-                fit = calibration.calibrate(group, mine, names, base, starts=args.starts)
+                fit = calibration.calibrate(
+                    group, mine, names, base, starts=args.starts, bootstrap=args.bootstrap
+                )
             except calibration.CalibrationError as exc:
                 raise UsageError(str(exc)) from None
             results.append(fit.to_dict())
             bar.update(1)
     if out is not None:
-        out.write_text(json.dumps(results[0]["params"], indent=2) + "\n")
-    data = {"coaches": results, "params_fitted": list(names), "out": str(out) if out else None}
+        out.write_text(json.dumps(twin.params_file(results[0]), indent=2) + "\n")
+    data = {
+        "coaches": results,
+        "params_fitted": sorted({n for c in results for n in c["fitted"]}),
+        "out": str(out) if out else None,
+    }
 
     def human(d: dict) -> str:
         lines = []
         for c in d["coaches"]:
             fitted = ", ".join(
-                f"{n} {v['value']:.4g} ± {v['std']:.2g}" for n, v in c["fitted"].items()
+                f"{n} {v['value']:.4g} ± {v['std']:.2g}"
+                + (" [{:.4g}, {:.4g}]".format(*v["ci95"]) if "ci95" in v else "")
+                for n, v in c["fitted"].items()
             )
             h = c["holdout"]
+            energy = "–" if h["energy_error_pct"] is None else f"{h['energy_error_pct']:+.1f} %"
+            held = "".join(f"; {n['param']} held: {n['reason']}" for n in c["not_identified"])
+            validated = c["validated_t_amb_c"]
             lines.append(
-                f"{c['coach']}: {fitted}; held out: T_room MAE {h['t_room_mae_c']:.3f} K, "
-                f"power MAE {h['power_mae_kw']:.2f} kW, energy {h['energy_error_pct']:+.1f} %"
+                f"{c['coach']}: {fitted}{held}; held out: T_room MAE {h['t_room_mae_c']:.3f} K, "
+                f"energy {energy}; validated for T_amb "
+                + ("nowhere" if validated is None else "{:g} to {:g} °C".format(*validated))
             )
+            lines += [f"  warning: {w}" for w in c["warnings"]]
         if d["out"]:
             lines.append(f"coach parameters written to {d['out']}")
         return "\n".join(lines)
@@ -78,7 +95,7 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
 
 def register(sub) -> None:
     """Add ``calibrate`` to ``sub``."""
-    from trainclimate.sim.calibration import DEFAULT_PARAMS
+    from trainclimate.sim.calibration import BOOTSTRAP_REPLICATES, CALIBRATED
 
     p = add_command(sub, "calibrate", cmd_calibrate, "fit the simulator to coaches from their logs")
     p.add_argument("--data", default=None, help="dataset directory (default: built once)")
@@ -93,8 +110,17 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--params",
-        default=",".join(DEFAULT_PARAMS),
-        help=f"the parameters to fit, comma-separated (default: {','.join(DEFAULT_PARAMS)})",
+        default=None,
+        help="the parameters to fit, comma-separated, each refused if the data do not "
+        f"determine it (default: of {','.join(CALIBRATED)} those the data identify; the "
+        "others held at their base value, listed in not_identified)",
+    )
+    p.add_argument(
+        "--bootstrap",
+        type=int,
+        default=BOOTSTRAP_REPLICATES,
+        help="re-fits on training days resampled whole, for the 95 %% intervals (default "
+        f"{BOOTSTRAP_REPLICATES}; 0: none)",
     )
     p.add_argument(
         "--base-params", default=None, help="coach parameter file to start from (default: the "

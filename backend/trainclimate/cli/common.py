@@ -69,6 +69,14 @@ def emit(args: argparse.Namespace, data: dict, human: Callable[[dict], str]) -> 
         print(human(data))
 
 
+def warn(data: dict, warnings: list[str]) -> None:
+    """Print each of ``warnings`` to stderr (``trainclimate: warning: …``) and list them in
+    ``data["warnings"]`` (the ``--json`` output), after any already there."""
+    for w in warnings:
+        print(f"trainclimate: warning: {w}", file=sys.stderr)
+    data["warnings"] = [*data.get("warnings", []), *warnings]
+
+
 def json_default(value):
     """JSON for numpy scalars and arrays (``json.dumps(default=…)``)."""
     if isinstance(value, np.generic):

@@ -17,6 +17,7 @@ from trainclimate.cli.common import (
     out_file,
     predictor_from,
     progress_bar,
+    warn,
 )
 
 
@@ -42,6 +43,41 @@ def _coach_params(args: argparse.Namespace):
     return load_params(args.coach_params) if args.coach_params else None
 
 
+def _range_warnings(args: argparse.Namespace, names: list[str], hours: float | None = None):
+    """The warnings of the scenarios ``names`` (their first ``hours``) whose weather leaves the
+    validated ambient range of the twin in ``--coach-params`` (none without one)."""
+    from trainclimate.sim import twin
+
+    validated = twin.validated_range_of_file(args.coach_params)
+    if validated is None:
+        return []
+    found = (
+        twin.range_warning(validated, twin.scenario_t_amb(n, hours), f"scenario {n}") for n in names
+    )
+    return [w for w in found if w]
+
+
+def _trial_range_warnings(args: argparse.Namespace, seeds: range) -> list[str]:
+    """The warnings of the trials of ``seeds`` whose weather leaves the validated ambient range
+    of the twin in ``--coach-params`` (none without one)."""
+    from trainclimate.analysis.trial_sim import trial_environment
+    from trainclimate.sim import scenarios, twin
+
+    validated = twin.validated_range_of_file(args.coach_params)
+    if validated is None:
+        return []
+    scenario = scenarios.get(args.scenario)
+    found = (
+        twin.range_warning(
+            validated,
+            trial_environment(scenario, args.days, seed, args.switch_hour).t_amb_c,
+            f"the trial of {args.scenario}, seed {seed}",
+        )
+        for seed in seeds
+    )
+    return [w for w in found if w]
+
+
 def cmd_experiment_run(args: argparse.Namespace) -> None:
     """``experiment run``: one scenario as a paired experiment (savings, violations)."""
     from trainclimate.analysis.experiment import run_pair
@@ -54,6 +90,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
     if not 0 <= args.coach_spread < 1:
         raise UsageError("--coach-spread must lie in [0, 1)")
     out_file(args.html, "the HTML report")
+    warnings = _range_warnings(args, [args.scenario], args.hours)
     pair = run_pair(
         args.scenario,
         predictor_from(args),
@@ -65,6 +102,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
     data = pair.to_dict()
     if args.html:
         data["html"] = str(write_experiment_report(pair, args.html).resolve())
+    warn(data, warnings)
     emit(args, data, _experiment_text)
 
 
@@ -130,6 +168,7 @@ def cmd_experiment_trial(args: argparse.Namespace) -> None:
     base = _coach_params(args)
     predictor = predictor_from(args)
     seeds = range(args.seed, args.seed + args.seeds)
+    warnings = _trial_range_warnings(args, seeds)
     with progress_bar(len(seeds) * args.days, f"trial {args.scenario}", "day") as bar:
 
         def progress(days: float) -> None:
@@ -152,7 +191,9 @@ def cmd_experiment_trial(args: argparse.Namespace) -> None:
             base_params=base,
         )
     if len(runs) == 1:
-        return emit(args, runs[0].to_dict(), _trial_text)
+        data = runs[0].to_dict()
+        warn(data, warnings)
+        return emit(args, data, _trial_text)
     data = {
         "scenario": args.scenario,
         "days": args.days,
@@ -165,6 +206,7 @@ def cmd_experiment_trial(args: argparse.Namespace) -> None:
         "summary": summarize(runs),
         "runs": [r.to_dict() for r in runs],
     }
+    warn(data, warnings)
     emit(args, data, _trials_text)
 
 
@@ -176,12 +218,14 @@ def cmd_experiment_ablation(args: argparse.Namespace) -> None:
 
     out = out_dir(args.out, "the ablation table")
     base = _coach_params(args)
+    warnings = _range_warnings(args, list(EXPERIMENTS))
     predictor = predictor_from(args)
     with progress_bar(len(EXPERIMENTS), "ablation", "experiment") as bar:
         rows = run_ablation(
             predictor, forecast=args.forecast, base_params=base, progress=lambda _: bar.update(1)
         )
     data = {"steps": list(STEPS), "experiments": rows, "markdown": str(write_ablation(rows, out))}
+    warn(data, warnings)
 
     def human(d: dict) -> str:
         lines = [
@@ -206,6 +250,7 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
         return cmd_experiment_ablation(args)
     out = out_dir(args.out, "the experiment reports")
     base = _coach_params(args)
+    warnings = _range_warnings(args, list(EXPERIMENTS))
     predictor = predictor_from(args)
     rows = []
     with progress_bar(len(EXPERIMENTS), "paired experiments", "experiment") as bar:
@@ -217,6 +262,7 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
             bar.update(1)
     files = write_summary(rows, out)
     data = {"experiments": rows, **{k: str(v) for k, v in files.items()}}
+    warn(data, warnings)
 
     def human(d: dict) -> str:
         return "\n".join(_experiment_text(r).splitlines()[0] for r in d["experiments"]) + (

@@ -50,9 +50,12 @@ def cmd_serve(args: argparse.Namespace) -> None:
     if args.coach_params is not None:
         if args.fleet != "demo":
             raise UsageError("--coach-params sets the demo fleet's coaches: give --fleet demo")
+        from trainclimate.sim import twin
         from trainclimate.sim.params import load_params
 
-        load_params(args.coach_params)  # a bad file is a one-line error before anything starts
+        # a bad file is a one-line error before anything starts
+        load_params(args.coach_params)
+        twin.validated_range_of_file(args.coach_params)
     if args.replica_name is not None and not (
         0 < len(args.replica_name) <= REPLICA_NAME_MAX and args.replica_name.isprintable()
     ):

@@ -18,6 +18,7 @@ from trainclimate.cli.common import (
     out_file,
     predictor_from,
     progress_bar,
+    warn,
 )
 
 
@@ -60,6 +61,31 @@ def fleet_from_file(path: str) -> tuple[tuple[str, ...], tuple[dict, ...]]:
             raise UsageError(f"--fleet: coach {entry['coach']}: {exc}") from None
         ids.append(entry["coach"])
     return tuple(ids), tuple(params)
+
+
+def _range_warnings(args: argparse.Namespace, weather, spec) -> list[str]:
+    """The warnings of the twins (``--coach-params``, or each coach of ``--fleet``) whose
+    validated ambient range (:mod:`trainclimate.sim.twin`) the study's weather leaves."""
+    from trainclimate.sim import twin
+    from trainclimate.sim.params import TWIN_KEY, ParamsError
+
+    during = (weather.time >= spec.first_utc()) & (weather.time < spec.end_utc())
+    t_amb = weather.t_amb_c[during]
+    try:
+        if args.fleet:
+            coaches = json.loads(Path(args.fleet).read_text())["coaches"]
+            ranges = [
+                (c["coach"], twin.validated_range(c, f"--fleet: coach {c['coach']}"))
+                for c in coaches
+            ]
+        else:
+            file = args.coach_params
+            record = json.loads(Path(file).read_text()).get(TWIN_KEY) if file else None
+            ranges = [("the --coaches", twin.validated_range(record, f"--coach-params {file}"))]
+    except ParamsError as exc:
+        raise UsageError(str(exc)) from None
+    found = (twin.range_warning(r, t_amb, f"the study's weather, {who}") for who, r in ranges)
+    return [w for w in found if w]
 
 
 def spec_from_args(args: argparse.Namespace):
@@ -118,6 +144,7 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
         check_scheduler(args.scheduler)
     except StudyError as exc:
         raise UsageError(str(exc)) from None
+    warnings = _range_warnings(args, weather, spec)
     out = out_dir(args.out, "the study's results")
     html = None
     if args.html is not None:  # checked before any work, its directory created
@@ -171,6 +198,7 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
         },
         out=str(out),
     )
+    warn(data, warnings)
     (out / "summary.json").write_text(json.dumps(data, indent=1) + "\n")
     if html is not None:
         data["html"] = str(write_study_report(data, frame, html).resolve())

@@ -56,6 +56,7 @@ from trainclimate.service.settings import Settings
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.commands import Backfill
 from trainclimate.service.store.db import Database, head_revision, migrate
+from trainclimate.sim import twin
 from trainclimate.sim.params import load_params
 
 log = logging.getLogger(__name__)
@@ -105,7 +106,10 @@ async def lifespan(app: FastAPI):
     scheduler.beat("live", scheduler.period_s)  # counted as running from its start
     if settings.fleet == "demo":
         coach = load_params(settings.demo_coach_params) if settings.demo_coach_params else None
-        fleet = demo.DemoFleet(db, scheduler, settings.speedup, coach_params=coach)
+        validated = twin.validated_range_of_file(settings.demo_coach_params)
+        fleet = demo.DemoFleet(
+            db, scheduler, settings.speedup, coach_params=coach, validated_t_amb_c=validated
+        )
         threads.append(threading.Thread(target=fleet.run, args=(stop,), name="demo-fleet"))
         scheduler.beat(demo.FLEET, scheduler.period_s / settings.speedup)
     for t in threads:

@@ -33,10 +33,12 @@ not one per parameter.
 from __future__ import annotations
 
 import dataclasses
+import datetime
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 from scipy.optimize import least_squares
 from scipy.stats import qmc
 
@@ -79,7 +81,7 @@ CALIBRATED = {
     "fan_supply_w": Knob((100.0, 5000.0), "W", "supply fans' power while the unit runs"),
     "fresh_air_base_fraction": Knob((0.02, 0.6), "–", "base fresh-air share of the supply air"),
 }
-#: The default subset: every knob, identifiable together from winter and summer days.
+#: The default subset: every knob, each kept at its base value where the data do not identify it.
 DEFAULT_PARAMS = tuple(CALIBRATED)
 #: Minutes of each trajectory the replay runs before it is scored.
 WARMUP_MIN = 60
@@ -108,6 +110,19 @@ MAX_EVALUATIONS = 100
 #: A fit is refused when a parameter's standard error exceeds this share of its value, or two
 #: parameters' estimates are correlated beyond this (the data cannot tell them apart).
 MAX_RELATIVE_STD, MAX_CORRELATION = 0.5, 0.95
+#: Without --params, of two knobs correlated beyond this one is held at its base value (with
+#: --params: a warning between this and MAX_CORRELATION).
+HOLD_CORRELATION = 0.9
+#: Bootstrap replicates by default, the Gauss–Newton steps of each re-fit, their damping
+#: (Levenberg–Marquardt, relative to the diagonal) and the most parameter sets simulated as one
+#: fleet (bounds the memory: each set runs every training trajectory).
+BOOTSTRAP_REPLICATES, BOOTSTRAP_ITERATIONS, GAUSS_NEWTON_DAMPING, MAX_SETS = 20, 2, 1e-3, 24
+#: A 95 % interval reaching beyond this share of its value on a side is wide; one this many
+#: times wider than 1.96 standard errors says the Jacobian understates the uncertainty.
+WIDE_INTERVAL, UNDERSTATED = 0.25, 3.0
+#: Width of the ambient-temperature bands the held-out errors are reported in (K), the fewest
+#: scored minutes a band needs, and the energy error a band may have and be validated (%).
+BAND_K, MIN_BAND_MINUTES, VALID_ENERGY_PCT = 5.0, 60, 5.0
 
 
 #: The entries of ``ua_room_chassis_w_k`` (deck rows, chassis columns) through the outer
@@ -305,48 +320,150 @@ def residuals_of_sets(rep: Replay, params: list[CoachParams]) -> list[np.ndarray
     ]
 
 
-def errors(rep: Replay, y: np.ndarray, p: np.ndarray) -> dict[str, float]:
-    """The twin's errors on the scored minutes: deck temperature MAE (K), power MAE (kW) and
-    the metered energy's relative error (%; minutes with a metered power only)."""
+def residual_columns(rep: Replay) -> np.ndarray:
+    """The trajectory column of each entry of :func:`residuals` (the same for every parameter
+    set: which blocks are scored depends on the logs only)."""
     power = rep.scored & np.isfinite(rep.p_kw)
+    ey = _block_means(rep.y, rep.scored)
+    ep = _block_means(np.nan_to_num(rep.p_kw), power)
+    columns = np.arange(rep.y.shape[1])
+    return np.concatenate(
+        [
+            np.broadcast_to(columns[None, :, None], ey.shape)[np.isfinite(ey)],
+            np.broadcast_to(columns[None, :], ep.shape)[np.isfinite(ep)],
+        ]
+    )
+
+
+def errors(
+    rep: Replay, y: np.ndarray, p: np.ndarray, minutes: np.ndarray | None = None
+) -> dict[str, float | None]:
+    """The twin's errors on the scored minutes (or on ``minutes``, a mask of them): deck
+    temperature MAE (K), power MAE (kW) and the metered energy's relative error (%; minutes
+    with a metered power only; None without any)."""
+    scored = rep.scored if minutes is None else minutes
+    power = scored & np.isfinite(rep.p_kw)
     logged = rep.p_kw[power].sum()
     return {
-        "t_room_mae_c": float(np.abs(y - rep.y)[rep.scored].mean()),
-        "power_mae_kw": float(np.abs(p - rep.p_kw)[power].mean()),
-        "energy_error_pct": float(100.0 * (p[power].sum() - logged) / logged),
-        "minutes": int(rep.scored.sum()),
+        "t_room_mae_c": float(np.abs(y - rep.y)[scored].mean()),
+        "power_mae_kw": float(np.abs(p - rep.p_kw)[power].mean()) if power.any() else None,
+        "energy_error_pct": (
+            float(100.0 * (p[power].sum() - logged) / logged) if logged > 0 else None
+        ),
+        "minutes": int(scored.sum()),
     }
 
 
+def t_amb_minutes(rep: Replay) -> np.ndarray:
+    """The logged T_amb of each replayed minute (minutes, columns). [°C]"""
+    return rep.env.t_amb_c[:: rep.per_minute][: len(rep.y)]
+
+
+def band_errors(rep: Replay, y: np.ndarray, p: np.ndarray) -> list[dict]:
+    """:func:`errors` per :data:`BAND_K`-wide band of the logged T_amb (``t_amb_c``: [low,
+    high) in °C), of the bands with at least :data:`MIN_BAND_MINUTES` scored minutes."""
+    band = np.floor(t_amb_minutes(rep) / BAND_K) * BAND_K
+    out = []
+    for low in np.unique(band[rep.scored]):
+        mask = rep.scored & (band == low)
+        if mask.sum() >= MIN_BAND_MINUTES:
+            out.append({"t_amb_c": [float(low), float(low + BAND_K)], **errors(rep, y, p, mask)})
+    return out
+
+
+def validated_range(
+    train_t_amb_c: np.ndarray, bands: list[dict]
+) -> tuple[list[float] | None, list[str]]:
+    """The ambient temperatures the twin is validated for, and warnings.
+
+    The training minutes' T_amb (2nd to 98th percentile, ``train_t_amb_c`` in °C), widened by
+    each held-out band (:func:`band_errors`) next to it whose energy error is within
+    :data:`VALID_ENERGY_PCT`, outwards until one is not; a held-out band beyond that error
+    is warned of and cut from the range on its side. None (and a warning) when nothing is left.
+    """
+    low, high = (float(v) for v in np.percentile(train_t_amb_c, [2, 98]))
+    middle = (low + high) / 2
+
+    def good(b: dict) -> bool:
+        e = b["energy_error_pct"]
+        return e is not None and abs(e) <= VALID_ENERGY_PCT
+
+    warnings = [
+        f"held out at {b['t_amb_c'][0]:g} to {b['t_amb_c'][1]:g} °C the twin's energy is "
+        + ("not metered" if b["energy_error_pct"] is None else f"{b['energy_error_pct']:+.1f} %")
+        + f" off (beyond ±{VALID_ENERGY_PCT:g} %): not validated there"
+        for b in bands
+        if not good(b)
+    ]
+    for b in sorted((b for b in bands if b["t_amb_c"][0] < low), key=lambda b: -b["t_amb_c"][0]):
+        if not good(b) or b["t_amb_c"][1] < np.floor(low / BAND_K) * BAND_K:
+            break
+        low = b["t_amb_c"][0]
+    for b in sorted((b for b in bands if b["t_amb_c"][1] > high), key=lambda b: b["t_amb_c"][0]):
+        if not good(b) or b["t_amb_c"][0] > np.ceil(high / BAND_K) * BAND_K:
+            break
+        high = b["t_amb_c"][1]
+    for b in bands:
+        a, z = b["t_amb_c"]
+        if not good(b) and a < high and z > low:
+            if (a + z) / 2 < middle:
+                low = max(low, z)
+            else:
+                high = min(high, a)
+    if not low < high:
+        return None, [*warnings, "the twin is validated at no ambient temperature"]
+    return [round(low, 1), round(high, 1)], warnings
+
+
 # --- fitting ----------------------------------------------------------------------------------
+def local_day(t: Trajectory) -> datetime.date:
+    """The local (Europe/Zurich) date ``t`` starts on."""
+    return t.time[0].tz_convert("Europe/Zurich").date()
+
+
 def split_days(trajectories: list[Trajectory]) -> tuple[list[Trajectory], list[Trajectory]]:
-    """Training and held-out trajectories, by the local date a trajectory starts on: of the
-    coach's days in order, every ``round(1 / HOLDOUT_SHARE)``-th is held out (the 4th, 8th, …;
-    interleaved, so that every season a coach was logged in is in both parts), at least one."""
-    days = sorted({t.time[0].tz_convert("Europe/Zurich").date() for t in trajectories})
+    """Training and held-out trajectories, by the local date a trajectory starts on, held out
+    by condition: of the coach's days ranked by their mean logged T_amb, the coldest, the
+    warmest, the next coldest, … — ``round(HOLDOUT_SHARE · days)`` of them, at least one and,
+    from 3 days on, at least two — so that the held-out days test the twin beyond the
+    conditions it was fitted on."""
+    days = sorted({local_day(t) for t in trajectories})
     if len(days) < 2:
         raise CalibrationError(
             f"calibration needs trajectories on at least 2 days (training and held out); "
             f"got {len(days)}"
         )
-    every = round(1 / HOLDOUT_SHARE)
-    held = set(days[every - 1 :: every]) or {days[-1]}
-    train = [t for t in trajectories if t.time[0].tz_convert("Europe/Zurich").date() not in held]
-    holdout = [t for t in trajectories if t.time[0].tz_convert("Europe/Zurich").date() in held]
+    warmth = {
+        day: float(
+            np.nanmean(np.concatenate([t.d[:, 0] for t in trajectories if local_day(t) == day]))
+        )
+        for day in days
+    }
+    ranked = sorted(days, key=lambda day: (warmth[day], day))
+    count = max(1 if len(days) < 3 else 2, round(HOLDOUT_SHARE * len(days)))
+    held = {ranked[k // 2] if k % 2 == 0 else ranked[-1 - k // 2] for k in range(count)}
+    train = [t for t in trajectories if local_day(t) not in held]
+    holdout = [t for t in trajectories if local_day(t) in held]
     return train, holdout
 
 
 @dataclass
 class Calibration:
-    """One coach's fit: the parameters, the values fitted with their standard errors, and the
-    twin's errors on the training and held-out days."""
+    """One coach's fit: the parameters, the values fitted with their standard errors and
+    bootstrap intervals, the knobs held at their base value and why, the twin's errors on the
+    training and held-out days (and per ambient band), the ambient range it is validated for,
+    and warnings."""
 
     coach: str
     params: CoachParams
-    fitted: dict[str, dict[str, float]]
+    fitted: dict[str, dict]
     train: dict[str, float]
-    holdout: dict[str, float]
+    holdout: dict
     starts: int
+    not_identified: list[dict[str, str]] = dataclasses.field(default_factory=list)
+    warnings: list[str] = dataclasses.field(default_factory=list)
+    validated_t_amb_c: list[float] | None = None
+    bootstrap: int = 0
 
     def to_dict(self) -> dict:
         """The ``calibrate --json`` object of the coach."""
@@ -354,39 +471,160 @@ class Calibration:
             "coach": self.coach,
             "params": self.params.to_dict(),
             "fitted": self.fitted,
+            "not_identified": self.not_identified,
             "train": self.train,
             "holdout": self.holdout,
+            "validated_t_amb_c": self.validated_t_amb_c,
+            "bootstrap": self.bootstrap,
+            "warnings": self.warnings,
             "starts": self.starts,
         }
+
+
+class _Problem:
+    """The least-squares problem of fitting ``names`` of ``base`` to the replay ``rep``, on
+    values scaled by their nominal (all of order 1)."""
+
+    def __init__(self, rep: Replay, names: tuple[str, ...], base: CoachParams):
+        self.rep, self.names, self.base = rep, names, base
+        x0 = np.array([nominal(base, n) for n in names])
+        self.unit = np.where(x0 != 0, np.abs(x0), 1.0)
+        self.z0 = x0 / self.unit
+        self.lo = np.array([CALIBRATED[n].bounds[0] for n in names]) / self.unit
+        self.hi = np.array([CALIBRATED[n].bounds[1] for n in names]) / self.unit
+        self._cache: dict[bytes, np.ndarray] = {}
+
+    def params_at(self, z: np.ndarray) -> CoachParams:
+        return apply(self.base, dict(zip(self.names, z * self.unit, strict=True)))
+
+    def fun(self, z: np.ndarray) -> np.ndarray:
+        key = z.tobytes()
+        if key not in self._cache:
+            [r] = residuals_of_sets(self.rep, [self.params_at(z)])
+            self._cache = {key: r}
+        return self._cache[key]
+
+    def jac(self, z: np.ndarray) -> np.ndarray:
+        [(r, j)] = self.linearised([z])
+        self._cache = {z.tobytes(): r}
+        return j
+
+    def linearised(self, points: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The residuals and their Jacobian (forward differences of :data:`JACOBIAN_STEP`) at
+        each of ``points``, simulated as few fleets of at most :data:`MAX_SETS` sets."""
+        k = len(self.names)
+        per_fleet = max(1, MAX_SETS // (k + 1))
+        out = []
+        for i in range(0, len(points), per_fleet):
+            chunk, sets, steps = points[i : i + per_fleet], [], []
+            for z in chunk:
+                h = JACOBIAN_STEP * np.maximum(np.abs(z), 0.1)
+                # a step backwards where a forward one would leave the bounds
+                h = np.where(z + h > self.hi, -h, h)
+                steps.append(h)
+                sets += [self.params_at(z)] + [
+                    self.params_at(z + s * e) for s, e in zip(h, np.eye(k), strict=True)
+                ]
+            r = residuals_of_sets(self.rep, sets)
+            for j, h in enumerate(steps):
+                rj = r[j * (k + 1) : (j + 1) * (k + 1)]
+                out.append(
+                    (
+                        rj[0],
+                        np.column_stack(
+                            [(ri - rj[0]) / s for ri, s in zip(rj[1:], h, strict=True)]
+                        ),
+                    )
+                )
+        return out
+
+    def solve(self, candidates: np.ndarray) -> list:
+        """``least_squares`` from each of ``candidates`` (scaled values)."""
+        return [
+            least_squares(
+                self.fun,
+                np.clip(z0, self.lo, self.hi),
+                jac=self.jac,
+                bounds=(self.lo, self.hi),
+                x_scale="jac",
+                max_nfev=MAX_EVALUATIONS,
+            )
+            for z0 in candidates
+        ]
+
+    def step(self, z: np.ndarray, r: np.ndarray, j: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """One damped Gauss–Newton step from ``z`` on the residuals ``r`` (Jacobian ``j``)
+        weighted by ``w``, kept in the bounds."""
+        a = j.T @ (w[:, None] * j)
+        a += GAUSS_NEWTON_DAMPING * np.diag(np.diag(a))
+        delta = np.linalg.lstsq(a, -(j.T @ (w * r)), rcond=None)[0]
+        return np.clip(z + delta, self.lo, self.hi)
+
+
+def _statistics(fit, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Values, standard errors (σ = sqrt(diag((JᵀJ)⁻¹) · SSR / (m − k))) and correlations of
+    the estimates of the ``least_squares`` result ``fit``, in the parameters' units."""
+    values = fit.x * unit
+    dof = max(1, len(fit.fun) - len(values))
+    try:
+        cov = np.linalg.inv(fit.jac.T @ fit.jac) * (2.0 * fit.cost / dof)
+    except np.linalg.LinAlgError:
+        cov = np.full((len(values), len(values)), np.inf)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    return values, sd * unit, corr
+
+
+def _pairs(names: tuple[str, ...], corr: np.ndarray, limit: float) -> list[tuple[int, int]]:
+    """The pairs of ``names`` whose estimates are correlated beyond ±``limit`` (or unknown),
+    the most correlated first."""
+    pairs = [
+        (i, j)
+        for i in range(len(names))
+        for j in range(i + 1, len(names))
+        if not abs(corr[i, j]) <= limit
+    ]
+    return sorted(pairs, key=lambda ij: -np.nan_to_num(abs(corr[ij]), nan=np.inf))
 
 
 def calibrate(
     coach: str,
     trajectories: list[Trajectory],
-    names: tuple[str, ...] = DEFAULT_PARAMS,
+    names: tuple[str, ...] | None = None,
     base: CoachParams | None = None,
     starts: int = 3,
     seed: int = 0,
+    bootstrap: int = BOOTSTRAP_REPLICATES,
+    among: tuple[str, ...] = DEFAULT_PARAMS,
 ) -> Calibration:
-    """Fit ``names`` (:data:`CALIBRATED`) of ``base`` (default :class:`CoachParams`) to one
-    coach's 1-min trajectories by simulation-error minimisation.
+    """Fit ``names`` (:data:`CALIBRATED`; None: what the data identify of ``among``) of
+    ``base`` (default :class:`CoachParams`) to one coach's 1-min trajectories by
+    simulation-error minimisation, with ``bootstrap`` replicates over whole training days for
+    the 95 % intervals (0: none).
 
     Bounded ``scipy.optimize.least_squares`` (trust-region reflective) from the ``starts``
     best of the nominal values and :data:`SCREENED` points of a Latin hypercube over the bounds
-    (``seed``), all screened in one simulation; the best fit is kept, unless another start ends
-    in an about as good fit elsewhere (:data:`RIVAL_COST`, :data:`RIVAL_SPREAD`).
-    Standard errors come from the Jacobian at the optimum, σ = sqrt(diag((JᵀJ)⁻¹) · SSR / (m −
-    k)), scaled back to each parameter's unit.
+    (``seed``), all screened in one simulation; the best fit is kept. Standard errors come from
+    the Jacobian at the optimum, σ = sqrt(diag((JᵀJ)⁻¹) · SSR / (m − k)), scaled back to each
+    parameter's unit. Without ``names`` a knob nothing logged depends on, one the data leave
+    undetermined (relative standard error above :data:`MAX_RELATIVE_STD`) or one of two the
+    data cannot tell apart (correlation beyond :data:`HOLD_CORRELATION`; the one of the pair
+    with the larger relative standard error) is held at its base value, listed in
+    ``not_identified`` with the reason, and the rest re-fitted from the fit so far.
 
     Raises
     ------
     CalibrationError
         On an unknown parameter name, too few days or training minutes, training days without
-        any metered power, or a fit that the data do not determine (a parameter's standard
-        error above :data:`MAX_RELATIVE_STD` of its value, two parameters correlated beyond
+        any metered power, nothing left to fit, or — for ``names`` given — a fit that the data
+        do not determine (a parameter nothing logged depends on, a standard error above
+        :data:`MAX_RELATIVE_STD` of its value, two parameters correlated beyond
         :data:`MAX_CORRELATION`, or rival fits): a refusal, not a wild fit.
     """
     base = base or CoachParams()
+    explicit = names is not None
+    names = tuple(names) if explicit else tuple(among)
     unknown = [n for n in names if n not in CALIBRATED]
     if unknown:
         raise CalibrationError(
@@ -405,122 +643,225 @@ def calibrate(
     if not np.isfinite(rep.p_kw[rep.scored]).any():
         raise CalibrationError(f"coach {coach}: no metered HVAC power on the training days")
 
-    lo = np.array([CALIBRATED[n].bounds[0] for n in names])
-    hi = np.array([CALIBRATED[n].bounds[1] for n in names])
-    x0 = np.array([nominal(base, n) for n in names])
-    # the optimiser works on values scaled by their nominal (all of order 1)
-    unit = np.where(x0 != 0, np.abs(x0), 1.0)
-
-    def params_at(z: np.ndarray) -> CoachParams:
-        return apply(base, dict(zip(names, z * unit, strict=True)))
-
-    cache: dict[bytes, np.ndarray] = {}
-
-    def fun(z: np.ndarray) -> np.ndarray:
-        key = z.tobytes()
-        if key not in cache:
-            [r] = residuals_of_sets(rep, [params_at(z)])
-            cache.clear()
-            cache[key] = r
-        return cache[key]
-
-    def jac(z: np.ndarray) -> np.ndarray:
-        steps = JACOBIAN_STEP * np.maximum(np.abs(z), 0.1)
-        # a step backwards where a forward one would leave the bounds
-        steps = np.where(z + steps > hi / unit, -steps, steps)
-        sets = [params_at(z)] + [
-            params_at(z + h * e) for h, e in zip(steps, np.eye(len(z)), strict=True)
-        ]
-        r = residuals_of_sets(rep, sets)
-        cache.clear()
-        cache[z.tobytes()] = r[0]
-        return np.column_stack([(ri - r[0]) / h for ri, h in zip(r[1:], steps, strict=True)])
-
-    # a parameter these days do not depend on at all (the COP without a minute of cooling) is
-    # refused at once
-    sensitivity = np.linalg.norm(jac(x0 / unit), axis=0)
+    held: list[dict[str, str]] = []
+    warnings: list[str] = []
+    problem = _Problem(rep, names, base)
+    # a parameter these days do not depend on at all (the COP without a minute of cooling)
+    sensitivity = np.linalg.norm(problem.jac(problem.z0), axis=0)
     inert = [n for n, g in zip(names, sensitivity, strict=True) if not g > 1e-9]
-    if inert:
+    if inert and explicit:
         raise CalibrationError(
             f"coach {coach}: nothing logged on the training days depends on "
             f"{', '.join(inert)} (e.g. the COP without any cooling): calibrate it on other "
             "days, or leave it out of --params"
         )
+    held += [
+        {"param": n, "reason": "nothing logged on the training days depends on it"} for n in inert
+    ]
+    names = tuple(n for n in names if n not in inert)
+    if not names:
+        raise CalibrationError(f"coach {coach}: nothing logged depends on any parameter")
+    problem = _Problem(rep, names, base)
     # the starts: the best of the nominal values and a Latin hypercube over the bounds, all
     # simulated at once (one fleet, a column block per candidate)
     sample = qmc.LatinHypercube(d=len(names), seed=seed).random(SCREENED)
-    screened = np.vstack([x0, qmc.scale(sample, lo, hi)]) / unit
-    costs = [float(np.sum(r**2)) for r in residuals_of_sets(rep, [params_at(z) for z in screened])]
+    screened = np.vstack([problem.z0, qmc.scale(sample, problem.lo, problem.hi)])
+    costs = [
+        float(np.sum(r**2))
+        for r in residuals_of_sets(rep, [problem.params_at(z) for z in screened])
+    ]
     candidates = screened[np.argsort(costs)[:starts]]
-    fits = [
-        least_squares(
-            fun,
-            np.clip(z0, lo / unit, hi / unit),
-            jac=jac,
-            bounds=(lo / unit, hi / unit),
-            x_scale="jac",
-            max_nfev=MAX_EVALUATIONS,
-        )
-        for z0 in candidates
-    ]
-    best = min(fits, key=lambda f: f.cost)
-    # another start ending as good a fit elsewhere: these days do not single out one answer
-    rivals = [
-        f for f in fits if f.cost <= (1 + RIVAL_COST) * best.cost
-        and np.any(np.abs(f.x - best.x) > RIVAL_SPREAD * np.abs(best.x))
-    ]  # fmt: skip
-    if rivals:
-        other = ", ".join(
-            f"{n} {a:.3g} or {b:.3g}"
-            for n, a, b in zip(names, best.x * unit, rivals[0].x * unit, strict=True)
-        )
-        raise CalibrationError(
-            f"coach {coach}: these days fit several parameter sets equally well ({other}): "
-            "calibrate fewer --params, or add days of other weather"
-        )
-    values = best.x * unit
-    dof = max(1, len(best.fun) - len(values))
-    s2 = 2.0 * best.cost / dof
-    try:
-        cov = np.linalg.inv(best.jac.T @ best.jac) * s2
-    except np.linalg.LinAlgError:
-        cov = np.full((len(values), len(values)), np.inf)
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    std = sd * unit
-    vague = [
-        f"{n} ({s / max(abs(v), 1e-12):.0%})"
-        for n, v, s in zip(names, values, std, strict=True)
-        if not s <= MAX_RELATIVE_STD * abs(v)
-    ]
-    if vague:
-        raise CalibrationError(
-            f"coach {coach}: the data do not determine {', '.join(vague)} (relative standard "
-            "error); give days with more varied weather and operation, or fewer --params"
-        )
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(sd, sd)
-    tangled = [
-        f"{names[i]} and {names[j]} (correlation {corr[i, j]:+.2f})"
-        for i in range(len(names))
-        for j in range(i + 1, len(names))
-        if not abs(corr[i, j]) <= MAX_CORRELATION
-    ]
-    if tangled:
-        raise CalibrationError(
-            f"coach {coach}: these data cannot tell apart {'; '.join(tangled)}: calibrate one "
-            "of each pair (--params), or add days of other seasons"
-        )
-    params = params_at(best.x)
+    n_starts = len(candidates)
+    while True:
+        rival: list[str] = []
+        fits = problem.solve(candidates)
+        best = min(fits, key=lambda f: f.cost)
+        values, std, corr = _statistics(best, problem.unit)
+        # another start ending as good a fit elsewhere: these days do not single out one answer
+        rivals = [
+            f for f in fits if f.cost <= (1 + RIVAL_COST) * best.cost
+            and np.any(np.abs(f.x - best.x) > RIVAL_SPREAD * np.abs(best.x))
+        ]  # fmt: skip
+        if rivals:
+            other = ", ".join(
+                f"{n} {a:.3g} or {b:.3g}"
+                for n, a, b in zip(names, values, rivals[0].x * problem.unit, strict=True)
+            )
+            if explicit:
+                raise CalibrationError(
+                    f"coach {coach}: these days fit several parameter sets equally well "
+                    f"({other}): calibrate fewer --params, or add days of other weather"
+                )
+            rival = [f"these days fit several parameter sets about as well ({other})"]
+        relative = std / np.maximum(np.abs(values), 1e-12)
+        vague = [i for i, r in enumerate(relative) if not r <= MAX_RELATIVE_STD]
+        if vague and explicit:
+            raise CalibrationError(
+                f"coach {coach}: the data do not determine "
+                + ", ".join(f"{names[i]} ({relative[i]:.0%})" for i in vague)
+                + " (relative standard error); give days with more varied weather and "
+                "operation, or fewer --params"
+            )
+        tangled = _pairs(names, corr, MAX_CORRELATION if explicit else HOLD_CORRELATION)
+        if tangled and explicit:
+            raise CalibrationError(
+                f"coach {coach}: these data cannot tell apart "
+                + "; ".join(
+                    f"{names[i]} and {names[j]} (correlation {corr[i, j]:+.2f})" for i, j in tangled
+                )
+                + ": calibrate one of each pair (--params), or add days of other seasons"
+            )
+        warnings += [
+            f"{names[i]} and {names[j]} are correlated {corr[i, j]:+.2f}: the data hardly "
+            "tell them apart"
+            for i, j in _pairs(names, corr, HOLD_CORRELATION)
+            if explicit
+        ]
+        if vague:
+            drop = max(vague, key=lambda i: relative[i])
+            reason = f"the data do not determine it (relative standard error {relative[drop]:.0%})"
+        elif tangled:
+            i, j = tangled[0]
+            drop = i if relative[i] >= relative[j] else j
+            other = names[j if drop == i else i]
+            reason = (
+                f"not told apart from {other} (correlation {corr[i, j]:+.2f}): held at its "
+                f"base value, {other} fitted"
+            )
+            warnings.append(
+                f"{names[i]} and {names[j]} are correlated {corr[i, j]:+.2f}: "
+                f"{names[drop]} held at its base value"
+            )
+        else:
+            break
+        held.append({"param": names[drop], "reason": reason})
+        keep = [k for k in range(len(names)) if k != drop]
+        if not keep:
+            raise CalibrationError(f"coach {coach}: the data determine none of the parameters")
+        names = tuple(names[k] for k in keep)
+        start = best.x[keep] * problem.unit[keep]
+        problem = _Problem(rep, names, base)
+        candidates = (start / problem.unit)[None, :]
+
+    warnings += rival
+    params = problem.params_at(best.x)
     y, p = simulate(rep, [params])
     on_train = errors(rep, y, p)
-    if holdout:
-        rep_h = replay(holdout)
-        y, p = simulate(rep_h, [params])
-        on_holdout = errors(rep_h, y, p)
-    else:
-        on_holdout = {}
     fitted = {
         n: {"value": float(v), "std": float(s), "unit": CALIBRATED[n].unit}
         for n, v, s in zip(names, values, std, strict=True)
     }
-    return Calibration(coach, params, fitted, on_train, on_holdout, len(candidates))
+    on_holdout: dict = {}
+    validated = None
+    if holdout:
+        rep_h = replay(holdout)
+        y, p = simulate(rep_h, [params])
+        on_holdout = {**errors(rep_h, y, p), "bands": band_errors(rep_h, y, p)}
+        validated, warned = validated_range(t_amb_minutes(rep)[rep.scored], on_holdout["bands"])
+        warnings += warned
+    training_days = len({local_day(t) for t in train})
+    if bootstrap > 0 and training_days < 2:
+        warnings.append("one training day: no bootstrap interval (it resamples whole days)")
+        bootstrap = 0
+    if bootstrap > 0:
+        replicas = _bootstrap(
+            problem, best, train, replay(holdout) if holdout else None, bootstrap, seed
+        )
+        for n, interval in zip(names, replicas["values"], strict=True):
+            fitted[n]["ci95"] = interval
+        if holdout:
+            on_holdout["energy_error_ci95_pct"] = replicas["energy"]
+        warnings += _interval_warnings(fitted)
+    return Calibration(
+        coach,
+        params,
+        fitted,
+        on_train,
+        on_holdout,
+        n_starts,
+        held,
+        warnings,
+        validated,
+        bootstrap,
+    )
+
+
+def _bootstrap(
+    problem: _Problem,
+    best,
+    train: list[Trajectory],
+    rep_h: Replay | None,
+    replicates: int,
+    seed: int,
+) -> dict:
+    """95 % intervals (percentile) of the fitted values and of the held-out energy error from
+    ``replicates`` re-fits on the training days resampled whole (``scipy.stats.bootstrap``).
+
+    Each replicate weights the residuals of a day by the times it was drawn and re-fits from
+    the optimum by :data:`BOOTSTRAP_ITERATIONS` damped Gauss–Newton steps: the first on the
+    optimum's Jacobian, each further one on the replicate's own (all replicates' parameter
+    sets simulated as one fleet); the re-fitted twins are then run on the held-out days.
+    """
+    day_index = {d: i for i, d in enumerate(sorted({local_day(t) for t in train}))}
+    column_day = np.array([day_index[local_day(t)] for t in train])
+    residual_day = column_day[residual_columns(problem.rep)]
+    r0, j0 = best.fun, best.jac
+
+    def refit(days: np.ndarray, axis: int = -1) -> np.ndarray:
+        counts = np.stack([np.bincount(d, minlength=len(day_index)) for d in np.atleast_2d(days)])
+        w = counts[:, residual_day].astype(float)
+        z = [problem.step(best.x, r0, j0, wb) for wb in w]
+        for _ in range(BOOTSTRAP_ITERATIONS - 1):
+            z = [
+                problem.step(zb, r, j, wb)
+                for zb, (r, j), wb in zip(z, problem.linearised(z), w, strict=True)
+            ]
+        values = np.array(z) * problem.unit
+        energy = np.full(len(z), np.nan)
+        if rep_h is not None:
+            sets = [problem.params_at(zb) for zb in z]
+            n = rep_h.env.n_coaches
+            for i in range(0, len(sets), MAX_SETS):
+                y, p = simulate(rep_h, sets[i : i + MAX_SETS])
+                for k in range(len(sets[i : i + MAX_SETS])):
+                    e = errors(rep_h, y[:, k * n : (k + 1) * n], p[:, k * n : (k + 1) * n])
+                    energy[i + k] = (
+                        np.nan if e["energy_error_pct"] is None else e["energy_error_pct"]
+                    )
+        return np.vstack([values.T, energy])
+
+    result = stats.bootstrap(
+        (np.arange(len(day_index)),),
+        refit,
+        n_resamples=replicates,
+        vectorized=True,
+        method="percentile",
+        rng=np.random.default_rng(seed),
+    )
+    low, high = result.confidence_interval
+    energy = [float(low[-1]), float(high[-1])] if np.isfinite([low[-1], high[-1]]).all() else None
+    return {
+        "values": [[float(a), float(b)] for a, b in zip(low[:-1], high[:-1], strict=True)],
+        "energy": energy,
+    }
+
+
+def _interval_warnings(fitted: dict[str, dict]) -> list[str]:
+    """Warnings of the fitted values whose 95 % interval is wide (beyond
+    :data:`WIDE_INTERVAL` of the value on either side) or far wider than the Jacobian's
+    standard error says (half-width above :data:`UNDERSTATED` × 1.96 σ: the days disagree,
+    which a model structure the knobs do not span does)."""
+    out = []
+    for n, f in fitted.items():
+        low, high = f["ci95"]
+        if max(f["value"] - low, high - f["value"]) > WIDE_INTERVAL * abs(f["value"]):
+            out.append(
+                f"{n}: 95 % interval [{low:.4g}, {high:.4g}] is wide (beyond ±"
+                f"{WIDE_INTERVAL:.0%} of {f['value']:.4g}): the data do not pin it down"
+            )
+        elif (high - low) / 2 > UNDERSTATED * 1.96 * f["std"]:
+            out.append(
+                f"{n}: the days disagree: 95 % interval [{low:.4g}, {high:.4g}] is over "
+                f"{UNDERSTATED:g} times what its standard error {f['std']:.2g} says"
+            )
+    return out

@@ -27,6 +27,9 @@ AIR_CP_J_KG_K = 1005.0
 AIR_DENSITY_KG_M3 = 1.2
 #: Stefan–Boltzmann constant, W/(m² K⁴).
 STEFAN_BOLTZMANN = 5.670374419e-8
+#: The key of a calibrated twin's record in a coach-params file (``calibrate --out``,
+#: :mod:`trainclimate.sim.twin`): not a parameter, skipped by :func:`load_params`.
+TWIN_KEY = "twin"
 
 
 class ParamsError(ValueError):
@@ -540,7 +543,8 @@ def load_params(path: str | Path) -> CoachParams:
     Parameters
     ----------
     path : str or pathlib.Path
-        The JSON file; missing keys take the defaults (see :meth:`CoachParams.from_dict`).
+        The JSON file; missing keys take the defaults (see :meth:`CoachParams.from_dict`),
+        :data:`TWIN_KEY` is skipped.
 
     Returns
     -------
@@ -560,4 +564,6 @@ def load_params(path: str | Path) -> CoachParams:
         raise ParamsError(f"coach parameter file not found: {path}") from exc
     except json.JSONDecodeError as exc:
         raise ParamsError(f"coach parameter file {path} is not valid JSON: {exc.msg}") from exc
+    if isinstance(data, dict):  # a twin's calibration record (trainclimate.sim.twin)
+        data = {k: v for k, v in data.items() if k != TWIN_KEY}
     return CoachParams.from_dict(data)

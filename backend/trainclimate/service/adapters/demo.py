@@ -59,7 +59,7 @@ from trainclimate.service.store.models import (
 )
 from trainclimate.service.store.telemetry import rows_from_simulation
 from trainclimate.service.store.tokens import Principal
-from trainclimate.sim import scenarios
+from trainclimate.sim import scenarios, twin
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
 from trainclimate.sim.rule import MODE_REGULAR
@@ -241,9 +241,12 @@ class DemoFleet:
         scheduler: Scheduler,
         speedup: float,
         coach_params: CoachParams | None = None,
+        validated_t_amb_c: list[float] | None = None,
     ):
         self.db = db
         self.coach_params = coach_params  # every coach's, instead of its scenario's
+        #: the ambient range a calibrated ``coach_params`` was validated for (sim.twin)
+        self.validated_t_amb_c = validated_t_amb_c
         self.scheduler = scheduler
         self.speedup = float(speedup)
         self.period = scheduler.period
@@ -275,6 +278,10 @@ class DemoFleet:
             sc = replace(train.scenario, date=f"{day:%Y-%m-%d}", seed=seed)
             env, p = scenarios.build(sc, n_coaches=1)
             coach = self.coach_params or p[0]
+            where = f"demo train {train.id} on {day:%Y-%m-%d}"
+            warning = twin.range_warning(self.validated_t_amb_c, env.t_amb_c, where)
+            if warning:
+                log.warning("%s", warning)
             envs += [env, env]  # coaches A and B: twins in one train
             params += [coach, coach]
             lost += [train.connection_lost(env.time), np.zeros(len(env.time), bool)]

@@ -1,0 +1,99 @@
+"""A calibrated twin's validity: the ambient range its calibration validated it for, carried in
+its coach-params file, and the warning a scenario gets when its weather leaves that range.
+
+The file ``calibrate --out`` writes is a coach-params file with one more key, :data:`TWIN_KEY`
+(``"twin"``), which :func:`~trainclimate.sim.params.load_params` skips::
+
+    {"c_room_j_k": [...], ..., "twin": {"coach": "124A+124B",
+     "validated_t_amb_c": [-2.0, 31.5], "fitted": {...}, "not_identified": [...],
+     "warnings": [...]}}
+
+``validated_t_amb_c`` is ``[low, high]`` in °C, or null when the calibration validated the twin
+at no ambient temperature. A fleet file (``calibrate --json``) carries the same key on each coach.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from trainclimate.sim.params import TWIN_KEY, ParamsError
+
+#: The calibration's record kept beside the parameters in a twin's coach-params file.
+RECORD = ("coach", "validated_t_amb_c", "fitted", "not_identified", "warnings")
+
+
+def params_file(coach: dict) -> dict:
+    """The coach-params file of one coach of ``calibrate --json``: its parameters and, under
+    :data:`TWIN_KEY`, the calibration's record (:data:`RECORD`)."""
+    return {**coach["params"], TWIN_KEY: {k: coach[k] for k in RECORD}}
+
+
+def validated_range(record: object, where: str) -> list[float] | None:
+    """The ``validated_t_amb_c`` of a calibration's ``record`` (a ``"twin"`` object or a fleet
+    file's coach): None when it has none, ``[]`` when it is null (validated nowhere); ``where``
+    names it in the error.
+
+    Raises
+    ------
+    ParamsError
+        If the range is not null or two finite temperatures, the first below the second.
+    """
+    if not isinstance(record, dict) or "validated_t_amb_c" not in record:
+        return None
+    value = record["validated_t_amb_c"]
+    if value is None:
+        return []
+    if not (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+        and np.isfinite(value).all()
+        and value[0] < value[1]
+    ):
+        raise ParamsError(f"{where}: validated_t_amb_c must be [low, high] in °C, got {value!r}")
+    return [float(value[0]), float(value[1])]
+
+
+def validated_range_of_file(path: str | Path | None) -> list[float] | None:
+    """The validated ambient range of the twin in coach-params file ``path`` (None: no file,
+    or a file not written by a calibration). Read after :func:`load_params` accepted the file.
+    """
+    if path is None:
+        return None
+    data = json.loads(Path(path).read_text())
+    return validated_range(data.get(TWIN_KEY), f"coach parameter file {path}")
+
+
+def range_warning(validated: list[float] | None, t_amb_c: np.ndarray, what: str) -> str | None:
+    """The warning of ``what`` (e.g. a scenario) whose ambient temperatures ``t_amb_c`` (°C,
+    any shape) leave the twin's ``validated`` range (:func:`validated_range`; None: in it, or
+    no range known)."""
+    if validated is None:
+        return None
+    if not validated:
+        return f"{what}: the twin's calibration validated it at no ambient temperature"
+    t = np.asarray(t_amb_c, dtype=float)
+    t = t[np.isfinite(t)]
+    if not t.size:
+        return None
+    low, high = validated
+    outside = float(np.mean((t < low) | (t > high)))
+    if outside == 0.0:
+        return None
+    return (
+        f"{what}: T_amb {t.min():.1f} to {t.max():.1f} °C leaves the twin's validated range "
+        f"{low:g} to {high:g} °C for {100 * outside:.0f} % of the time: its results there are "
+        "extrapolated"
+    )
+
+
+def scenario_t_amb(name: str, hours: float | None = None) -> np.ndarray:
+    """The ambient temperatures of scenario ``name`` over its first ``hours`` (default: all),
+    every 10 min (its weather, as :func:`~trainclimate.sim.scenarios.build` draws it). [°C]"""
+    from trainclimate.sim import scenarios
+
+    env, _ = scenarios.build(scenarios.get(name), n_coaches=1, hours=hours, dt_s=600.0)
+    return env.t_amb_c[:, 0]
