@@ -155,7 +155,7 @@ async function route() {
 
 // --- fleet overview: savings, comfort and what needs attention -----------------------------
 const PLOT_CONFIG = { responsive: true, displaylogo: false };
-const KIND_LABEL = { stale: "stale", disconnected: "disconnected", fallback: "fallback", override: "override", comfort: "comfort" };
+const KIND_LABEL = { stale: "stale", disconnected: "disconnected", fallback: "fallback", override: "override", comfort: "comfort", costing_energy: "costs energy" };
 
 async function showOverview() {
   const view = mount("tpl-overview");

@@ -19,6 +19,7 @@ import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 
+import numpy as np
 import psycopg
 import pytest
 
@@ -231,3 +232,32 @@ def decided(
         coach = s.get(Coach, coach_id)
         if coach.last_tick is None or coach.last_tick < ticks[-1]:
             coach.last_tick = ticks[-1]
+
+
+#: A day in minutes (the unit of :func:`at`).
+DAY = 24 * 60
+#: Each service day of :func:`crossover_train`, the pair's rows from 06:00 to 09:00 UTC (T0 is
+#: 06:00 UTC): six windows.
+HOURS = 180
+
+
+def crossover_train(client, op, train: str, ratio: float, saving: float, days: int, seed: int):
+    """Train ``train`` over ``days`` service days from T0: coach A draws ``ratio`` times B's
+    power; the layer, on A on even days and on B on odd ones (an alternate trial), saves
+    ``saving`` (negative: costs); each day's level varies (weather). A is registered with the
+    layer on, B off."""
+    rng = np.random.default_rng(seed)
+    register(client, op, f"{train}-A", train, active=True)
+    register(client, op, f"{train}-B", train, active=False)
+    for d in range(days):
+        first = d * DAY
+        on, off = (f"{train}-A", f"{train}-B") if d % 2 == 0 else (f"{train}-B", f"{train}-A")
+        # through the day's last row's tick: else the live loop may issue it between two days,
+        # on the coach activated in the database, and move that day's switch
+        decided(client, on, first, first + HOURS)
+        decided(client, off, first, first + HOURS, "rule", "inactive")
+        level = 10.0 * np.exp(rng.normal(0, 0.2))
+        b = level * (1 - saving if d % 2 else 1.0) * np.exp(rng.normal(0, 0.01))
+        a = level * ratio * (1 - saving if d % 2 == 0 else 1.0) * np.exp(rng.normal(0, 0.01))
+        post_rows(client, op, f"{train}-A", flat_rows(first + 1, first + HOURS, power_kw=a))
+        post_rows(client, op, f"{train}-B", flat_rows(first + 1, first + HOURS, power_kw=b))

@@ -223,3 +223,11 @@ def test_experiment_summary_ablation_writes_the_table(
     steps = row["steps"]
     assert steps["hvac_meter"]["savings_pct"] > steps["before"]["savings_pct"]
     assert (tmp_path / "ablation.md").read_text(encoding="utf-8") == ablation_markdown([row])
+
+
+def test_the_ablation_reproduces_the_papers_formulation_only(capsys, tmp_path):
+    argv = ["experiment", "summary", "--ablation", "--objective", "margin"]
+    assert main([*argv, "--out", str(tmp_path)]) != 0
+    err = capsys.readouterr().err
+    assert "--ablation reproduces the paper's formulation: --objective paper" in err
+    assert not list(tmp_path.iterdir())

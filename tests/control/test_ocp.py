@@ -288,3 +288,37 @@ def test_settings_are_validated():
     for bad in ({"sigma": 0.0}, {"tau": -1.0}, {"gamma": np.nan}, {"t_max": 0.0}, {"du_max": -1}):
         with pytest.raises(ValueError, match="must be positive and finite"):
             OCPSettings(**bad)
+
+
+def margin_gap(inst: dict, sol) -> float:
+    """The largest |u(k) − ȳ(k)| and |u(k) − ȳ(k+1)| of a solution (ȳ(0) measured). [K]"""
+    y_mean = np.concatenate([[inst["y_past"][-1].mean()], sol.y.mean(axis=1)])
+    return float(np.max(np.abs(np.concatenate([sol.u - y_mean, sol.u[:-1] - y_mean[1:]]))))
+
+
+def test_the_margin_objective_agrees_with_its_reference_and_keeps_t_ref_near_the_room(
+    predictor, trajectories
+):
+    """The margin objective: OSQP and the cvxpy reference agree, and its optimum holds T_ref
+    within the margin of the mean predicted room where the paper's does not (80 instances)."""
+    rng = np.random.default_rng(7)
+    s = OCPSettings(objective="margin", time_limit_s=10.0)  # a loaded machine decides nothing
+    fast, ref = DDPCProblem(predictor, s), ReferenceProblem(predictor, s)
+    paper = DDPCProblem(predictor, OCPSettings(time_limit_s=10.0))
+    closer = 0
+    for _ in range(80):
+        inst = random_instance(rng, trajectories, s)
+        a, b, p = fast.solve(**inst), ref.solve(**inst), paper.solve(**inst)
+        assert a.solved and b.solved and p.solved
+        assert a.objective == pytest.approx(b.objective, rel=1e-4, abs=1e-8)
+        np.testing.assert_allclose(a.u, b.u, atol=1e-3, rtol=0)
+        np.testing.assert_allclose(a.eps, b.eps, atol=1e-3, rtol=0)
+
+        assert margin_gap(inst, a) <= margin_gap(inst, p) + 1e-6
+        closer += margin_gap(inst, a) < margin_gap(inst, p) - 0.05
+    assert closer >= 10  # the margin binds in a good share of them (19 of 80 measured)
+
+
+def test_an_unknown_objective_is_refused():
+    with pytest.raises(ValueError, match="unknown objective"):
+        OCPSettings(objective="cheapest")

@@ -1,7 +1,8 @@
 """The decision policy on plain inputs, without a database: each decision wins over every one
-after it (override, stale, inactive, not regular, no model, DDPC); what each sets; the controller
-is asked for only when the DDPC step is reached; what the step is given (the samples, a
-persistence forecast, T_rule over the horizon) and how its result becomes the decision."""
+after it (override, stale, inactive, guard tripped, not regular, no model, DDPC); what each
+sets; the controller is asked for only when the DDPC step is reached; what the step is given
+(the samples, a persistence forecast, T_rule over the horizon) and how its result becomes the
+decision."""
 
 from __future__ import annotations
 
@@ -90,11 +91,17 @@ def run(
     active: bool = True,
     controller: Controllers | None = None,
     settings: Settings = SETTINGS,
+    guard: dict | None = None,
     **sample_args,
 ) -> Decision:
     coach = SimpleNamespace(id="A", ddpc_active=active)
     o = None if override is None else SimpleNamespace(id=7, t_ref_c=override)
-    return decide(coach, samples(**sample_args), o, TICK, settings, controller)
+    return decide(coach, samples(**sample_args), o, TICK, settings, controller, guard)
+
+
+#: A tripped guard's figures.
+GUARD = {"savings_pct": -12.3, "savings_ci95_pct": [-15.1, -9.6], "estimator": "crossover",
+         "days": 8}  # fmt: skip
 
 
 def test_each_decision_wins_over_the_ones_after_it():
@@ -104,6 +111,7 @@ def test_each_decision_wins_over_the_ones_after_it():
         "override": 23.0,
         "age_min": 30.0,
         "active": False,
+        "guard": GUARD,
         "regular": False,
         "controller": None,
     }
@@ -111,6 +119,7 @@ def test_each_decision_wins_over_the_ones_after_it():
         ("override", None),
         ("age_min", 0.0),
         ("active", True),
+        ("guard", None),
         ("regular", True),
         ("controller", Controllers()),
     ]
@@ -125,6 +134,7 @@ def test_each_decision_wins_over_the_ones_after_it():
         ("override", "override"),
         ("fallback", "stale"),
         ("rule", "inactive"),
+        ("rule", "costing_energy"),
         ("rule", "not_regular"),
         ("rule", "no_model"),
         ("ddpc", "ok"),
@@ -137,6 +147,7 @@ def test_each_decision_wins_over_the_ones_after_it():
         ({"override": 22.5}, "override"),
         ({"age_min": 10.0}, "stale"),
         ({"active": False}, "inactive"),
+        ({"guard": GUARD}, "costing_energy"),
         ({"regular": False}, "not_regular"),
     ],
 )
@@ -151,6 +162,14 @@ def test_the_controller_is_asked_for_only_by_the_ddpc_step(conditions, reason):
 def test_what_the_rule_decisions_set():
     assert run(active=False) == Decision(
         22.0, 22.0, "rule", "inactive", "the layer is off for this coach"
+    )
+    assert run(guard=GUARD) == Decision(
+        22.0,
+        22.0,
+        "rule",
+        "costing_energy",
+        "the layer cost this pair energy: -12.3 % (95 % CI -15.1 to -9.6) over 8 service days "
+        "(crossover); an operator re-enables it",
     )
     assert run(regular=False) == Decision(
         22.0, 22.0, "rule", "not_regular", "the HVAC is not in regular mode"

@@ -356,6 +356,7 @@ def run_pair(
     setup: ExperimentSetup | None = None,
     window_min: float = 30.0,
     base_params: CoachParams | None = None,
+    objective: str = "paper",
 ) -> PairResult:
     """Run a scenario as a paired experiment (see the module docstring).
 
@@ -379,6 +380,9 @@ def run_pair(
         Savings window. [min]
     base_params : CoachParams, optional
         The coaches' parameters (e.g. a calibrated twin's); default the scenario's.
+    objective : str, default "paper"
+        The DDPC layer's objective (:data:`~trainclimate.control.ocp.OBJECTIVES`), with the
+        scenario's weights and bounds.
 
     Returns
     -------
@@ -403,6 +407,7 @@ def run_pair(
     base = dataclasses.replace(base, **setup.hvac_options)
     other = diversify(base, 1, seed=scenario.seed, spread=coach_spread)[0] if coach_spread else base
     sim = FleetSimulator([base, other, base], env, seed=scenario.seed)
+    setup = dataclasses.replace(setup, settings={**setup.settings, "objective": objective})
     settings = setup.ocp_settings()
     ddpc = build_controllers("ddpc", 1, predictor, settings)[0]
     edge = build_controllers("edge", 1, predictor, settings)[0]

@@ -40,10 +40,13 @@ def add_group(sub, name: str, help_: str):
 
 
 def add_model_options(
-    p: argparse.ArgumentParser, prefix: str = "", forecast: str = "perfect"
+    p: argparse.ArgumentParser,
+    prefix: str = "",
+    forecast: str = "perfect",
+    objective: str | None = "paper",
 ) -> None:
-    """``--predictor FILE`` and ``--forecast`` (default ``forecast``) for commands that run the
-    DDPC layer."""
+    """``--predictor FILE``, ``--forecast`` (default ``forecast``) and ``--objective`` (default
+    ``objective``; None: no such option) for commands that run the DDPC layer."""
     p.add_argument("--predictor", default=None, help=f"{prefix}model file (default: cached model)")
     p.add_argument(
         "--forecast",
@@ -51,6 +54,16 @@ def add_model_options(
         default=forecast,
         help=f"{prefix}disturbance forecast (default {forecast})",
     )
+    if objective is not None:
+        from trainclimate.control.ocp import OBJECTIVES
+
+        p.add_argument(
+            "--objective",
+            choices=OBJECTIVES,
+            default=objective,
+            help=f"{prefix}the optimisation's objective: paper (the paper's Eq. (10)) or margin "
+            f"(T_ref kept within a margin of the predicted room; default {objective})",
+        )
 
 
 def add_command(sub, name: str, func, help_: str) -> argparse.ArgumentParser:

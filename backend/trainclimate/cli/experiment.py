@@ -98,6 +98,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
         forecast=args.forecast,
         coach_spread=args.coach_spread,
         base_params=_coach_params(args),
+        objective=args.objective,
     )
     data = pair.to_dict()
     if args.html:
@@ -247,6 +248,8 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
     from trainclimate.analysis.report import write_experiment_report, write_summary
 
     if args.ablation:
+        if args.objective != "paper":
+            raise UsageError("--ablation reproduces the paper's formulation: --objective paper")
         return cmd_experiment_ablation(args)
     out = out_dir(args.out, "the experiment reports")
     base = _coach_params(args)
@@ -255,7 +258,9 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
     rows = []
     with progress_bar(len(EXPERIMENTS), "paired experiments", "experiment") as bar:
         for name in EXPERIMENTS:
-            pair = run_pair(name, predictor, forecast=args.forecast, base_params=base)
+            pair = run_pair(
+                name, predictor, forecast=args.forecast, base_params=base, objective=args.objective
+            )
             row = pair.to_dict()
             row["html"] = str(write_experiment_report(pair, out / f"{name}.html"))
             rows.append(row)
@@ -332,7 +337,7 @@ def register(sub) -> None:
         ("summary", cmd_experiment_summary, "run every paired experiment and write the table"),
     ):
         p = add_command(esub, name, func, help_)
-        add_model_options(p)
+        add_model_options(p, objective=None if name == "trial" else "paper")
         p.add_argument(
             "--coach-params",
             default=None,

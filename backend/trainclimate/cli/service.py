@@ -38,6 +38,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         Settings,
         trusted_proxies,
     )
+    from trainclimate.service.store.guard import MIN_GUARD_DAYS
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
         raise UsageError("--speedup must be positive")
@@ -56,6 +57,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
         # a bad file is a one-line error before anything starts
         load_params(args.coach_params)
         twin.validated_range_of_file(args.coach_params)
+    if args.guard_days is not None and args.guard_days < MIN_GUARD_DAYS:
+        raise UsageError(f"--guard-days must be at least {MIN_GUARD_DAYS}")
     if args.replica_name is not None and not (
         0 < len(args.replica_name) <= REPLICA_NAME_MAX and args.replica_name.isprintable()
     ):
@@ -75,6 +78,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         demo_coach_params=args.coach_params,
         **({"backfill_horizon_days": horizon} if horizon is not None else {}),
         **({"forwarded_allow_ips": proxies} if proxies is not None else {}),
+        **({"guard_days": args.guard_days} if args.guard_days is not None else {}),
         **(
             {
                 "mqtt_url": args.mqtt,
@@ -330,6 +334,7 @@ def cmd_gateway(args: argparse.Namespace) -> None:
 def register(sub) -> None:
     """Add ``serve``, ``token create`` and ``gateway`` to ``sub``."""
     from trainclimate.service.settings import BACKFILL_HORIZON_DAYS
+    from trainclimate.service.store.guard import GUARD_DAYS
 
     p = add_command(sub, "serve", cmd_serve, "run the service (API, dashboard, control loop)")
     p.add_argument(
@@ -369,6 +374,14 @@ def register(sub) -> None:
         default=None,
         help="refuse live telemetry rows older than their coach's newest row less this many "
         f"days (default {BACKFILL_HORIZON_DAYS:g}; $TRAINCLIMATE_BACKFILL_HORIZON_DAYS)",
+    )
+    p.add_argument(
+        "--guard-days",
+        type=int,
+        default=None,
+        help="hand a pair back to T_rule once its trial's 95 %% interval says the layer costs "
+        f"energy on this many consecutive service days (default {GUARD_DAYS}; "
+        "$TRAINCLIMATE_GUARD_DAYS)",
     )
     p.add_argument(
         "--mqtt-dynsec",

@@ -76,6 +76,7 @@ def _run(args: argparse.Namespace, scenario: str, controller: str, record_flows:
                 base_params=load_params(params) if params else None,
                 predictor=predictor_from(args) if controller == "ddpc" else None,
                 forecast=getattr(args, "forecast", "perfect"),
+                objective=getattr(args, "objective", "paper"),
                 record_flows=record_flows,
                 progress=progress,
             )

@@ -120,6 +120,7 @@ def spec_from_args(args: argparse.Namespace):
         chunk_coaches=args.chunk_coaches,
         chunk_days=args.chunk_days,
         forecast=args.forecast,
+        objective=args.objective,
     )
 
 
@@ -193,6 +194,7 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
             "seed": spec.seed,
             "weather": spec.weather_source,
             "forecast": spec.forecast,
+            "objective": spec.objective,
             "model": spec.model,
             "chunk": [spec.chunk_coaches, spec.chunk_days],
         },

@@ -13,6 +13,19 @@ deck and step. With the multistep model (3), z_p holding the measured past and u
          |u(k|t) − T_rule(k|t)| ≤ u_band,                       k = 0 … T            (6)
          |u(0|t) − u(t−1)| ≤ ΔT_max,  |u(k|t) − u(k−1|t)| ≤ ΔT_max,  k = 1 … T       (7)
 
+The ``margin`` objective (:data:`OBJECTIVES`) adds what a setpoint costs under the HVAC's own
+rules (Section II.B): between its ambient thresholds the unit leaves cooling (heating) for the
+mixed state, which heats (cools) a deck, once the coach's mean room temperature lies
+``climate_room_band_k`` (0.5 K) below (above) T_ref. A T_ref the room does not follow is not
+free. So T_ref stays within ``margin_k`` (half that band) of the mean predicted room
+temperature, softly, with one slack ξ per row:
+
+    |u(k|t) − ȳ(k|t)| ≤ m + ξ,  k = 0 … T;   |u(k|t) − ȳ(k+1|t)| ≤ m + ξ,  k = 0 … T−1
+    ξ ≥ 0,  J += τ_m Σ ξ²
+
+with ȳ the mean over the decks (ȳ(0|t) measured) and m = ``margin_k``; ``paper`` is Eq. (10)
+alone.
+
 Two implementations that must agree (tested on hundreds of random instances):
 
 - :class:`DDPCProblem` (the production path): y eliminated through the model, y_f = c + G u with
@@ -37,6 +50,10 @@ from trainclimate.predict.base import MultistepPredictor
 from trainclimate.predict.hankel import NU, NY, NZ
 from trainclimate.sim.setpoint import U_BAND_K
 
+#: The objectives: the paper's Eq. (10), and Eq. (10) with T_ref kept within a margin of the
+#: predicted room temperature (the module docstring).
+OBJECTIVES = ("paper", "margin")
+
 
 @dataclass(frozen=True)
 class OCPSettings:
@@ -57,6 +74,13 @@ class OCPSettings:
         Limit on |u − T_rule| of Eq. (6), the driver's ±2 K. [K]
     time_limit_s : float
         The solver's time budget per step. [s]
+    objective : str
+        ``"paper"`` (Eq. (10)) or ``"margin"`` (plus T_ref within ``margin_k`` of the predicted
+        mean room temperature; see the module docstring).
+    margin_k : float
+        The margin m of the ``margin`` objective. [K]
+    margin_weight : float
+        Its slacks' weight τ_m. [–]
 
     Raises
     ------
@@ -76,12 +100,17 @@ class OCPSettings:
     du_max: float = 0.5
     u_band: float = U_BAND_K
     time_limit_s: float = 0.05
+    objective: str = "paper"
+    margin_k: float = 0.25
+    margin_weight: float = 100.0
 
     def __post_init__(self) -> None:
-        for name in ("sigma", "tau", "gamma"):
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"unknown objective {self.objective!r}: {', '.join(OBJECTIVES)}")
+        for name in ("sigma", "tau", "gamma", "margin_weight"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"OCP weight {name} must be positive and finite")
-        for name in ("t_max", "du_max", "u_band", "time_limit_s"):
+        for name in ("t_max", "du_max", "u_band", "time_limit_s", "margin_k"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"OCP bound {name} must be positive and finite")
 
@@ -138,6 +167,18 @@ class _Condensed:
         self.H_known = H.copy()
         self.H_known[:, self.u0_col] = 0.0
         self.H_known[:, uf] = 0.0
+        #: the margin rows R u − o (o from :meth:`margin_offset`), None for the paper's objective
+        self.R = None
+        if settings.objective == "margin":
+            M = np.kron(np.eye(T), np.full((1, NY), 1.0 / NY))  # ȳ(1…T) = M y_f
+            MG = M @ self.G
+            shift = np.eye(T + 1)[:T]  # u(0) … u(T−1)
+            self.R = np.vstack([np.eye(T + 1) - np.vstack([np.zeros(T + 1), MG]), shift - MG])
+
+    def margin_offset(self, c: np.ndarray, y0: np.ndarray) -> np.ndarray:
+        """The margin rows' known part o: ȳ(0|t) measured, then ȳ(1…T|t)'s known part twice."""
+        mc = c.reshape(self.T, NY).mean(axis=1)
+        return np.concatenate([[np.mean(y0)], mc, mc])
 
     def data(self, y_past, u_past, d_past, d_future, t_rule, t_opt, u_prev):
         """Checked arrays and the known part c of the predicted outputs."""
@@ -208,28 +249,39 @@ class DDPCProblem:
 
         self.settings = settings or OCPSettings()
         self._m = _Condensed(predictor, self.settings)
-        s, G, T = self.settings, self._m.G, self._m.T
+        s, G, T, R = self.settings, self._m.G, self._m.T, self._m.R
         n_u, n_e = T + 1, NY * T
+        n_m = 0 if R is None else len(R)
         D = _difference(n_u)
         P_u = G.T @ G + s.sigma * np.eye(n_u) + s.gamma * D.T @ D
-        P = sp.block_diag([2.0 * P_u, 2.0 * s.tau * sp.eye(n_e)], format="csc")
-        I_e, Z_ue = sp.eye(n_e), sp.csc_matrix((n_u, n_e))
-        A = sp.vstack(
-            [
-                sp.hstack([G, -I_e]),  # comfort, upper: y − ε ≤ T_rule + T_max
-                sp.hstack([G, I_e]),  # comfort, lower: y + ε ≥ T_rule − T_max
-                sp.hstack([sp.csc_matrix((n_e, n_u)), I_e]),  # ε ≥ 0
-                sp.hstack([sp.eye(n_u), Z_ue]),  # |u − T_rule| ≤ u_band
-                sp.hstack([sp.csc_matrix(D), Z_ue]),  # rate limits
-            ],
-            format="csc",
-        )
+        blocks = [2.0 * P_u, 2.0 * s.tau * sp.eye(n_e)]
+        if n_m:
+            blocks.append(2.0 * s.margin_weight * sp.eye(n_m))
+        P = sp.block_diag(blocks, format="csc")
+        I_e, Z_ue, Z_um = sp.eye(n_e), sp.csc_matrix((n_u, n_e)), sp.csc_matrix((n_u, n_m))
+        Z_em = sp.csc_matrix((n_e, n_m))
+        rows = [
+            sp.hstack([G, -I_e, Z_em]),  # comfort, upper: y − ε ≤ T_rule + T_max
+            sp.hstack([G, I_e, Z_em]),  # comfort, lower: y + ε ≥ T_rule − T_max
+            sp.hstack([sp.csc_matrix((n_e, n_u)), I_e, Z_em]),  # ε ≥ 0
+            sp.hstack([sp.eye(n_u), Z_ue, Z_um]),  # |u − T_rule| ≤ u_band
+            sp.hstack([sp.csc_matrix(D), Z_ue, Z_um]),  # rate limits
+        ]
+        if n_m:
+            I_m, Z_me = sp.eye(n_m), sp.csc_matrix((n_m, n_e))
+            rows += [
+                sp.hstack([sp.csc_matrix(R), Z_me, -I_m]),  # margin, upper: R u − ξ ≤ o + m
+                sp.hstack([sp.csc_matrix(R), Z_me, I_m]),  # margin, lower: R u + ξ ≥ o − m
+                sp.hstack([sp.csc_matrix((n_m, n_u + n_e)), I_m]),  # ξ ≥ 0
+            ]
+        A = sp.vstack(rows, format="csc")
+        self._n = n_u + n_e + n_m
         self._P, self._D = P, D
         self._solver = osqp.OSQP()
         n_rows = A.shape[0]
         self._solver.setup(
             P=sp.triu(P, format="csc"),
-            q=np.zeros(n_u + n_e),
+            q=np.zeros(self._n),
             A=A,
             l=np.full(n_rows, -np.inf),
             u=np.full(n_rows, np.inf),
@@ -292,14 +344,17 @@ class DDPCProblem:
         rule3 = np.repeat(t_rule[1:], NY)
         b = np.zeros(T + 1)
         b[0] = u_prev
-        q = np.concatenate(
-            [2.0 * (m.G.T @ (c - r) - s.sigma * t_opt - s.gamma * self._D.T @ b), np.zeros(NY * T)]
-        )
+        n_u = T + 1
+        q = np.zeros(self._n)
+        q[:n_u] = 2.0 * (m.G.T @ (c - r) - s.sigma * t_opt - s.gamma * self._D.T @ b)
         inf = np.full(NY * T, np.inf)
-        lower = np.concatenate(
-            [-inf, rule3 - s.t_max - c, np.zeros(NY * T), t_rule - s.u_band, b - s.du_max]
-        )
-        upper = np.concatenate([rule3 + s.t_max - c, inf, inf, t_rule + s.u_band, b + s.du_max])
+        lower = [-inf, rule3 - s.t_max - c, np.zeros(NY * T), t_rule - s.u_band, b - s.du_max]
+        upper = [rule3 + s.t_max - c, inf, inf, t_rule + s.u_band, b + s.du_max]
+        if m.R is not None:
+            o, inf_m = m.margin_offset(c, y0), np.full(len(m.R), np.inf)
+            lower += [np.full(len(m.R), -np.inf), o - s.margin_k, np.zeros(len(m.R))]
+            upper += [o + s.margin_k, inf_m, inf_m]
+        lower, upper = np.concatenate(lower), np.concatenate(upper)
         self._solver.update(q=q, l=lower, u=upper)
         res = self._solver.solve(raise_error=False)
         status = "solved" if res.info.status == "solved" else str(res.info.status)
@@ -307,11 +362,11 @@ class DDPCProblem:
         # without an (approximate) optimum OSQP's x is an unfinished iterate or an
         # infeasibility certificate (~1e9): report no solution, as the reference does
         if res.info.status not in ("solved", "solved inaccurate"):
-            x = np.full(4 * T + 1, np.nan)
-        if x.shape != (4 * T + 1,) or not np.all(np.isfinite(x)):
-            x = np.full(4 * T + 1, np.nan)
+            x = np.full(self._n, np.nan)
+        if x.shape != (self._n,) or not np.all(np.isfinite(x)):
+            x = np.full(self._n, np.nan)
             status = status if status != "solved" else "no solution"
-        u, eps = x[: T + 1], x[T + 1 :]
+        u, eps = x[:n_u], x[n_u : n_u + NY * T]
         y = c + m.G @ u
         objective = float(0.5 * x @ (self._P @ x) + q @ x) + m.constant(c, y0, t_opt, u_prev)
         return Solution(
@@ -393,6 +448,13 @@ class ReferenceProblem:
             cp.abs(u - p["t_rule"]) <= s.u_band,  # (6)
             cp.abs(du) <= s.du_max,  # (7)
         ]
+        if s.objective == "margin":
+            p["y0_mean"] = cp.Parameter()
+            xi = cp.Variable(2 * T + 1)
+            y_mean = cp.hstack([p["y0_mean"], cp.reshape(y, (T, NY), order="C") @ np.ones(NY) / NY])
+            gap = cp.hstack([u - y_mean, u[:T] - y_mean[1:]])
+            constraints += [cp.abs(gap) <= s.margin_k + xi, xi >= 0]
+            cost = cost + s.margin_weight * cp.sum_squares(xi)
         problem = cp.Problem(cp.Minimize(cost), constraints)
         return problem, p, (u, y, eps)
 
@@ -419,6 +481,8 @@ class ReferenceProblem:
         p["rule3"].value = np.repeat(t_rule[1:], NY)
         p["t_rule"].value = t_rule
         p["u_prev"].value = u_prev
+        if "y0_mean" in p:
+            p["y0_mean"].value = float(np.mean(y0))
         t0 = time.perf_counter()
         try:
             problem.solve(solver=self.solver)

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick_summary
+from trainclimate.control.ocp import OCPSettings
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.params import CoachParams
@@ -49,6 +50,7 @@ def run_simulation(
     base_params: CoachParams | None = None,
     predictor: MultistepPredictor | None = None,
     forecast: str = "perfect",
+    objective: str = "paper",
     record_flows: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> SimulationRun:
@@ -73,6 +75,8 @@ def run_simulation(
         The DDPC layer's prediction model.
     forecast : {"perfect", "persistence", "noisy"}
         The DDPC layer's disturbance forecast (the band edge always has a perfect one).
+    objective : {"paper", "margin"}
+        The DDPC layer's objective (:data:`~trainclimate.control.ocp.OBJECTIVES`).
     record_flows : bool
         Keep every heat flow of the thermal model in the result.
     progress : callable, optional
@@ -95,7 +99,8 @@ def run_simulation(
     env, params = scenarios.build(
         spec, n_coaches=coaches, hours=hours, weather=weather, base_params=base_params
     )
-    controllers = build_controllers(controller, env.n_coaches, predictor)
+    settings = OCPSettings(objective=objective)
+    controllers = build_controllers(controller, env.n_coaches, predictor, settings)
     sim = FleetSimulator(params, env, seed=spec.seed, record_flows=record_flows)
     loop = ClosedLoop(
         sim, controllers, forecast="perfect" if controller == "edge" else forecast, seed=spec.seed

@@ -9,9 +9,11 @@ stores the :class:`Decision`. In this order:
 2. no telemetry for ``stale_periods`` periods, or no T_rule (``fallback``, ``stale``: T_rule, or
    without one the T_ref applied last);
 3. the layer switched off for the coach (``rule``, ``inactive``: T_ref = T_rule);
-4. not in regular mode (``rule``, ``not_regular``);
-5. no predictor model yet (``rule``, ``no_model``);
-6. otherwise the DDPC step (:meth:`~trainclimate.control.DDPCController.step`), which falls back
+4. the train's guard has tripped: the pair's own trial says the layer costs energy
+   (``rule``, ``costing_energy``: T_ref = T_rule; :mod:`trainclimate.service.store.guard`);
+5. not in regular mode (``rule``, ``not_regular``);
+6. no predictor model yet (``rule``, ``no_model``);
+7. otherwise the DDPC step (:meth:`~trainclimate.control.DDPCController.step`), which falls back
    to T_rule itself, with a reason code, on any problem.
 """
 
@@ -24,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from trainclimate.service.store.guard import REASON, describe
 from trainclimate.sim.setpoint import U_BAND_K
 
 if TYPE_CHECKING:
@@ -62,6 +65,7 @@ def decide(
     tick: datetime,
     settings: Settings,
     controller: Callable[[], DDPCController] | None,
+    guard: dict | None = None,
 ) -> Decision:
     """The setpoint for ``coach`` at ``tick`` (see the module docstring for the order).
 
@@ -69,7 +73,8 @@ def decide(
     any; ``settings`` give the sampling period (min) and after how many periods without telemetry
     the coach is stale. ``controller`` returns the coach's controller and is called only when the
     DDPC step is reached (building a controller sets up its optimisation problem); None means there
-    is no predictor model yet.
+    is no predictor model yet. ``guard`` is the figures of the train's tripped guard
+    (:func:`trainclimate.service.store.guard.tripped`), None while it watches.
     """
     t_rule = _finite(samples.t_rule_now)
     period = timedelta(minutes=settings.sampling_min)
@@ -85,6 +90,9 @@ def decide(
         return Decision(t_ref, t_rule, "fallback", "stale", detail)
     if not coach.ddpc_active:
         return Decision(t_rule, t_rule, "rule", "inactive", "the layer is off for this coach")
+    if guard is not None:
+        detail = f"the layer cost this pair energy: {describe(guard)}; an operator re-enables it"
+        return Decision(t_rule, t_rule, "rule", REASON, detail)
     if not samples.regular:
         return Decision(t_rule, t_rule, "rule", "not_regular", "the HVAC is not in regular mode")
     if controller is None:

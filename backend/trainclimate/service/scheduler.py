@@ -24,6 +24,10 @@ tick's service day (logged when that switches it), and each train's service day 
 ``trial_days`` the first time a tick applies it — in the tick's transaction, with the plans of a
 whole batch read in one query. Under ``fixed`` the layer stays as operators set it.
 
+The guard (:mod:`trainclimate.service.store.guard`) is evaluated at the first tick of each
+service day per train, in the tick's transaction; every tick reads which of the batch's trains
+it has handed back to T_rule (one statement) and the policy decides accordingly.
+
 Candidate models run in the active model's shadow: for every DDPC setpoint, each candidate
 predicts from the same samples and the setpoints the active model planned
 (:func:`~trainclimate.service.policy.shadow_prediction`), and its prediction is stored beside the
@@ -52,7 +56,7 @@ from trainclimate.predict.setting import RHO
 from trainclimate.service import policy
 from trainclimate.service.policy import Decision
 from trainclimate.service.settings import LOOP_READY_MIN_S, Settings
-from trainclimate.service.store import plans
+from trainclimate.service.store import guard, plans
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import (
     Coach,
@@ -182,14 +186,20 @@ class Scheduler:
 
     # --- one tick ----------------------------------------------------------------------------
     def decide(
-        self, coach: Coach, samples: Samples, override: Override | None, tick: datetime
+        self,
+        coach: Coach,
+        samples: Samples,
+        override: Override | None,
+        tick: datetime,
+        tripped: dict | None = None,
     ) -> Decision:
         """The setpoint for one coach at one tick: :func:`.policy.decide` with this scheduler's
-        settings and the coach's controller (none before a model is active)."""
+        settings, the coach's controller (none before a model is active) and its train's tripped
+        guard's figures (None: not tripped)."""
         controller = None
         if self._predictor is not None:
             controller = functools.partial(self.controller, coach.id)
-        return policy.decide(coach, samples, override, tick, self.settings, controller)
+        return policy.decide(coach, samples, override, tick, self.settings, controller, tripped)
 
     def tick_fleet(
         self, fleet: str, tick: datetime, batch: int = 250, *, reported_only: bool = False
@@ -251,7 +261,8 @@ class Scheduler:
             if not coaches:
                 return 0
             ids = [c.id for c in coaches]
-            recorded = self._apply_plans(session, coaches, tick)
+            recorded, days, pairs = self._apply_plans(session, coaches, tick)
+            guards = guard.check(session, days, pairs, tick, self.settings.guard_days)
             telemetry = load_rows(session, ids, tick - window, tick)
             overrides = active_overrides(session, ids, tick)
             rows, shadows = [], []
@@ -274,7 +285,9 @@ class Scheduler:
                     samples = controller_samples(
                         telemetry[coach.id], tick.timestamp(), self.period_s
                     )
-                    decision = self.decide(coach, samples, overrides.get(coach.id), tick)
+                    decision = self.decide(
+                        coach, samples, overrides.get(coach.id), tick, guards.get(coach.train_id)
+                    )
                 except Exception as exc:  # one coach's failure never stops the others
                     log.exception("tick %s for coach %s failed", tick, coach.id)
                     decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
@@ -293,10 +306,11 @@ class Scheduler:
                 log.exception("a setpoint listener failed (the setpoints are stored)")
         return len(rows)
 
-    def _apply_plans(self, session: Session, coaches: list[Coach], tick: datetime) -> dict:
+    def _apply_plans(self, session: Session, coaches: list[Coach], tick: datetime) -> tuple:
         """Set the layer of the (locked) ``coaches`` as their trains' plans in force at ``tick``
         have it, recording each train's service day unless it is stored already; returns the
-        stored days (train → :class:`~.plans.PlanDay`) for :attr:`_days` once committed."""
+        stored days (train → :class:`~.plans.PlanDay`) for :attr:`_days` once committed, the
+        trains' service days at the tick and their coaches (:func:`.plans.coaches_of`)."""
         trains = sorted({c.train_id for c in coaches})
         pairs = plans.coaches_of(session, trains)
         days = plans.plan_days(plans.plans_at(session, trains, tick), pairs, tick)
@@ -322,7 +336,7 @@ class Scheduler:
                     coach.id,
                     day.day,
                 )
-        return stored
+        return stored, days, pairs
 
     def _rho(self) -> int:
         """ρ of the active model (the default ρ without one): a tick reads ρ + 2 periods."""

@@ -15,6 +15,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
 from trainclimate.service.store.db import WORKER_THREADS
+from trainclimate.service.store.guard import GUARD_DAYS, MIN_GUARD_DAYS
 
 #: The MQTT topics' prefix (see :mod:`trainclimate.service.adapters.mqtt`).
 MQTT_PREFIX = "trainclimate/v1"
@@ -99,7 +100,10 @@ class Settings(BaseSettings):
     default ``host:pid``) names this process in the setpoints it decides (replicas sharing one
     PostgreSQL database split the coaches); ``loop_ready_s`` how long after its last completed
     iteration a loop of this replica still counts as running for ``/api/v1/ready`` (default: two
-    periods of its fleet's clock in wall time, at least :data:`LOOP_READY_MIN_S`)."""
+    periods of its fleet's clock in wall time, at least :data:`LOOP_READY_MIN_S`);
+    ``guard_days`` (``--guard-days``) on how many consecutive service days a pair's trial must
+    say the layer costs energy (95 % interval below 0) before its guard hands the pair back to
+    T_rule (:mod:`trainclimate.service.store.guard`; at least 1)."""
 
     model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
 
@@ -139,6 +143,7 @@ class Settings(BaseSettings):
         default_factory=default_replica_name, min_length=1, max_length=REPLICA_NAME_MAX
     )
     loop_ready_s: float | None = Field(default=None, gt=0)
+    guard_days: int = Field(default=GUARD_DAYS, ge=MIN_GUARD_DAYS)
 
     @field_validator("fleet")
     @classmethod

@@ -30,6 +30,7 @@ import psutil
 
 from trainclimate.analysis.kpi import violation_k
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers
+from trainclimate.control.ocp import OCPSettings
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import hvac
 from trainclimate.sim.power import HEADLINE_METER, METERS
@@ -124,7 +125,9 @@ def run_chunk(
     params = [spec.params_of(c) for c in coaches]
     n = len(coaches)
     loop_controllers = {
-        kind: build_controllers(kind, n, predictor if kind == "ddpc" else None)
+        kind: build_controllers(
+            kind, n, predictor if kind == "ddpc" else None, OCPSettings(objective=spec.objective)
+        )
         for kind in spec.controllers
         if kind != "rule"
     }

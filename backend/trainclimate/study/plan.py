@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from trainclimate.control.forecast import FORECASTS
+from trainclimate.control.ocp import OBJECTIVES
 from trainclimate.data.fleetlogs import draw_service_day, local_hours
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
@@ -97,6 +98,8 @@ class StudySpec:
         current disturbance held over the horizon, what the service's controller gets),
         ``perfect`` (the true future, the paper's simulation study) or ``noisy``. The band-edge
         reference always gets the perfect one.
+    objective : str
+        The DDPC layer's objective, one of :data:`~trainclimate.control.ocp.OBJECTIVES`.
     model : str
         The prediction model's identity (its name and hash).
     """
@@ -114,6 +117,7 @@ class StudySpec:
     chunk_coaches: int = 64
     chunk_days: int = 7
     forecast: str = "persistence"
+    objective: str = "paper"
     model: str = ""
 
     def __post_init__(self) -> None:
@@ -143,6 +147,8 @@ class StudySpec:
             raise StudyError("--coach-spread must lie in [0, 1)")
         if self.forecast not in FORECASTS:
             raise StudyError(f"--forecast: one of {', '.join(FORECASTS)}")
+        if self.objective not in OBJECTIVES:
+            raise StudyError(f"--objective: one of {', '.join(OBJECTIVES)}")
         if self.chunk_coaches < 1 or self.chunk_days < 1:
             raise StudyError("--chunk-coaches and --chunk-days must be at least 1")
 

@@ -4,12 +4,14 @@ difference and carries its interval; the fleet pools its trains."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from service_support import (
     API,
+    DAY,
+    HOURS,
     at,
+    crossover_train,
     decided,
     flat_rows,
     post_rows,
@@ -18,8 +20,6 @@ from service_support import (
 )
 from trainclimate.service.settings import Settings
 
-DAY = 24 * 60
-
 
 @pytest.fixture
 def settings(db_url, model_file) -> Settings:
@@ -27,34 +27,10 @@ def settings(db_url, model_file) -> Settings:
     return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=3600)
 
 
-#: Each service day, the pair's rows from 06:00 to 09:00 UTC (T0 is 06:00 UTC): six windows.
-HOURS = 180
-
-
-def _crossover_train(client, op, train: str, ratio: float, saving: float, days: int, seed: int):
-    """Train ``train``: coach A draws ``ratio`` times B's power; the layer, on A on even days and
-    on B on odd ones (an alternate trial), saves ``saving``; each day's level varies (weather)."""
-    rng = np.random.default_rng(seed)
-    register(client, op, f"{train}-A", train, active=True)
-    register(client, op, f"{train}-B", train, active=False)
-    for d in range(days):
-        first = d * DAY
-        on, off = (f"{train}-A", f"{train}-B") if d % 2 == 0 else (f"{train}-B", f"{train}-A")
-        # through the day's last row's tick: else the live loop may issue it between two days,
-        # on the coach activated in the database, and move that day's switch
-        decided(client, on, first, first + HOURS)
-        decided(client, off, first, first + HOURS, "rule", "inactive")
-        level = 10.0 * np.exp(rng.normal(0, 0.2))
-        b = level * (1 - saving if d % 2 else 1.0) * np.exp(rng.normal(0, 0.01))
-        a = level * ratio * (1 - saving if d % 2 == 0 else 1.0) * np.exp(rng.normal(0, 0.01))
-        post_rows(client, op, f"{train}-A", flat_rows(first + 1, first + HOURS, power_kw=a))
-        post_rows(client, op, f"{train}-B", flat_rows(first + 1, first + HOURS, power_kw=b))
-
-
 def test_a_crossover_cancels_the_coaches_difference(client, tokens):
     op, viewer = tokens["operator"], tokens["viewer"]
     days = 8
-    _crossover_train(client, op, "X", ratio=1.12, saving=0.10, days=days, seed=1)
+    crossover_train(client, op, "X", ratio=1.12, saving=0.10, days=days, seed=1)
     span = {"start": at(0).isoformat(), "end": at((days - 1) * DAY + HOURS).isoformat()}
     c = client.get(f"{API}/trains/X/comparison", params=span, headers=viewer).json()
     assert c["coaches"] == ["X-A", "X-B"]
@@ -122,8 +98,8 @@ def test_windows_where_the_layer_did_not_run_do_not_count(client, tokens):
 def test_the_fleet_pools_its_trains_estimates(client, tokens):
     op, viewer = tokens["operator"], tokens["viewer"]
     days = 8
-    _crossover_train(client, op, "P1", ratio=1.1, saving=0.08, days=days, seed=2)
-    _crossover_train(client, op, "P2", ratio=0.9, saving=0.08, days=days, seed=3)
+    crossover_train(client, op, "P1", ratio=1.1, saving=0.08, days=days, seed=2)
+    crossover_train(client, op, "P2", ratio=0.9, saving=0.08, days=days, seed=3)
     end = at((days - 1) * DAY + HOURS).isoformat()
     s = client.get(
         f"{API}/fleet/summary", params={"hours": days * 24, "end": end}, headers=viewer

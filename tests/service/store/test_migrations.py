@@ -33,6 +33,7 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 TABLES = {
+    "pair_guards",
     "train_plans",
     "trial_days",
     "shadow_predictions",
@@ -115,7 +116,7 @@ def fill(url: str) -> None:
 
 def test_migrate_up_down_up(db_url):
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0008")
+    assert schema(db_url) == (TABLES, "0010")
     assert set(Base.metadata.tables) == TABLES
     assert differences(db_url) == []
     fill(db_url)
@@ -123,7 +124,7 @@ def test_migrate_up_down_up(db_url):
     downgrade(db_url)
     assert schema(db_url) == (set(), None)
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0008")
+    assert schema(db_url) == (TABLES, "0010")
     assert differences(db_url) == []
 
 
@@ -147,14 +148,14 @@ def alembic(db_url: str, tmp_path: Path, *args: str) -> subprocess.CompletedProc
 def test_alembic_command_line(db_url, tmp_path):
     assert ALEMBIC.exists(), f"no alembic script next to {sys.executable}"
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0008")
+    assert schema(db_url) == (TABLES, "0010")
     # `check` autogenerates against the models and fails on any difference
     assert "No new upgrade operations detected" in alembic(db_url, tmp_path, "check").stdout
     fill(db_url)
     alembic(db_url, tmp_path, "downgrade", "base")
     assert schema(db_url) == (set(), None)
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0008")
+    assert schema(db_url) == (TABLES, "0010")
     assert differences(db_url) == []
 
 
@@ -198,9 +199,9 @@ def test_trial_plans_upgrade_a_database_in_use(db_url):
                        Coach(id="T1-B", train_id="T1")])  # fmt: skip
             s.flush()
             s.add(Telemetry(coach_id="T1-A", time=now, t_room_mid_c=21.0))
-        assert schema(db_url) == (TABLES - {"train_plans", "trial_days"}, "0007")
+        assert schema(db_url) == (TABLES - {"train_plans", "trial_days", "pair_guards"}, "0007")
         migrate(db_url)
-        assert schema(db_url) == (TABLES, "0008")
+        assert schema(db_url) == (TABLES, "0010")
         with db.transaction() as s:
             train = s.get(Train, "T1")
             assert plans.view(s, train)["plan"] == "fixed"
@@ -209,7 +210,7 @@ def test_trial_plans_upgrade_a_database_in_use(db_url):
             )
             assert view["pending"]["effective_from"] == "2024-11-29T02:00:00+00:00"
         downgrade(db_url, "0007")
-        assert schema(db_url) == (TABLES - {"train_plans", "trial_days"}, "0007")
+        assert schema(db_url) == (TABLES - {"train_plans", "trial_days", "pair_guards"}, "0007")
         with db.transaction() as s:
             assert [c.id for c in s.get(Train, "T1").coaches] == ["T1-A", "T1-B"]
     finally:

@@ -302,6 +302,42 @@ class TrainPlanOut(PlanChange):
     message: str = Field(description="the plan in words; after a change, what it does and when")
 
 
+class GuardFigures(BaseModel):
+    """A guard's daily evaluation: the pair's trial estimate over the range it covered."""
+
+    savings_pct: float | None = Field(description="the trial estimate (negative: costs energy)")
+    savings_ci95_pct: list[float] | None = Field(description="[low, high], or null")
+    savings_ci95_reason: str | None
+    estimator: str | None
+    days: int = Field(description="the service days the estimate used")
+    start: datetime
+    end: datetime
+
+
+class GuardOut(BaseModel):
+    """A train's guard: whether its pair's own trial has handed the layer back to T_rule."""
+
+    train_id: str
+    state: Literal["watching", "tripped"] = Field(
+        description="tripped: every coach of the train whose layer is on runs T_rule "
+        "(reason costing_energy) until an operator re-enables it"
+    )
+    checked_day: date | None = Field(description="the service day last evaluated")
+    below_days: int = Field(description="consecutive evaluations with the interval below 0")
+    figures: GuardFigures | None = Field(description="the last evaluation, or null")
+    tripped_at: datetime | None
+    coach_id: str | None = Field(description="the coach the layer was on when it tripped")
+    counts_from: datetime | None = Field(description="the estimate counts windows from here")
+    reset_by: str | None
+    reset_at: datetime | None
+
+
+class GuardReset(Strict):
+    """Re-enable the layer on a train whose guard handed it back."""
+
+    reason: str = Field(min_length=1, max_length=500, examples=["the HVAC unit was repaired"])
+
+
 class CoachCreate(Strict):
     """Register a coach (a gateway does it for its coaches; an existing one is left as it is)."""
 
@@ -620,6 +656,9 @@ class Attention(BaseModel):
         description="the setpoint's reason code, or connection_lost (disconnected)"
     )
     detail: str
+    figures: GuardFigures | None = Field(
+        default=None, description="costing_energy: what the guard tripped on; else null"
+    )
 
 
 class FleetWindow(BaseModel):

@@ -12,7 +12,7 @@ from sqlalchemy import select
 
 from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import AUTH, CONFLICT, DB, NOT_FOUND, Operator, Viewer
-from trainclimate.service.store import commands, comparison, plans, queries
+from trainclimate.service.store import commands, comparison, guard, plans, queries
 from trainclimate.service.store.models import Train
 
 router = APIRouter()
@@ -77,6 +77,33 @@ def set_plan(train_id: str, body: schemas.PlanIn, s: DB, who: Operator) -> dict:
     when); on one that has reported nothing yet, at once. It replaces a change still pending.
     409 for a plan other than fixed on a train without a pair of two coaches."""
     return commands.set_plan(s, who, train_id, body.plan, body.switch_hour, body.seed, body.reason)
+
+
+@router.get(
+    "/trains/{train_id}/guard",
+    response_model=schemas.GuardOut,
+    tags=["trains"],
+    responses={**AUTH, **NOT_FOUND},
+)
+def get_guard(train_id: str, s: DB, _: Viewer) -> dict:
+    """The train's guard: once per service day it reads the pair's trial estimate, and after
+    ``guard_days`` consecutive days with its 95 % interval entirely below 0 it hands every
+    coach of the train back to T_rule (reason ``costing_energy``) until an operator
+    re-enables the layer."""
+    return guard.view(s, queries.train_or_404(s, train_id).id)
+
+
+@router.post(
+    "/trains/{train_id}/guard/reset",
+    response_model=schemas.GuardOut,
+    tags=["trains"],
+    responses={**AUTH, **NOT_FOUND, **CONFLICT},
+)
+def reset_guard(train_id: str, body: schemas.GuardReset, s: DB, who: Operator) -> dict:
+    """Re-enable the layer on a train whose guard handed it back; audited. The guard watches
+    again from the next tick, its estimate counting only windows from now on. 409 when the
+    guard has not handed the layer back."""
+    return commands.reset_guard(s, who, train_id, body.reason)
 
 
 @router.get(

@@ -12,13 +12,20 @@ VIOLATION_ATTENTION_MIN = 30.0
 #: How far back a coach's comfort is read for the attention list. [min]
 VIOLATION_LOOKBACK_MIN = 120.0
 #: The concerns of the attention list, in its order.
-KINDS = ("stale", "disconnected", "fallback", "override", "comfort")
+KINDS = ("costing_energy", "stale", "disconnected", "fallback", "override", "comfort")
+#: The setpoint reason of a coach whose train's guard handed the layer back to T_rule (listed as
+#: ``costing_energy``, with the figures, not as a fallback).
+GUARD_REASON = "costing_energy"
 
 
-def attention(views: list[dict], violating_min: dict[str, float]) -> list[dict]:
+def attention(
+    views: list[dict], violating_min: dict[str, float], guards: dict[str, dict] | None = None
+) -> list[dict]:
     """The coaches that need an operator's attention, from their views (as the fleet list shows
-    them) and the minutes each has been outside the comfort band
-    (:func:`.fleet_summary.comfort_violations`): stale (no telemetry), disconnected (its newest
+    them), the trains whose guard handed the layer back to T_rule and the minutes each coach has
+    been outside the comfort band (:func:`.fleet_summary.comfort_violations`): costing energy
+    (the train's guard tripped: one entry per train, on the coach the layer was on, with the
+    figures), stale (no telemetry), disconnected (its newest
     telemetry says the link to the HVAC is down: the HVAC holds T_rule, not the T_ref issued),
     in fallback (with the reason), overridden, or outside the band for longer than
     :data:`VIOLATION_ATTENTION_MIN`.
@@ -29,24 +36,48 @@ def attention(views: list[dict], violating_min: dict[str, float]) -> list[dict]:
         The coaches' views (:func:`.queries.coach_view` with :func:`.queries.with_liveness`).
     violating_min : dict
         Coach id → how long its decks have been outside the comfort band without a break. [min]
+    guards : dict, optional
+        Train id → ``coach_id`` (the coach the layer was on when the guard tripped) and
+        ``figures`` (:func:`.guard.figures`), for the trains whose guard has tripped.
 
     Returns
     -------
     list of dict
         One entry per coach and concern: ``coach_id``, ``train_id``, ``kind`` (one of
         :data:`KINDS`), ``status``, ``reason`` (the view's reason code: the setpoint's, or
-        ``connection_lost``; or None) and ``detail`` in words; in the order of :data:`KINDS`,
-        then by coach.
+        ``connection_lost``; or None), ``detail`` in words and ``figures`` (``costing_energy``:
+        the guard's; else None); in the order of :data:`KINDS`, then by coach.
     """
     out = []
+    by_coach = {v["id"]: v for v in views}
+    for train_id, g in sorted((guards or {}).items()):
+        v = by_coach.get(g["coach_id"]) or next(
+            (v for v in views if v["train_id"] == train_id), None
+        )
+        if v is None:
+            continue
+        f = g["figures"] or {}
+        ci = f.get("savings_ci95_pct") or [float("nan")] * 2
+        detail = (
+            f"the layer cost this pair energy: {f.get('savings_pct', float('nan')):.1f} % "
+            f"(95 % CI {ci[0]:.1f} to {ci[1]:.1f}) over {f.get('days', 0)} service days; "
+            "handed back to T_rule until an operator re-enables it"
+        )
+        out.append(
+            {"coach_id": v["id"], "train_id": train_id, "kind": GUARD_REASON,
+             "status": v["status"], "reason": GUARD_REASON, "detail": detail, "figures": f}
+        )  # fmt: skip
     for v in views:
         base = {
             "coach_id": v["id"],
             "train_id": v["train_id"],
             "status": v["status"],
             "reason": v["reason"],
+            "figures": None,
         }
-        if v["status"] == "stale":
+        if v["status"] == "fallback" and v["reason"] == GUARD_REASON:
+            pass  # listed with its train's guard above
+        elif v["status"] == "stale":
             out.append({**base, "kind": "stale", "detail": "no telemetry in time"})
         elif v["status"] == "disconnected":
             out.append({**base, "kind": "disconnected", "detail": _disconnected(v)})

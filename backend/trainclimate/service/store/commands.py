@@ -11,7 +11,7 @@ from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
-from trainclimate.service.store import liveness, plans
+from trainclimate.service.store import guard, liveness, plans
 from trainclimate.service.store.models import (
     ApiToken,
     AuditLog,
@@ -347,6 +347,23 @@ def set_plan(
     audit(session, who, "train.plan", train.id, reason, before=before, after=after, **extra)
     message = plans.change_message(train.id, row, at_once, before["plan"], replaced)
     return plans.view(session, train, message)
+
+
+def reset_guard(session: Session, who: Principal, train_id: str, reason: str) -> dict:
+    """Re-enable the layer on a train whose guard handed it back to T_rule (:mod:`.guard`): the
+    guard watches again, its estimate counting only windows from the train's clock now on.
+    Audited as ``guard.reset`` with the figures it had tripped on. :class:`ConflictError` when
+    the guard has not tripped. Returns the guard's view (:func:`.guard.view`)."""
+    train = session.scalar(select(Train).where(Train.id == train_id).with_for_update())
+    if train is None:
+        raise NotFoundError(f"no train {train_id!r}")
+    now = plans.clock(session, train) or utcnow()
+    row = guard.reset(session, train.id, now, who.name)
+    if row is None:
+        raise ConflictError(f"the guard of train {train.id} has not handed the layer back")
+    audit(session, who, "guard.reset", train.id, reason, figures=row.figures)
+    session.flush()
+    return guard.view(session, train.id)
 
 
 def activate_model(session: Session, who: Principal, version: int, reason: str) -> PredictorModel:

@@ -49,6 +49,7 @@ from trainclimate.service.store.models import (
     Coach,
     FleetClock,
     Override,
+    PairGuard,
     Setpoint,
     Telemetry,
     Train,
@@ -464,8 +465,21 @@ def summary(
             for w, (e_act, e_deact, n) in sorted(windows.items())
         ],
         "coaches_by_status": coaches_by_status(views),
-        "attention": attention(views, comfort_violations(session, clocks_now)),
+        "attention": attention(
+            views, comfort_violations(session, clocks_now), handed_back(session)
+        ),
     }
+
+
+def handed_back(session: Session) -> dict[str, dict]:
+    """The trains whose guard handed the layer back to T_rule (:mod:`.guard`): train →
+    ``coach_id`` (the coach the layer was on) and ``figures`` (what it tripped on)."""
+    rows = session.execute(
+        select(PairGuard.train_id, PairGuard.coach_id, PairGuard.figures).where(
+            PairGuard.tripped_at.is_not(None)
+        )
+    )
+    return {t: {"coach_id": c, "figures": f} for t, c, f in rows}
 
 
 def comfort_violations(

@@ -11,7 +11,8 @@
   active); users, their hashed tokens (a gateway's scoped to its coaches) and roles; the audit
   log of every write;
 - trial plans: each train's plan changes (``train_plans``) and each service day's assignment as
-  the scheduler first applied it (``trial_days``).
+  the scheduler first applied it (``trial_days``);
+- each train's guard (``pair_guards``): whether its pair's own outcome handed the layer back.
 
 Every timestamp is stored in UTC and read back timezone-aware (:class:`UTCDateTime`).
 """
@@ -331,3 +332,22 @@ class TrialDay(Base):
     plan: Mapped[str] = mapped_column(String(16))
     switch_hour: Mapped[int] = mapped_column(Integer)
     activated_coach_id: Mapped[str | None] = mapped_column(ForeignKey("coaches.id"), nullable=True)
+
+
+class PairGuard(Base):
+    """A train's guard (:mod:`trainclimate.service.store.guard`): the service day it last
+    evaluated the pair's trial estimate on, on how many consecutive evaluations the estimate's
+    95 % interval lay entirely below 0, the figures of the last evaluation, when it handed the
+    layer back to T_rule (None: it has not) and the coach activated then, and the operator's
+    last re-enabling (who, when, from when the estimate counts again)."""
+
+    __tablename__ = "pair_guards"
+    train_id: Mapped[str] = mapped_column(ForeignKey("trains.id"), primary_key=True)
+    checked_day: Mapped[date | None] = mapped_column(Date, nullable=True)
+    below_days: Mapped[int] = mapped_column(Integer, default=0)
+    figures: Mapped[dict | None] = mapped_column(JSON(none_as_null=True), nullable=True)
+    tripped_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    coach_id: Mapped[str | None] = mapped_column(ForeignKey("coaches.id"), nullable=True)
+    counts_from: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    reset_by: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    reset_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)

@@ -2,8 +2,9 @@
 
 A window counts towards the savings only where one coach ran under the layer (every tick in the
 window a DDPC setpoint) and the other on T_rule with the layer off (every tick ``rule`` /
-``inactive``); a window where both ran on T_rule with the layer off is a *reference* window (the
-coaches' own ratio). Every other window is excluded with its reason, first that applies:
+``inactive``, or ``costing_energy`` where the train's guard handed the layer back); a window
+where both ran on T_rule with the layer off is a *reference* window (the coaches' own ratio).
+Every other window is excluded with its reason, first that applies:
 
 - from the telemetry: ``disconnected`` (a coach's link to its HVAC lost), ``override`` (an
   operator's setpoint in force), ``missing_data`` (a minute missing, or without power);
@@ -57,6 +58,9 @@ SUMS = (
 SUMS_INDEX = {name: i for i, name in enumerate(SUMS)}
 
 
+#: The reasons of a ``rule`` setpoint with the layer off: switched off, or handed back by the
+#: train's guard (:mod:`.guard`); either counts as T_rule with the layer off.
+LAYER_OFF = ("inactive", "costing_energy")
 #: After the activated coach changes, windows starting within this are excluded. [min]
 LEAD_IN_MIN = 60.0
 #: A service day counts with at least this many counted windows.
@@ -97,7 +101,7 @@ def setpoint_counts(
             window,
             func.count(),
             n(Setpoint.source == "ddpc"),
-            n((Setpoint.source == "rule") & (Setpoint.reason == "inactive")),
+            n((Setpoint.source == "rule") & Setpoint.reason.in_(LAYER_OFF)),
             n(Setpoint.reason == "no_model"),
             n(Setpoint.source == "override"),
             n(Setpoint.source == "fallback"),
