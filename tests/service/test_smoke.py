@@ -2,6 +2,8 @@
 
 import pytest
 
+from trainclimate.service.store.db import head_revision
+
 
 def test_health_and_coaches(client, tokens):
     health = client.get("/api/v1/health")
@@ -10,7 +12,7 @@ def test_health_and_coaches(client, tokens):
     reply = client.get("/api/v1/coaches", headers=tokens["viewer"])
     assert reply.status_code == 200 and reply.json() == []
     ready = client.get("/api/v1/ready").json()
-    assert ready["migrations"] == "0008" and ready["model_version"] == 1
+    assert ready["migrations"] == head_revision() and ready["model_version"] == 1
 
 
 def test_serve_json_prints_one_object_then_logs(db_url, servers):

@@ -31,6 +31,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
     import uvicorn
     from sqlalchemy.engine import make_url
 
+    from trainclimate.analysis.guard import MIN_GUARD_DAYS
     from trainclimate.service.app import create_app
     from trainclimate.service.settings import (
         MAX_BACKFILL_HORIZON_DAYS,
@@ -38,7 +39,6 @@ def cmd_serve(args: argparse.Namespace) -> None:
         Settings,
         trusted_proxies,
     )
-    from trainclimate.service.store.guard import MIN_GUARD_DAYS
 
     if not (np.isfinite(args.speedup) and args.speedup > 0):
         raise UsageError("--speedup must be positive")
@@ -333,8 +333,8 @@ def cmd_gateway(args: argparse.Namespace) -> None:
 
 def register(sub) -> None:
     """Add ``serve``, ``token create`` and ``gateway`` to ``sub``."""
+    from trainclimate.analysis.guard import GUARD_DAYS
     from trainclimate.service.settings import BACKFILL_HORIZON_DAYS
-    from trainclimate.service.store.guard import GUARD_DAYS
 
     p = add_command(sub, "serve", cmd_serve, "run the service (API, dashboard, control loop)")
     p.add_argument(

@@ -10,7 +10,7 @@ stores the :class:`Decision`. In this order:
    without one the T_ref applied last);
 3. the layer switched off for the coach (``rule``, ``inactive``: T_ref = T_rule);
 4. the train's guard has tripped: the pair's own trial says the layer costs energy
-   (``rule``, ``costing_energy``: T_ref = T_rule; :mod:`trainclimate.service.store.guard`);
+   (``rule``, ``costing_energy``: T_ref = T_rule; :mod:`trainclimate.analysis.guard`);
 5. not in regular mode (``rule``, ``not_regular``);
 6. no predictor model yet (``rule``, ``no_model``);
 7. otherwise the DDPC step (:meth:`~trainclimate.control.DDPCController.step`), which falls back
@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from trainclimate.service.store.guard import REASON, describe
+from trainclimate.analysis.guard import REASON, describe
 from trainclimate.sim.setpoint import U_BAND_K
 
 if TYPE_CHECKING:

@@ -12,10 +12,10 @@ from typing import Annotated
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from trainclimate.analysis.guard import GUARD_DAYS, MIN_GUARD_DAYS
 from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
 from trainclimate.service.store.db import WORKER_THREADS
-from trainclimate.service.store.guard import GUARD_DAYS, MIN_GUARD_DAYS
 
 #: The MQTT topics' prefix (see :mod:`trainclimate.service.adapters.mqtt`).
 MQTT_PREFIX = "trainclimate/v1"

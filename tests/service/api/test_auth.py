@@ -19,7 +19,7 @@ from service_support import (
 )
 from trainclimate import cli
 from trainclimate.service import api
-from trainclimate.service.store.db import Database
+from trainclimate.service.store.db import Database, head_revision
 from trainclimate.service.store.models import ApiToken, AuditLog, User
 from trainclimate.service.store.tokens import RANK
 
@@ -41,6 +41,8 @@ ROUTES = [
     ("GET", "/trains/{train_id}", "viewer"),
     ("GET", "/trains/{train_id}/plan", "viewer"),
     ("PUT", "/trains/{train_id}/plan", "operator"),
+    ("GET", "/trains/{train_id}/guard", "viewer"),
+    ("POST", "/trains/{train_id}/guard/reset", "operator"),
     ("GET", "/trains/{train_id}/comparison", "viewer"),
     ("GET", "/fleet/summary", "viewer"),
     ("POST", "/telemetry", "operator"),
@@ -115,7 +117,7 @@ def test_every_protected_route_checks_token_and_role(client, tokens):
             else:  # let in: whatever the route then says about the request itself
                 assert reply.status_code not in (401, 403, 500), (method, path, role, reply.text)
             checked += 1
-    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 300
+    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 320
 
 
 def test_health_and_readiness_need_no_token(client):
@@ -127,7 +129,7 @@ def test_health_and_readiness_need_no_token(client):
     body = ready.json()
     assert {k: body[k] for k in ("status", "migrations", "model_version", "under_rule")} == {
         "status": "ready",
-        "migrations": "0008",
+        "migrations": head_revision(),
         "model_version": 1,
         "under_rule": False,
     }

@@ -78,6 +78,10 @@ RULES = {
     ("PUT", "/trains/{train_id}/plan"): Rule(
         "operator", body=lambda t: {"plan": "fixed", "reason": "probe"}
     ),
+    ("GET", "/trains/{train_id}/guard"): Rule("viewer"),
+    ("POST", "/trains/{train_id}/guard/reset"): Rule(
+        "operator", body=lambda t: {"reason": "probe"}
+    ),
     ("GET", "/models/{version}/health"): Rule("viewer"),
     ("POST", "/models/{version}/activate"): Rule("admin", query="reason=probe"),
     # both days and since: 422 once let in, so that no fit starts in the background

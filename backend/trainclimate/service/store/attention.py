@@ -38,7 +38,8 @@ def attention(
         Coach id → how long its decks have been outside the comfort band without a break. [min]
     guards : dict, optional
         Train id → ``coach_id`` (the coach the layer was on when the guard tripped) and
-        ``figures`` (:func:`.guard.figures`), for the trains whose guard has tripped.
+        ``figures`` (:func:`trainclimate.analysis.guard.figures`), for the trains whose guard
+        has tripped.
 
     Returns
     -------

@@ -7,9 +7,10 @@ same figures as the pair comparison: crossover where the plan alternates the coa
 by reference days, else the naive figure without an interval) is computed over the 30-minute
 windows of the :data:`LOOKBACK_DAYS` service days before the day, from the operator's last
 re-enabling on. When its 95 % interval lies entirely below 0 on ``guard_days`` consecutive
-evaluations (:func:`step`), the guard *trips*: from then on every coach of the train whose layer
-is on gets T_rule, with source ``rule`` and reason :data:`REASON` (:func:`.policy.decide`), and the
-train is on the attention list with the figures. An interval that contains 0, or no interval at
+evaluations (the rule, free of the database: :mod:`trainclimate.analysis.guard`), the guard
+*trips*: from then on every coach of the train whose layer is on gets T_rule, with source
+``rule`` and reason ``costing_energy`` (:func:`.policy.decide`), and the train is on the
+attention list with the figures. An interval that contains 0, or no interval at
 all (a ``fixed`` plan without reference days is confounded with the coaches), never trips it.
 
 The guard stays tripped until an operator re-enables the layer (:func:`reset`, audited): the
@@ -31,59 +32,16 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
+from trainclimate.analysis.guard import costs_energy, figures, step
 from trainclimate.service.store import fleet_summary, pair_trial, queries
 from trainclimate.service.store.models import PairGuard
 from trainclimate.service.store.plans import PlanDay
 from trainclimate.service.store.upsert import insert_new
 
-#: The reason code of a setpoint the guard handed back to T_rule.
-REASON = "costing_energy"
-#: Default: consecutive daily evaluations with the interval below 0 before the guard trips.
-GUARD_DAYS = 3
-#: The fewest consecutive evaluations that may be set.
-MIN_GUARD_DAYS = 1
 #: The service days before the evaluated one whose windows the estimate counts. [days]
 LOOKBACK_DAYS = 14
 #: The estimate's window, as the pair comparison's default. [min]
 WINDOW_MIN = 30.0
-
-
-def costs_energy(estimate: trial.TrialEstimate) -> bool:
-    """Whether the estimate says the layer costs energy with confidence: a 95 % interval,
-    entirely below 0."""
-    ci = estimate.savings_ci95_pct
-    return ci is not None and ci[1] < 0.0
-
-
-def step(below_days: int, costs: bool, guard_days: int) -> tuple[int, bool]:
-    """One daily evaluation: the consecutive evaluations with the interval below 0 after it
-    (reset to 0 by one that is not), and whether the guard trips (at least ``guard_days``)."""
-    below = below_days + 1 if costs else 0
-    return below, below >= guard_days
-
-
-def figures(estimate: trial.TrialEstimate, start: datetime, end: datetime) -> dict:
-    """An evaluation's figures as stored and shown: the estimate, its interval, the estimator,
-    the service days it used and the range it covered (ISO 8601, UTC)."""
-    d = estimate.days
-    return {
-        "savings_pct": estimate.savings_pct,
-        "savings_ci95_pct": estimate.savings_ci95_pct,
-        "savings_ci95_reason": estimate.ci_reason,
-        "estimator": estimate.estimator,
-        "days": d.get("coach_0", 0) + d.get("coach_1", 0) + d.get("reference", 0),
-        "start": pd.Timestamp(start).isoformat(),
-        "end": pd.Timestamp(end).isoformat(),
-    }
-
-
-def describe(f: dict) -> str:
-    """An evaluation's figures in words."""
-    if f.get("savings_pct") is None:
-        return "no estimate yet"
-    ci = f.get("savings_ci95_pct")
-    interval = f" (95 % CI {ci[0]:.1f} to {ci[1]:.1f})" if ci else ""
-    return f"{f['savings_pct']:.1f} %{interval} over {f['days']} service days ({f['estimator']})"
 
 
 def tripped(session: Session, train_ids: list[str]) -> dict[str, dict]:
@@ -116,7 +74,7 @@ def check(
     tick : datetime
         The tick being issued (a guard trips at it).
     guard_days : int
-        See :func:`step`.
+        See :func:`trainclimate.analysis.guard.step`.
     """
     due = {t: d for t, d in days.items() if len(pairs.get(t, ())) == 2 and not d.partial}
     checked = dict(
