@@ -2,8 +2,9 @@
 whole minutes within 5 … 1440; telemetry only within the backfill horizon (refused with the row
 and the reason, counted); NUL characters and lone surrogates in a path, a query or a JSON string
 refused with a 422 that itself never fails; strict ids and booleans; an override of at least a
-minute; ``Cache-Control: no-store`` on the API's answers (a new token's secret among them); and the
-largest valid telemetry batch within the default body limit."""
+minute; a query parameter the route does not take refused; ``Cache-Control: no-store`` on the
+API's answers (a new token's secret among them); and the largest valid telemetry batch within the
+default body limit."""
 
 from __future__ import annotations
 
@@ -51,6 +52,26 @@ def test_the_comparison_window_is_whole_minutes_within_5_and_1440(client, tokens
     windows = reply.json()["windows"]
     starts = [datetime.fromisoformat(w["start"]) for w in windows]
     assert {b - a for a, b in itertools.pairwise(starts)} == {timedelta(minutes=7)}
+
+
+def test_a_query_parameter_the_route_does_not_take_is_refused(client, tokens):
+    """A misspelt ``strat=`` was ignored with a 200: the answer covered a range the caller did
+    not ask for. Every route under /api/v1 refuses what it does not declare, naming what it
+    takes; what it declares (its dependencies' included) still passes."""
+    _pair(client, tokens["operator"])
+    viewer = tokens["viewer"]
+    reply = client.get(
+        f"{API}/trains/P/comparison", params={"strat": "2024-11-28T06:00Z"}, headers=viewer
+    )
+    assert reply.status_code == 422
+    assert reply.json()["detail"] == (
+        "unknown query parameter strat (this route takes: end, start, window_min)"
+    )
+    assert client.get(f"{API}/coaches", params={"x": 1}, headers=viewer).status_code == 422
+    assert client.get(f"{API}/health", params={"verbose": 1}).status_code == 422
+    ok = client.get(f"{API}/trains/P/comparison", params={"window_min": 30}, headers=viewer)
+    assert ok.status_code == 200
+    assert client.get(f"{API}/audit", params={"limit": 5}, headers=viewer).status_code == 200
 
 
 # --- the backfill horizon ----------------------------------------------------------------------

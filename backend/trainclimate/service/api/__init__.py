@@ -14,11 +14,12 @@ request that writes runs in one transaction.
 
 from __future__ import annotations
 
-from fastapi import APIRouter, status
+from fastapi import APIRouter, Depends, status
 
 from trainclimate.service.api import (
     audit,
     coaches,
+    deps,
     fleet,
     health,
     models,
@@ -29,7 +30,8 @@ from trainclimate.service.api import (
 )
 from trainclimate.service.store import commands, queries
 
-router = APIRouter(prefix="/api/v1")
+#: Every route refuses a query parameter it does not declare (:func:`.deps.known_query_only`).
+router = APIRouter(prefix="/api/v1", dependencies=[Depends(deps.known_query_only)])
 router.include_router(health.router)
 router.include_router(users.router)
 router.include_router(coaches.router)

@@ -8,11 +8,14 @@ from datetime import timedelta
 from typing import Annotated
 
 from fastapi import Depends, Request
+from fastapi.dependencies.models import Dependant
+from fastapi.routing import APIRoute
 from sqlalchemy.orm import Session
 
 from trainclimate.service.api import schemas
 from trainclimate.service.api.security import require, require_coach
 from trainclimate.service.settings import Settings
+from trainclimate.service.store.queries import RequestError
 from trainclimate.service.store.tokens import Principal
 
 UNAUTHORIZED = {401: {"model": schemas.Message, "description": "no valid token"}}
@@ -53,6 +56,30 @@ GatewayOrOperatorTelemetry = Annotated[
     Principal, Depends(require_coach("operator", schemas.TelemetryBatch, "coach_id"))
 ]
 GatewayOrViewer = Annotated[Principal, Depends(require_coach("viewer"))]
+
+
+def _query_names(dependant: Dependant) -> set[str]:
+    """The query parameters ``dependant`` and its dependencies declare."""
+    names = {p.alias for p in dependant.query_params}
+    for sub in dependant.dependencies:
+        names |= _query_names(sub)
+    return names
+
+
+def known_query_only(request: Request) -> None:
+    """Refuse (422, one sentence) a query parameter the route does not declare: a misspelt
+    ``strat=`` would otherwise be ignored, and the answer computed over a range the caller did
+    not ask for."""
+    route = request.scope.get("route")
+    if not isinstance(route, APIRoute) or not request.query_params:
+        return
+    declared = _query_names(route.dependant)
+    unknown = sorted(set(request.query_params) - declared)
+    if unknown:
+        allowed = ", ".join(sorted(declared)) or "none"
+        raise RequestError(
+            f"unknown query parameter {', '.join(unknown)} (this route takes: {allowed})"
+        )
 
 
 def settings(request: Request) -> Settings:
