@@ -66,10 +66,10 @@ def _query_names(dependant: Dependant) -> set[str]:
     return names
 
 
-def known_query_only(request: Request) -> None:
+async def known_query_only(request: Request) -> None:
     """Refuse (422, one sentence) a query parameter the route does not declare: a misspelt
     ``strat=`` would otherwise be ignored, and the answer computed over a range the caller did
-    not ask for."""
+    not ask for. Async: it runs on the event loop, taking no worker thread."""
     route = request.scope.get("route")
     if not isinstance(route, APIRoute) or not request.query_params:
         return
