@@ -33,6 +33,7 @@ import pandas as pd
 from trainclimate.analysis.savings import CoachSeries, Comparison, compare
 from trainclimate.control import OCPSettings
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick_summary
+from trainclimate.control.ocp import OFFLINE_TIME_LIMIT_S
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
@@ -114,9 +115,11 @@ class ExperimentSetup:
         Returns
         -------
         OCPSettings
-            The defaults with :attr:`settings` applied.
+            The defaults with :attr:`settings` applied, and the solver's real-time budget
+            lifted (:data:`~trainclimate.control.ocp.OFFLINE_TIME_LIMIT_S`): a loaded machine
+            cannot change an experiment's numbers.
         """
-        return dataclasses.replace(OCPSettings(), **self.settings)
+        return dataclasses.replace(OCPSettings(time_limit_s=OFFLINE_TIME_LIMIT_S), **self.settings)
 
 
 #: Minimum off time of a deck's cooling in Experiment 1 (``cooling_min_off_s``): 3 min, the

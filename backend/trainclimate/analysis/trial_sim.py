@@ -20,7 +20,8 @@ in-service one runs each day a timetable drawn as the fleet data's
 (:func:`~trainclimate.data.fleetlogs.draw_service_day`). Both coaches share weather and
 operation. The scenario's controller settings and HVAC options apply
 (:func:`~trainclimate.analysis.experiment.setup_for`), its one-off field events do not, and the
-solver's real-time budget is lifted (:data:`TRIAL_TIME_LIMIT_S`).
+solver's real-time budget lifted as in every offline simulation
+(:data:`~trainclimate.control.ocp.OFFLINE_TIME_LIMIT_S`).
 
 **Counting**, per plan: 30-min windows from the trial's start. A window counts where the
 activated coach ran under the layer throughout (regular mode, past the controller's warm-up) and
@@ -77,9 +78,6 @@ TRIAL_PLANS = ("fixed", "alternate", "randomized")
 LEAD_IN_MIN = 60.0
 #: Savings window. [min]
 WINDOW_MIN = 30.0
-#: The solver's time budget in a simulated trial: far above its solve times (≈ 0.1 ms), so how
-#: loaded the machine is cannot change a decision and a seed's numbers are reproducible. [s]
-TRIAL_TIME_LIMIT_S = 10.0
 #: Simulator step. [s]
 SIM_DT_S = 10.0
 _STEPS_PER_WINDOW = round(WINDOW_MIN * 60.0 / SIM_DT_S)
@@ -488,9 +486,7 @@ def _fleet(
 ) -> tuple[FleetSimulator, ClosedLoop]:
     """The batch's simulator and closed loop: per trial, each plan's coach 0 and 1 under the
     plan, then coach 0 and 1 always on, then always off (``n_cols`` columns)."""
-    settings = dataclasses.replace(
-        setup_for(scenario.name).ocp_settings(), time_limit_s=TRIAL_TIME_LIMIT_S
-    )
+    settings = setup_for(scenario.name).ocp_settings()
     env = Environment.side_by_side([t.env for t in trials for _ in range(n_cols)])
     sim = _TrialFleet(
         [p for t in trials for p in t.coaches * (n_cols // 2)],

@@ -55,6 +55,14 @@ from trainclimate.sim.setpoint import U_BAND_K
 OBJECTIVES = ("paper", "margin")
 
 
+#: The solver's time budget per step on a live coach (the tick's real-time bound). [s]
+REAL_TIME_LIMIT_S = 0.05
+#: The budget in offline simulations (experiments, studies, simulated trials): far above the
+#: solve times (≈ 0.1 ms), so how loaded the machine is cannot turn a step into a
+#: ``solver_timeout`` fallback, and a seed's numbers are the same on every run and machine. [s]
+OFFLINE_TIME_LIMIT_S = 10.0
+
+
 @dataclass(frozen=True)
 class OCPSettings:
     """Weights and bounds of the problem (paper, Eq. (4)–(9)).
@@ -99,7 +107,7 @@ class OCPSettings:
     t_max: float = 1.0
     du_max: float = 0.5
     u_band: float = U_BAND_K
-    time_limit_s: float = 0.05
+    time_limit_s: float = REAL_TIME_LIMIT_S
     objective: str = "paper"
     margin_k: float = 0.25
     margin_weight: float = 100.0

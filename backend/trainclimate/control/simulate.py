@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick_summary
-from trainclimate.control.ocp import OCPSettings
+from trainclimate.control.ocp import OFFLINE_TIME_LIMIT_S, OCPSettings
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.params import CoachParams
@@ -99,7 +99,7 @@ def run_simulation(
     env, params = scenarios.build(
         spec, n_coaches=coaches, hours=hours, weather=weather, base_params=base_params
     )
-    settings = OCPSettings(objective=objective)
+    settings = OCPSettings(objective=objective, time_limit_s=OFFLINE_TIME_LIMIT_S)
     controllers = build_controllers(controller, env.n_coaches, predictor, settings)
     sim = FleetSimulator(params, env, seed=spec.seed, record_flows=record_flows)
     loop = ClosedLoop(

@@ -30,7 +30,7 @@ import psutil
 
 from trainclimate.analysis.kpi import violation_k
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers
-from trainclimate.control.ocp import OCPSettings
+from trainclimate.control.ocp import OFFLINE_TIME_LIMIT_S, OCPSettings
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import hvac
 from trainclimate.sim.power import HEADLINE_METER, METERS
@@ -126,7 +126,10 @@ def run_chunk(
     n = len(coaches)
     loop_controllers = {
         kind: build_controllers(
-            kind, n, predictor if kind == "ddpc" else None, OCPSettings(objective=spec.objective)
+            kind,
+            n,
+            predictor if kind == "ddpc" else None,
+            OCPSettings(objective=spec.objective, time_limit_s=OFFLINE_TIME_LIMIT_S),
         )
         for kind in spec.controllers
         if kind != "rule"
