@@ -49,6 +49,13 @@ def settings(db_url, model_file) -> Settings:
 
 
 @pytest.fixture
+def sleeping_settings(db_url, model_file) -> Settings:
+    """As :func:`settings`, but the app's live loop runs once at start and then sleeps for an
+    hour: the setpoints are the test's, and no tick lands between two of its requests."""
+    return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=3600)
+
+
+@pytest.fixture
 def client(settings):
     """The app, started (migrations, model, loops) and stopped around the test."""
     with TestClient(create_app(settings)) as c:

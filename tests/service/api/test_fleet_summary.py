@@ -19,6 +19,7 @@ from service_support import (
     register,
     shared_coach_model,  # noqa: F401  (autouse)
 )
+from trainclimate.service.settings import Settings
 from trainclimate.service.store import fleet_summary, queries
 
 FIGURES = (
@@ -27,6 +28,13 @@ FIGURES = (
     "energy_deactivated_kwh",
     "excluded_minutes",
 )
+
+
+@pytest.fixture
+def settings(sleeping_settings) -> Settings:
+    """The setpoints are the test's (:func:`decided`): no tick of the live loop lands between
+    two summaries."""
+    return sleeping_settings
 
 
 def _rows(first: int, last: int, **by_minute) -> list[dict]:

@@ -24,12 +24,10 @@ from trainclimate.service.store.models import AuditLog, Setpoint
 
 
 @pytest.fixture
-def settings(db_url, model_file) -> Settings:
-    """The live loop runs once at start and then sleeps: the ticks are the test's. Two
-    consecutive days with the interval below 0 trip the guard."""
-    return Settings(
-        database_url=db_url, predictor_path=model_file, scheduler_interval_s=3600, guard_days=2
-    )
+def settings(sleeping_settings) -> Settings:
+    """The ticks are the test's. Two consecutive days with the interval below 0 trip the
+    guard."""
+    return sleeping_settings.model_copy(update={"guard_days": 2})
 
 
 def tick(client, op, scheduler: Scheduler, minute: int) -> dict[str, tuple[str, str]]:

@@ -22,9 +22,9 @@ from trainclimate.service.settings import Settings
 
 
 @pytest.fixture
-def settings(db_url, model_file) -> Settings:
-    """The app's live loop runs once at start and then sleeps: the setpoints are the test's."""
-    return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=3600)
+def settings(sleeping_settings) -> Settings:
+    """The setpoints are the test's."""
+    return sleeping_settings
 
 
 def test_a_crossover_cancels_the_coaches_difference(client, tokens):
