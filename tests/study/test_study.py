@@ -325,3 +325,46 @@ def test_a_twin_validated_for_summer_warns_in_a_january_study(predictor_file, ca
     code, out, err = call(capsys, *argv)
     assert code == 2 and out == "" and len(err.splitlines()) == 1
     assert "--fleet: coach 124A: validated_t_amb_c must be [low, high]" in err
+
+
+def test_the_twin_at_its_intervals_ends_gives_the_savings_range(predictor_file, capsys, tmp_path):
+    """A twin calibrated with the envelope 1.2 [1.1, 1.3] and the fans without an interval:
+    ``--twin-ends`` runs the study again with the envelope at 1.1 and at 1.3 (the fans as
+    calibrated), the same seed and weather; the range spans every run's saving, the twin's own
+    among them, and a leakier envelope costs more energy on both controllers."""
+    twin = {
+        **CoachParams().to_dict(),
+        "twin": {
+            "coach": "124A",
+            "validated_t_amb_c": [-10.0, 30.0],
+            "fitted": {
+                "envelope_scale": {"value": 1.2, "std": 0.01, "ci95": [1.1, 1.3], "unit": "–"},
+                "fan_supply_w": {"value": 1100.0, "std": 20.0, "unit": "W"},
+            },
+            "not_identified": [],
+            "warnings": [],
+        },
+    }
+    file = tmp_path / "twin.json"
+    file.write_text(json.dumps(twin))
+    argv = study_argv(predictor_file, tmp_path / "out", "--workers", "1", "--coach-params",
+                      str(file), "--twin-ends")  # fmt: skip
+    argv[argv.index("--coaches") + 1] = "2"
+    argv[argv.index("--days") + 1] = "1"
+    d = run_cli(capsys, argv)
+    ends = d["twin_ends"]
+    assert ends["without_interval"] == ["fan_supply_w"]
+    assert [(r["param"], r["end"], r["value"]) for r in ends["runs"]] == [
+        ("envelope_scale", "low", 1.1),
+        ("envelope_scale", "high", 1.3),
+    ]
+    savings = [r["savings_pct"] for r in ends["runs"]] + [d["savings_pct"]]
+    assert ends["savings_pct"] == [min(savings), max(savings)]
+    low, high = ends["runs"]
+    for key in ("energy_rule_kwh", "energy_ddpc_kwh"):
+        assert low[key] < d[key] < high[key], key
+    assert all(Path(r["out"], "study.json").is_file() for r in ends["runs"])
+    # without a twin's file: one line, exit 2
+    argv = study_argv(predictor_file, tmp_path / "none", "--twin-ends")
+    code, out, err = call(capsys, *argv)
+    assert code == 2 and out == "" and "--twin-ends needs --coach-params" in err

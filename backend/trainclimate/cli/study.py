@@ -88,6 +88,59 @@ def _range_warnings(args: argparse.Namespace, weather, spec) -> list[str]:
     return [w for w in found if w]
 
 
+def _twin_record(args: argparse.Namespace) -> dict:
+    """The calibration's record in ``--coach-params`` (what ``--twin-ends`` varies)."""
+    from trainclimate.sim.params import TWIN_KEY
+
+    if args.fleet or not args.coach_params:
+        raise UsageError(
+            "--twin-ends needs --coach-params: a twin's file written by calibrate --out"
+        )
+    record = json.loads(Path(args.coach_params).read_text()).get(TWIN_KEY)
+    if record is None:
+        raise UsageError(
+            f"--twin-ends: {args.coach_params} carries no calibration (calibrate --out writes one)"
+        )
+    return record
+
+
+def _twin_ends(args, spec, record: dict, weather, predictor, savings_pct: float) -> dict:
+    """``--twin-ends``: the study again with each fitted knob of the twin at each end of its
+    95 % interval, the others as calibrated (one at a time, the same seed and weather), under
+    ``<out>/twin-ends/<knob>-<low|high>`` (resumable as the study is). Returns the savings'
+    range over those runs and the twin's own, and each run's figures."""
+    from trainclimate.sim import twin
+    from trainclimate.sim.params import CoachParams, ParamsError, load_params
+    from trainclimate.study.runner import read_chunks, run_study
+    from trainclimate.study.summary import summarise
+
+    try:
+        ends, without = twin.interval_ends(record)
+    except ParamsError as exc:
+        raise UsageError(f"--twin-ends: {exc}") from None
+    base = load_params(args.coach_params)
+    runs = []
+    for knob, value, side, end in ends:
+        try:  # the end must still be a plausible coach
+            varied = CoachParams.from_dict(twin.at_end(base, knob, value, end).to_dict()).to_dict()
+        except ParamsError as exc:
+            raise UsageError(f"--twin-ends: {knob} at {end:g}: {exc}") from None
+        variant = dataclasses.replace(spec, coach_params=(varied,) * spec.n_coaches)
+        where = Path(args.out) / "twin-ends" / f"{knob}-{side}"
+        where.mkdir(parents=True, exist_ok=True)
+        run_study(variant, where, weather=weather, predictor=predictor,
+                  scheduler=args.scheduler, workers=args.workers)  # fmt: skip
+        figures = summarise(read_chunks(variant, where), variant)
+        kept = {k: figures[k] for k in ("savings_pct", "energy_rule_kwh", "energy_ddpc_kwh")}
+        runs.append({"param": knob, "end": side, "value": end, **kept, "out": str(where)})
+    found = [r["savings_pct"] for r in runs if r["savings_pct"] is not None] + [savings_pct]
+    return {
+        "savings_pct": [min(found), max(found)],
+        "runs": runs,
+        "without_interval": without,
+    }
+
+
 def spec_from_args(args: argparse.Namespace):
     """The :class:`~trainclimate.study.plan.StudySpec` the command's arguments ask for."""
     from trainclimate.sim.params import CoachParams, load_params
@@ -146,6 +199,7 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
     except StudyError as exc:
         raise UsageError(str(exc)) from None
     warnings = _range_warnings(args, weather, spec)
+    record = _twin_record(args) if args.twin_ends else None
     out = out_dir(args.out, "the study's results")
     html = None
     if args.html is not None:  # checked before any work, its directory created
@@ -200,6 +254,8 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
         },
         out=str(out),
     )
+    if record is not None:
+        data["twin_ends"] = _twin_ends(args, spec, record, weather, predictor, data["savings_pct"])
     warn(data, warnings)
     (out / "summary.json").write_text(json.dumps(data, indent=1) + "\n")
     if html is not None:
@@ -221,6 +277,13 @@ def _text(d: dict) -> str:
         if "edge_savings_pct" in d
         else ""
     )
+    ends = d.get("twin_ends")
+    ends_text = (
+        f"\nthe twin at its intervals' ends ({len(ends['runs'])} runs): savings "
+        f"{ends['savings_pct'][0]:.2f} to {ends['savings_pct'][1]:.2f} %"
+        if ends
+        else ""
+    )
     return (
         f"{d['coach_days']} coach-days ({d['coaches']} coaches × {d['days']} days, "
         f"{d['study']['forecast']} forecast): rule-based "
@@ -232,6 +295,7 @@ def _text(d: dict) -> str:
         f"average hourly violation {d['avg_hourly_violation_k']:.4f} K (rule-based "
         f"{d['avg_hourly_violation_rule_k']:.4f} K)\n"
         f"chunks: {d['chunks']} ({d['chunks_skipped']} already done); results in {d['out']}"
+        + ends_text
         + (f"\nreport written: {d['html']}" if "html" in d else "")
     )
 
@@ -251,6 +315,9 @@ def register(sub) -> None:
     p.add_argument("--coaches", type=int, default=None, help="fleet size (default 8)")
     p.add_argument("--fleet", default=None, help="fleet file: calibrate --json output")
     p.add_argument("--coach-params", default=None, help="the --coaches' parameter file")
+    p.add_argument("--twin-ends", action="store_true",
+                   help="run again with each fitted knob of the --coach-params twin at each end of "
+                   "its 95 %% interval: the savings' sensitivity to the twin")  # fmt: skip
     p.add_argument("--start", default="2025-01-01", help="first local day (default 2025-01-01)")
     p.add_argument("--days", type=int, default=7, help="number of days (default 7)")
     p.add_argument("--weather", default=None, help="weather CSV (time,t_amb_c,ghi_w_m2)")

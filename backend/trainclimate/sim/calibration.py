@@ -131,6 +131,10 @@ BAND_K, MIN_BAND_MINUTES, VALID_ENERGY_PCT = 5.0, 60, 5.0
 _OUTER = np.array([[True, False, False], [True, False, True], [False, False, True]])
 
 
+#: The calibrated quantities set to their value; the others are scales of the base parameters.
+QUANTITIES = ("fan_supply_w", "fresh_air_base_fraction")
+
+
 def apply(base: CoachParams, values: dict[str, float]) -> CoachParams:
     """``base`` with the calibrated quantities ``values`` (name → value, :data:`CALIBRATED`)."""
     changes: dict[str, object] = {}
@@ -147,7 +151,7 @@ def apply(base: CoachParams, values: dict[str, float]) -> CoachParams:
         elif name == "cop_level":
             for field in ("cop_a", "cop_b", "cop_min", "cop_max", "cop_carnot_efficiency"):
                 changes[field] = getattr(base, field) * v
-        elif name in ("fan_supply_w", "fresh_air_base_fraction"):
+        elif name in QUANTITIES:
             changes[name] = float(v)
         else:
             raise CalibrationError(f"unknown calibration parameter {name!r}")
@@ -156,9 +160,7 @@ def apply(base: CoachParams, values: dict[str, float]) -> CoachParams:
 
 def nominal(base: CoachParams, name: str) -> float:
     """The value of calibrated quantity ``name`` in ``base`` (scales: 1)."""
-    return (
-        float(getattr(base, name)) if name in ("fan_supply_w", "fresh_air_base_fraction") else 1.0
-    )
+    return float(getattr(base, name)) if name in QUANTITIES else 1.0
 
 
 # --- replay -----------------------------------------------------------------------------------

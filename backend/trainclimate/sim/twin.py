@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainclimate.sim.params import TWIN_KEY, ParamsError
+from trainclimate.sim.params import TWIN_KEY, CoachParams, ParamsError
 
 #: The calibration's record kept beside the parameters in a twin's coach-params file.
 RECORD = ("coach", "validated_t_amb_c", "fitted", "not_identified", "warnings")
@@ -88,6 +88,44 @@ def range_warning(validated: list[float] | None, t_amb_c: np.ndarray, what: str)
         f"{low:g} to {high:g} °C for {100 * outside:.0f} % of the time: its results there are "
         "extrapolated"
     )
+
+
+def interval_ends(record: object) -> tuple[list[tuple[str, float, str, float]], list[str]]:
+    """The ends of the 95 % intervals of a calibration's ``record`` (a ``"twin"`` object):
+    ``[(knob, fitted value, "low" or "high", end)]``, and the fitted knobs without an interval
+    (no bootstrap, one training day).
+
+    Raises
+    ------
+    ParamsError
+        If ``record`` carries no ``fitted`` knobs, or an interval is not two finite values.
+    """
+    fitted = record.get("fitted") if isinstance(record, dict) else None
+    if not isinstance(fitted, dict) or not fitted:
+        raise ParamsError("the coach-params file carries no calibration's fitted values")
+    ends, without = [], []
+    for knob, f in fitted.items():
+        ci = f.get("ci95") if isinstance(f, dict) else None
+        if ci is None:
+            without.append(knob)
+            continue
+        if not (isinstance(ci, list) and len(ci) == 2 and np.isfinite(ci).all()):
+            raise ParamsError(f"fitted {knob}: ci95 must be [low, high], got {ci!r}")
+        ends += [(knob, float(f["value"]), "low", float(ci[0]))]
+        ends += [(knob, float(f["value"]), "high", float(ci[1]))]
+    return ends, without
+
+
+def at_end(params: CoachParams, knob: str, value: float, end: float) -> CoachParams:
+    """The twin ``params`` (calibrated with ``knob`` = ``value``) with ``knob`` moved to
+    ``end`` of its interval, every other parameter as calibrated: a scale (envelope, COP level,
+    …) multiplies by ``end / value``, a quantity (the fans' power, the fresh-air fraction) is
+    set to ``end``."""
+    from trainclimate.sim import calibration
+
+    if knob in calibration.QUANTITIES:
+        return calibration.apply(params, {knob: end})
+    return calibration.apply(params, {knob: end / value})
 
 
 def scenario_t_amb(name: str, hours: float | None = None) -> np.ndarray:
