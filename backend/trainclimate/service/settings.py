@@ -12,6 +12,7 @@ from typing import Annotated
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from trainclimate import resources
 from trainclimate.analysis.guard import GUARD_DAYS, MIN_GUARD_DAYS
 from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
@@ -117,9 +118,7 @@ class Settings(BaseSettings):
     cors_origins: list[str] = Field(default_factory=list)
     predictor_path: Path | None = None
     scheduler_interval_s: float = 0.5
-    frontend_dir: Path = Field(
-        default_factory=lambda: Path(__file__).resolve().parents[3] / "frontend"
-    )
+    frontend_dir: Path = Field(default_factory=resources.frontend_dir)
     max_body_bytes: int = Field(default=MAX_BODY_BYTES, gt=0)
     backfill_horizon_days: float = Field(
         default=BACKFILL_HORIZON_DAYS, gt=0, le=MAX_BACKFILL_HORIZON_DAYS
