@@ -82,6 +82,8 @@ def test_the_compose_file_names_what_exists():
         "mosquitto",
         "backend",
         "gateway-token",
+        "metrics-token",
+        "prometheus",
         *GATEWAYS,
     }
     assert len(GATEWAYS) == 3

@@ -241,7 +241,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.add_middleware(ProxyHeadersMiddleware, trusted_hosts=settings.forwarded_allow_ips)
     # outermost: the request id on every answer and in the log lines, the metrics of every answer
     app.state.metrics = metrics.Metrics(settings.replica_name)
-    app.state.metrics_refresher = metrics.install(app.state.metrics, app.state).refresher
+    refresher = metrics.Refresher(settings.metrics_refresh_s)
+    app.state.metrics_refresher = metrics.install(app.state.metrics, app.state, refresher).refresher
     app.add_middleware(Observe, metrics=app.state.metrics)
     if (settings.frontend_dir / "index.html").exists():
         # Plotly.js from the installed plotly package: the dashboard needs no CDN and no build

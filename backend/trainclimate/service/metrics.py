@@ -66,7 +66,8 @@ log = logging.getLogger(__name__)
 # no ``_created`` series beside every counter (the process's start says as much)
 disable_created_metrics()
 
-#: The model's online MAE and the count of live coaches are refreshed at most this often. [s]
+#: The model's online MAE and the count of live coaches are refreshed at most this often by
+#: default (the setting ``metrics_refresh_s``). [s]
 REFRESH_S = 60.0
 #: The window of the online MAE in the metrics (the data's clock). [h]
 MAE_WINDOW_H = 1.0

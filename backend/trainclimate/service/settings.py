@@ -104,7 +104,9 @@ class Settings(BaseSettings):
     periods of its fleet's clock in wall time, at least :data:`LOOP_READY_MIN_S`);
     ``guard_days`` (``--guard-days``) on how many consecutive service days a pair's trial must
     say the layer costs energy (95 % interval below 0) before its guard hands the pair back to
-    T_rule (:mod:`trainclimate.service.store.guard`; at least 1)."""
+    T_rule (:mod:`trainclimate.service.store.guard`; at least 1); ``metrics_refresh_s`` how often
+    at most the metrics' figures that need a query (the model's online MAE, the live coaches) are
+    refreshed (:mod:`trainclimate.service.metrics`)."""
 
     model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
 
@@ -143,6 +145,7 @@ class Settings(BaseSettings):
     )
     loop_ready_s: float | None = Field(default=None, gt=0)
     guard_days: int = Field(default=GUARD_DAYS, ge=MIN_GUARD_DAYS)
+    metrics_refresh_s: float = Field(default=60.0, gt=0)
 
     @field_validator("fleet")
     @classmethod
