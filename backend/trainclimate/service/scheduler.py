@@ -349,6 +349,7 @@ class Scheduler:
                     "activates" if active else "deactivates",
                     coach.id,
                     day.day,
+                    extra={"coach": coach.id},  # the line's coach (--log-format json)
                 )
         return stored, days, pairs
 
