@@ -191,3 +191,30 @@ def test_serve_log_format_json_writes_only_json_lines(servers, proc_env, tmp_pat
     loggers = {x["logger"] for x in lines}
     assert {"uvicorn.error", "uvicorn.access", "trainclimate.serve"} <= loggers, loggers
     assert any(x["message"].startswith("serving on http://") for x in lines)
+
+
+def test_an_error_no_handler_answers_is_a_500_with_its_request_id_and_counted():
+    """The middleware on a bare Starlette app whose route fails: the 500 carries the request id
+    and is counted, and the error still reaches the server."""
+    from starlette.applications import Starlette
+    from starlette.middleware import Middleware
+    from starlette.routing import Route
+    from starlette.testclient import TestClient
+
+    from trainclimate.service.api.observe import Observe
+    from trainclimate.service.metrics import Metrics
+
+    def fail(_request):
+        raise RuntimeError("a bug")
+
+    metrics = Metrics("r")
+    app = Starlette(
+        routes=[Route("/fail", fail)], middleware=[Middleware(Observe, metrics=metrics)]
+    )
+    with TestClient(app, raise_server_exceptions=False) as client:
+        reply = client.get("/fail", headers={"X-Request-ID": "err-1"})
+    assert reply.status_code == 500 and reply.headers["x-request-id"] == "err-1"
+    assert reply.json() == {"detail": "Internal Server Error"}
+    assert metrics.snapshot()["responses"] == {500: 1}
+    with TestClient(app) as client, pytest.raises(RuntimeError, match="a bug"):
+        client.get("/fail")

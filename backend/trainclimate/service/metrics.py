@@ -87,6 +87,8 @@ REFUSAL_REASONS = {
     503: "unavailable",
 }
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
+#: The HTTP live feed's push, whose refusals are counted by reason.
+TELEMETRY_PATH = "/api/v1/telemetry"
 
 
 class Metrics:
@@ -175,7 +177,7 @@ class Metrics:
             self._responses[status] += 1
             if status == 401 and had_token:
                 self._auth_failures += 1
-            if path.endswith("/telemetry") and status in REFUSAL_REASONS:
+            if path == TELEMETRY_PATH and status in REFUSAL_REASONS:
                 self._refused[("http", REFUSAL_REASONS[status])] += 1
 
     def telemetry_stored(self, transport: str, stored: int, duplicates: int) -> None:

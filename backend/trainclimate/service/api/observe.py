@@ -11,6 +11,7 @@ import time
 import uuid
 
 from starlette.datastructures import Headers, MutableHeaders
+from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from trainclimate.service.logs import request_id
@@ -47,18 +48,25 @@ class Observe:
         rid = valid_request_id(headers.get(HEADER)) or new_request_id()
         scope.setdefault("state", {})["request_id"] = rid
         started = time.perf_counter()
-        status = 500
+        status, answered = 500, False
 
         async def observed_send(message: Message) -> None:
-            nonlocal status
+            nonlocal status, answered
             if message["type"] == "http.response.start":
-                status = message["status"]
+                status, answered = message["status"], True
                 MutableHeaders(scope=message)[HEADER] = rid
             await send(message)
 
         token = request_id.set(rid)
         try:
             await self.app(scope, receive, observed_send)
+        except Exception:
+            # an error no handler answered: the 500 is sent here, with the request id (Starlette's
+            # outermost handler sees the answer started and leaves it; the server logs the error)
+            if not answered:
+                reply = JSONResponse({"detail": "Internal Server Error"}, status_code=500)
+                await reply(scope, receive, observed_send)
+            raise
         finally:
             request_id.reset(token)
             self.metrics.answered(
