@@ -253,3 +253,64 @@ def test_a_scrape_runs_no_query_but_the_token_check_whatever_the_fleet(client):
         event.remove(engine, "before_cursor_execute", record)
     assert len(small) == len(large) == 1, small  # the token's
     assert not [q for q in small + large if "setpoints" in q or "telemetry" in q]
+
+
+def test_the_mqtt_feed_s_state_and_counts(db_url, model_file, tmp_path):
+    """A private Mosquitto configured as the compose broker: a batch stored, a malformed
+    message dropped, then the broker killed — the metrics follow."""
+    import json as jsonlib
+
+    from service_processes import Mosquitto
+    from trainclimate.service.adapters.mqtt import Broker
+    from trainclimate.service.store import commands
+    from trainclimate.service.store.telemetry import to_wire
+    from trainclimate.service.store.tokens import Principal
+
+    users = {"trainclimate-service": "svc-pw", "gateway-126": "gw-pw"}
+    mosquitto = Mosquitto(tmp_path / "mqtt", users)
+    settings = Settings(
+        database_url=db_url,
+        predictor_path=model_file,
+        scheduler_interval_s=0.05,
+        replica_name=REPLICA,
+        mqtt_url=mosquitto.url,
+        mqtt_username="trainclimate-service",
+        mqtt_password="svc-pw",
+    )
+    try:
+        with TestClient(create_app(settings)) as client:
+            headers = make_tokens(client.app, "metrics")
+            with client.app.state.db.transaction() as s:
+                commands.register_coach(s, Principal("t", "admin"), "126-A", "126", True)
+                gateway, _ = create_token(s, "gateway", "gw-126", ["126-A"])
+            bridge = client.app.state.mqtt
+            wait_for(lambda: bridge.status.connected, 15, "the bridge's connection")
+            broker = Broker.from_url(mosquitto.url, username="gateway-126", password="gw-pw")
+            publisher = broker.client("metrics-test-gateway")
+            publisher.connect(broker.host, broker.port)
+            publisher.loop_start()
+            topic = broker.topic("126-A", "telemetry")
+            rows = [to_wire(r) for r in flat_rows(0, 5)]
+            for body in (jsonlib.dumps({"token": gateway, "rows": rows}), "{not json"):
+                publisher.publish(topic, body, qos=1).wait_for_publish(5)
+            publisher.disconnect()
+            publisher.loop_stop()
+            wait_for(lambda: bridge.status.messages == 2, 15, "both messages handled")
+            samples = scrape(client, headers["metrics"])
+            assert value(samples, "trainclimate_mqtt_connected") == 1
+            assert value(samples, "trainclimate_mqtt_connections_total") == 1
+            assert (
+                value(samples, "trainclimate_mqtt_messages_total", outcome="stored", reason="") == 1
+            )
+            dropped = {"outcome": "dropped", "reason": "malformed_json"}
+            assert value(samples, "trainclimate_mqtt_messages_total", **dropped) == 1
+            stored = {"transport": "mqtt", "outcome": "stored"}
+            assert value(samples, "trainclimate_telemetry_rows_total", **stored) == 6
+            refused = {"transport": "mqtt", "reason": "malformed_json"}
+            assert value(samples, "trainclimate_telemetry_refused_total", **refused) == 1
+            assert value(samples, "trainclimate_telemetry_last_row_timestamp_seconds") > 0
+            mosquitto.kill()
+            wait_for(lambda: not bridge.status.connected, 15, "the bridge to see the broker gone")
+            assert value(scrape(client, headers["metrics"]), "trainclimate_mqtt_connected") == 0
+    finally:
+        mosquitto.stop()
