@@ -44,11 +44,10 @@ PACKAGED = [
 ]
 
 
-@pytest.fixture(scope="module")
-def dist(tmp_path_factory) -> dict[str, Path]:
+def build(out: Path) -> dict[str, Path]:
     """``python -m build`` of the checkout (sdist, then the wheel from it; no isolation: the
-    test environment's setuptools)."""
-    out = tmp_path_factory.mktemp("dist")
+    test environment's setuptools) into ``out``: one test does it, so that two workers of
+    the suite never build in the same checkout at once."""
     done = subprocess.run(
         [sys.executable, "-m", "build", "--no-isolation", "--outdir", str(out), str(ROOT)],
         capture_output=True,
@@ -61,7 +60,8 @@ def dist(tmp_path_factory) -> dict[str, Path]:
     return {"wheel": wheel, "sdist": sdist}
 
 
-def test_the_wheel_and_the_sdist_carry_the_migrations_and_the_dashboard(dist):
+def check_contents(dist: dict[str, Path]) -> None:
+    """The wheel and the sdist hold the migrations and the dashboard's files as files."""
     with zipfile.ZipFile(dist["wheel"]) as whl:
         names = set(whl.namelist())
     assert {f"trainclimate/{p}" for p in PACKAGED} <= names
@@ -95,7 +95,11 @@ def fresh_venv(where: Path, wheel: Path) -> Path:
     return where / "bin"
 
 
-def test_the_wheel_installed_elsewhere_serves_the_demo(dist, tmp_path, model_file):
+def test_the_wheel_and_sdist_carry_the_files_and_the_wheel_serves_the_demo_elsewhere(
+    tmp_path, model_file
+):
+    dist = build(tmp_path / "dist")
+    check_contents(dist)
     outside = tmp_path / "elsewhere"
     outside.mkdir()
     bin_dir = fresh_venv(outside / "venv", dist["wheel"])
