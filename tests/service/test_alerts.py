@@ -29,6 +29,7 @@ REQUIRED = {
     "TrainclimateLiveFeedDown",
     "TrainclimateCoachesStale",
     "TrainclimateTicksLate",
+    "TrainclimateTicksBehind",
     "TrainclimateTicksSkipped",
     "TrainclimateModelDrift",
     "TrainclimateDatabaseUnreachable",

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
+from datetime import UTC
 
 import pytest
 from fastapi.routing import APIRoute, iter_route_contexts
@@ -16,7 +17,7 @@ from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 from sqlalchemy import event, func, select
 
-from service_support import API, flat_rows, post_rows, register, wait_for
+from service_support import API, at, flat_rows, post_rows, register, wait_for
 from trainclimate.service.app import create_app
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.models import Coach, Setpoint, Train
@@ -110,6 +111,11 @@ def test_the_series_after_the_demo_ticks_match_the_database(demo):
     samples = scrape(demo, headers["metrics"])
     assert ticks > 5 and by_source.get("ddpc", 0) > 0
     assert value(samples, "trainclimate_ticks_total", fleet="demo") == ticks
+    with demo.app.state.db.sessions() as s:
+        newest = s.scalar(select(func.max(Setpoint.tick)))
+    newest = newest if newest.tzinfo else newest.replace(tzinfo=UTC)
+    last = value(samples, "trainclimate_last_tick_timestamp_seconds", fleet="demo")
+    assert last == newest.timestamp()
     assert value(samples, "trainclimate_tick_duration_seconds_count", fleet="demo") == ticks
     assert 0 < value(samples, "trainclimate_tick_duration_seconds_sum", fleet="demo") < ticks * 5
     assert {
@@ -173,6 +179,8 @@ def test_answers_failures_throttling_and_telemetry_are_counted(client):
     codes = [client.get(f"{API}/coaches", headers=bad).status_code for _ in range(4)]
     assert codes == [401, 401, 401, 429]
     client.app.state.metrics_refresher.refresh(client.app.state.db, client.app.state.settings)
+    clock = client.app.state.metrics.clock
+    wait_for(lambda: clock.get("live") == at(9).timestamp(), 10, "the live loop to read the clock")
     before = time.time()
     samples = scrape(client, headers["metrics"])
     rows_taken = series(samples, "trainclimate_telemetry_rows_total")
@@ -194,6 +202,10 @@ def test_answers_failures_throttling_and_telemetry_are_counted(client):
         <= (time.time())
     )
     assert value(samples, "trainclimate_live_coaches") == 1
+    live = {"fleet": "live"}
+    assert value(samples, "trainclimate_fleet_clock_timestamp_seconds", **live) == at(9).timestamp()
+    # the live loop issued the tick at or before the newest row (the row at 9 min is its minute)
+    assert value(samples, "trainclimate_last_tick_timestamp_seconds", **live) == at(5).timestamp()
     assert value(samples, "trainclimate_auth_failures_total") == 3
     assert value(samples, "trainclimate_auth_throttled_total") == 1
     assert value(samples, "trainclimate_http_responses_total", code="429") == 1

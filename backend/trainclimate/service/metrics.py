@@ -19,7 +19,10 @@ Series (all with ``replica``; ``_total`` counters):
   {fleet,cause}`` (``behind``: coach periods left out because the service was down or behind the
   live clock; ``database_unavailable``, ``error``: live-loop iterations that failed),
   ``trainclimate_setpoints_total{fleet,source}``, ``trainclimate_coaches{fleet,source,reason}``
-  (each coach by the latest decision this replica made for it);
+  (each coach by the latest decision this replica made for it),
+  ``trainclimate_last_tick_timestamp_seconds{fleet}`` (the newest tick issued here) and
+  ``trainclimate_fleet_clock_timestamp_seconds{fleet}`` (the live clock as the loop last read it:
+  the newest telemetry; Unix time of the data's clock, s);
 - ``trainclimate_telemetry_rows_total{transport,outcome}`` (``stored``, ``duplicate``),
   ``trainclimate_telemetry_refused_total{transport,reason}`` (HTTP batches by the status
   refusing them, MQTT messages by the drop reason), ``trainclimate_telemetry_refused_rows_total
@@ -135,10 +138,17 @@ class Metrics:
         self.last_row_at: float | None = None
         #: whether the live loop's last iteration reached the database (None: not yet run)
         self.database_up: bool | None = None
+        #: fleet → its newest tick issued here, and → its clock as the loop last read it (Unix
+        #: time of the data's clock, s)
+        self.last_tick: dict[str, float] = {}
+        self.clock: dict[str, float] = {}
 
     # --- the ticks (the scheduler) ---------------------------------------------------------
-    def tick(self, fleet: str, seconds: float) -> None:
-        """One tick issued to ``fleet`` (to at least one coach) in ``seconds`` (s, wall time)."""
+    def tick(self, fleet: str, seconds: float, at: float | None = None) -> None:
+        """One tick issued to ``fleet`` (to at least one coach) in ``seconds`` (s, wall time);
+        ``at`` the tick (Unix time of the data's clock, s)."""
+        if at is not None:
+            self.last_tick[fleet] = max(at, self.last_tick.get(fleet, at))
         self._ticks.labels(self.replica, fleet).inc()
         self._tick_seconds.labels(self.replica, fleet).observe(seconds)
 
@@ -289,6 +299,14 @@ class StateCollector:
         for (fleet, source, reason), n in sorted(self.metrics.coaches().items()):
             coaches.add_metric([self.metrics.replica, fleet, source, reason], n)
         yield coaches
+        for name, doc, values in (
+            ("last_tick", "The newest tick issued here (data clock)", self.metrics.last_tick),
+            ("fleet_clock", "The fleet's clock as the loop last read it", self.metrics.clock),
+        ):
+            family = self._gauge(f"trainclimate_{name}_timestamp_seconds", doc, ["fleet"])
+            for fleet, at in sorted(dict(values).items()):
+                family.add_metric([self.metrics.replica, fleet], at)
+            yield family
 
     def _http(self):
         replica, tallies = self.metrics.replica, self.metrics.snapshot()

@@ -228,7 +228,7 @@ class Scheduler:
                 continue
             if n == 0:
                 if issued:
-                    self.metrics.tick(fleet, time.perf_counter() - started)
+                    self.metrics.tick(fleet, time.perf_counter() - started, tick.timestamp())
                 return issued
             issued += n
 
@@ -374,6 +374,7 @@ class Scheduler:
             now = self.live_clock(session)
         if now is None:
             return 0
+        self.metrics.clock["live"] = now.timestamp()
         tick = floor_tick(now, self.period)
         return self.tick_fleet("live", tick, reported_only=now < tick + self.live_grace)
 
