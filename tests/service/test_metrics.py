@@ -79,10 +79,10 @@ def demo(db_url, model_file):
         wait_for(ddpc, 90, "the first DDPC setpoints")
         time.sleep(1.0)  # a few predictions with what followed them
         client.app.state.stop.set()
-        ticks = client.app.state.metrics._ticks.labels(REPLICA, "demo")
-        previous = -1.0
-        while ticks._value.get() != previous:  # the demo loop's last tick is done
-            previous = ticks._value.get()
+        last_tick = client.app.state.metrics.last_tick
+        previous = None
+        while last_tick.get("demo") != previous:  # the demo loop's last tick is done
+            previous = last_tick.get("demo")
             time.sleep(0.5)
         yield client
 

@@ -1,5 +1,5 @@
-"""``GET /metrics``: the service's Prometheus metrics (:mod:`trainclimate.service.metrics`), for a
-``metrics`` token (a scraper's: it reads nothing else) or a viewer's and above."""
+"""``GET /api/v1/metrics``: the service's Prometheus metrics (:mod:`trainclimate.service.
+metrics`), for a ``metrics`` token (a scraper's: it reads nothing else) or a viewer's and above."""
 
 from __future__ import annotations
 
