@@ -23,7 +23,7 @@ def test_the_service_benchmark_runs_at_a_small_scale():
         fleet=20,
         progress=steps.append,
     )
-    assert steps == [1, 1, 1, 1]
+    assert steps == [1, 1, 1, 1, 1]
     i, c, t = d["ingest"], d["comparison"], d["fleet_tick"]
     assert d["target"]["fleet_tick_s"] == t["target_s"]
     summary_met = c["summary"]["large"]["p95_ms"] <= d["target"]["summary_p95_ms"]
@@ -43,9 +43,19 @@ def test_the_service_benchmark_runs_at_a_small_scale():
     assert t["baseline_reasons"] == t["reasons"]
     assert d["database"]["created"] and d["database"]["version"]
     assert d["model"] in ("small (fitted here)", "default (cached)")
+    # the metrics: their work in the tick of 20 coaches against it, requests with and without
+    m = d["metrics"]
+    assert m["tick"]["coaches"] == 20 and m["tick"]["tick_s"] == t["tick_s"]
+    assert m["tick"]["ratio"] == (t["tick_s"] + m["tick"]["metrics_s"]) / t["tick_s"] > 1
+    for route in ("health", "me"):
+        r = m[route]
+        assert r["with"]["median_ms"] > 0 and r["without"]["median_ms"] > 0
+        assert r["median_ratio"] == r["with"]["median_ms"] / r["without"]["median_ms"]
+    assert m["scrape"]["coaches"] == 20 and m["scrape"]["bytes"] > 1000
     lines = service.text(d).splitlines()
-    assert len(lines) == 4 and lines[2].startswith("24-h fleet summary of 2 trains")
+    assert len(lines) == 5 and lines[2].startswith("24-h fleet summary of 2 trains")
     assert lines[3].startswith("fleet tick of 20 coaches")
+    assert lines[4].startswith("metrics: ") and "a scrape at 20 coaches" in lines[4]
 
 
 def test_the_service_benchmark_needs_postgresql(capsys):

@@ -82,6 +82,8 @@ def test_the_compose_file_names_what_exists():
         "mosquitto",
         "backend",
         "gateway-token",
+        "metrics-token",
+        "prometheus",
         *GATEWAYS,
     }
     assert len(GATEWAYS) == 3
@@ -123,13 +125,20 @@ def test_the_compose_file_names_what_exists():
 
 def test_the_dockerfile_copies_what_exists_and_runs_a_valid_command():
     text = (ROOT / "Dockerfile").read_text()
-    copies = re.findall(r"^COPY (.+) \S+$", text, flags=re.MULTILINE)
+    copies = re.findall(r"^COPY (?!--from=)(.+) \S+$", text, flags=re.MULTILINE)
     sources = [s for line in copies for s in line.split()]
     assert {"requirements.lock", "pyproject.toml", "backend", "migrations", "frontend"} <= set(
         sources
     )
     for source in sources:
         assert (ROOT / source).exists(), source
+    # the image is the wheel's, built in the first stage: no source tree in the final stage
+    final = text.split("\nFROM ")[-1]
+    assert "COPY --from=wheel /dist" in final and "pip install --no-deps /tmp/dist/" in final
+    assert not re.search(r"^COPY (backend|migrations|frontend)", final, flags=re.MULTILINE)
+    assert "python -m build --wheel" in text and re.search(
+        r"^build==", (ROOT / "requirements.lock").read_text(), flags=re.MULTILINE
+    )
     [args] = dockerfile_exec("CMD")
     assert args[0] == "trainclimate"
     assert build_parser().parse_args(args[1:]).command == "serve"

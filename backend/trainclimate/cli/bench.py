@@ -55,7 +55,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
             data = predictor.run(scales, args.data, progress=bar.update)
         report(args, data, predictor.text)
     elif args.target == "service":
-        with progress_bar(4, "service benchmark", "stage") as bar:
+        with progress_bar(5, "service benchmark", "stage") as bar:
             try:
                 data = service.run(args.db, progress=bar.update)
             except service.ServiceBenchError as exc:

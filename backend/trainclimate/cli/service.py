@@ -32,6 +32,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
     from sqlalchemy.engine import make_url
 
     from trainclimate.analysis.guard import MIN_GUARD_DAYS
+    from trainclimate.service import logs
     from trainclimate.service.app import create_app
     from trainclimate.service.settings import (
         MAX_BACKFILL_HORIZON_DAYS,
@@ -103,10 +104,17 @@ def cmd_serve(args: argparse.Namespace) -> None:
     if args.new_token:
         token = _create_token(settings.database_url, args.new_token, f"demo-{args.new_token}")
     app = create_app(settings)
+    # text for a terminal, or one JSON object a line (uvicorn's lines too: it configures nothing)
+    log_config = logs.configure(args.log_format, args.log_level, settings.replica_name)
     # X-Forwarded-For only from the trusted proxies, which the app itself handles (create_app):
     # uvicorn's own handling, on by default, would trust 127.0.0.1
     config = uvicorn.Config(
-        app, host=args.host, port=args.port, log_level=args.log_level, proxy_headers=False
+        app,
+        host=args.host,
+        port=args.port,
+        log_level=args.log_level,
+        log_config=log_config,
+        proxy_headers=False,
     )
     server = uvicorn.Server(config)
 
@@ -156,7 +164,11 @@ def _announce(server, args: argparse.Namespace, stderr_lines: list[str], what) -
     if args.json:
         print(json.dumps(data), flush=True)
         return
-    print("\n".join(stderr_lines), file=sys.stderr, flush=True)
+    if args.log_format == "json":  # the log stream stays one JSON object a line
+        for line in stderr_lines:
+            logging.getLogger("trainclimate.serve").info(line.removeprefix("trainclimate: "))
+    else:
+        print("\n".join(stderr_lines), file=sys.stderr, flush=True)
     if data["token"]:
         print(f"dashboard: {data['dashboard']}\n{data['role']} token: {data['token']}", flush=True)
 
@@ -355,6 +367,13 @@ def register(sub) -> None:
     p.add_argument("--predictor", default=None, help="model file (default: the cached model)")
     p.add_argument("--log-level", default="warning")
     p.add_argument(
+        "--log-format",
+        choices=("text", "json"),
+        default="text",
+        help="text for a terminal (default), or one JSON object a line for a log store (time, "
+        "level, logger, message, replica, request_id, coach, tick)",
+    )
+    p.add_argument(
         "--new-token",
         choices=("viewer", "operator", "admin"),
         default=None,
@@ -407,7 +426,8 @@ def register(sub) -> None:
 
     tsub = add_group(sub, "token", "API tokens")
     p = add_command(tsub, "create", cmd_token_create, "create a token (shown once)")
-    p.add_argument("--role", required=True, choices=("gateway", "viewer", "operator", "admin"))
+    roles = ("metrics", "gateway", "viewer", "operator", "admin")
+    p.add_argument("--role", required=True, choices=roles)
     p.add_argument(
         "--coaches",
         default=None,

@@ -30,7 +30,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from trainclimate import __version__
-from trainclimate.service import api, docpages
+from trainclimate.service import api, docpages, metrics
 from trainclimate.service.adapters import demo
 from trainclimate.service.adapters.dynsec import BrokerClients, DynsecError
 from trainclimate.service.adapters.mqtt import Broker, MqttBridge
@@ -47,6 +47,7 @@ from trainclimate.service.api.hardening import (
     Slots,
     pace_threads,
 )
+from trainclimate.service.api.observe import Observe
 from trainclimate.service.api.retry import RetryConflicts, database_error
 from trainclimate.service.api.security import valid_authorization
 from trainclimate.service.preparation import ModelPreparation, has_model, register_predictor
@@ -90,7 +91,7 @@ async def lifespan(app: FastAPI):
             demo.register(session)
     preparation = ModelPreparation(db)
     preparation.start()
-    scheduler = Scheduler(db, settings)
+    scheduler = Scheduler(db, settings, app.state.metrics)
     app.state.db, app.state.scheduler, app.state.preparation = db, scheduler, preparation
     app.state.retrain = RetrainJob(db, settings.sampling_min)
     app.state.mqtt = mqtt_bridge(db, settings, app.state.backfill)
@@ -238,6 +239,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(SecurityHeaders)
     if settings.forwarded_allow_ips:
         app.add_middleware(ProxyHeadersMiddleware, trusted_hosts=settings.forwarded_allow_ips)
+    # outermost: the request id on every answer and in the log lines, the metrics of every answer
+    app.state.metrics = metrics.Metrics(settings.replica_name)
+    refresher = metrics.Refresher(settings.metrics_refresh_s)
+    app.state.metrics_refresher = metrics.install(app.state.metrics, app.state, refresher).refresher
+    app.add_middleware(Observe, metrics=app.state.metrics)
     if (settings.frontend_dir / "index.html").exists():
         # Plotly.js from the installed plotly package: the dashboard needs no CDN and no build
         app.add_api_route(

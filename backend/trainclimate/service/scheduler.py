@@ -53,7 +53,8 @@ from trainclimate.control import DDPCController, OCPSettings
 from trainclimate.control.coach_model import CoachModel
 from trainclimate.predict.artifact import load_predictor_bytes
 from trainclimate.predict.setting import RHO
-from trainclimate.service import policy
+from trainclimate.service import logs, policy
+from trainclimate.service.metrics import Metrics
 from trainclimate.service.policy import Decision
 from trainclimate.service.settings import LOOP_READY_MIN_S, Settings
 from trainclimate.service.store import guard, plans
@@ -81,8 +82,10 @@ def floor_tick(time: datetime, period: timedelta) -> datetime:
 class Scheduler:
     """Issues the ticks of every fleet (see the module docstring)."""
 
-    def __init__(self, db: Database, settings: Settings):
+    def __init__(self, db: Database, settings: Settings, metrics: Metrics | None = None):
         self.db = db
+        #: the ticks' counts and durations, the coaches' latest decisions (:mod:`..metrics`)
+        self.metrics = metrics if metrics is not None else Metrics(settings.replica_name)
         self.settings = settings
         self.period = timedelta(minutes=settings.sampling_min)
         self.period_s = self.period.total_seconds()
@@ -207,10 +210,11 @@ class Scheduler:
         """Issue tick ``tick`` to every coach of ``fleet`` that has not had it — with
         ``reported_only``, only to those whose telemetry has reached the tick; returns how many
         were issued here (0 if another replica or an earlier run did them)."""
-        issued, left = 0, None
+        issued, left, started = 0, None, time.perf_counter()
         while True:
             try:
-                n = self._tick_batch(fleet, tick, batch, reported_only)
+                with logs.context(tick=tick.isoformat()):
+                    n = self._tick_batch(fleet, tick, batch, reported_only)
             except IntegrityError:
                 # another scheduler issued some of these ticks first: on SQLite, which has no
                 # SKIP LOCKED, both may claim a coach and the unique (coach, tick) lets one
@@ -223,6 +227,8 @@ class Scheduler:
                 log.info("tick %s: another scheduler issued part of it first", tick)
                 continue
             if n == 0:
+                if issued:
+                    self.metrics.tick(fleet, time.perf_counter() - started, tick.timestamp())
                 return issued
             issued += n
 
@@ -266,11 +272,12 @@ class Scheduler:
             telemetry = load_rows(session, ids, tick - window, tick)
             overrides = active_overrides(session, ids, tick)
             rows, shadows = [], []
-            behind = [
-                c.id
-                for c in coaches
-                if c.last_tick is not None and c.last_tick < tick - self.period
+            late = [
+                c for c in coaches if c.last_tick is not None and c.last_tick < tick - self.period
             ]
+            behind = [c.id for c in late]
+            # the periods the coaches behind missed (each its last tick, none until this one)
+            skipped = sum(round((tick - c.last_tick) / self.period) - 1 for c in late)
             if behind and fleet == "live":
                 # the ticks between are not issued late (they can no longer be applied): the
                 # record shows the gap, and this says why
@@ -281,24 +288,31 @@ class Scheduler:
                     ", ".join(behind),
                 )
             for coach in coaches:
-                try:
-                    samples = controller_samples(
-                        telemetry[coach.id], tick.timestamp(), self.period_s
-                    )
-                    decision = self.decide(
-                        coach, samples, overrides.get(coach.id), tick, guards.get(coach.train_id)
-                    )
-                except Exception as exc:  # one coach's failure never stops the others
-                    log.exception("tick %s for coach %s failed", tick, coach.id)
-                    decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
-                else:
-                    shadows += self.shadow_rows(coach.id, tick, samples, decision)
-                rows.append(_row(coach.id, tick, decision, self._model_id, self.replica))
-                coach.last_tick = tick
+                with logs.context(coach=coach.id):  # on the log lines of its decision
+                    try:
+                        samples = controller_samples(
+                            telemetry[coach.id], tick.timestamp(), self.period_s
+                        )
+                        decision = self.decide(
+                            coach,
+                            samples,
+                            overrides.get(coach.id),
+                            tick,
+                            guards.get(coach.train_id),
+                        )
+                    except Exception as exc:  # one coach's failure never stops the others
+                        log.exception("tick %s for coach %s failed", tick, coach.id)
+                        decision = Decision(None, None, "fallback", "error", repr(exc)[:500])
+                    else:
+                        shadows += self.shadow_rows(coach.id, tick, samples, decision)
+                    rows.append(_row(coach.id, tick, decision, self._model_id, self.replica))
+                    coach.last_tick = tick
             session.execute(Setpoint.__table__.insert(), rows)
             if shadows:
                 session.execute(ShadowPrediction.__table__.insert(), shadows)
         self._days.update(recorded)
+        self.metrics.decided(fleet, rows)
+        self.metrics.skipped(fleet, "behind", skipped)
         for listener in self.listeners:
             try:
                 listener(fleet, rows)
@@ -335,6 +349,7 @@ class Scheduler:
                     "activates" if active else "deactivates",
                     coach.id,
                     day.day,
+                    extra={"coach": coach.id},  # the line's coach (--log-format json)
                 )
         return stored, days, pairs
 
@@ -359,6 +374,7 @@ class Scheduler:
             now = self.live_clock(session)
         if now is None:
             return 0
+        self.metrics.clock["live"] = now.timestamp()
         tick = floor_tick(now, self.period)
         return self.tick_fleet("live", tick, reported_only=now < tick + self.live_grace)
 
@@ -393,10 +409,14 @@ class Scheduler:
             try:
                 self.run_live_once()
                 self.beat("live", self.period_s)
+                self.metrics.database_up = True
             except OperationalError as exc:
                 log.warning("database unavailable, retrying: %s", str(exc).splitlines()[0])
+                self.metrics.database_up = False
+                self.metrics.skipped("live", "database_unavailable")
             except Exception:
                 log.exception("live loop iteration failed; retrying")
+                self.metrics.skipped("live", "error")
             stop.wait(self.settings.scheduler_interval_s)
 
 

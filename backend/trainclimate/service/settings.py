@@ -12,6 +12,7 @@ from typing import Annotated
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from trainclimate import resources
 from trainclimate.analysis.guard import GUARD_DAYS, MIN_GUARD_DAYS
 from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
@@ -103,7 +104,9 @@ class Settings(BaseSettings):
     periods of its fleet's clock in wall time, at least :data:`LOOP_READY_MIN_S`);
     ``guard_days`` (``--guard-days``) on how many consecutive service days a pair's trial must
     say the layer costs energy (95 % interval below 0) before its guard hands the pair back to
-    T_rule (:mod:`trainclimate.service.store.guard`; at least 1)."""
+    T_rule (:mod:`trainclimate.service.store.guard`; at least 1); ``metrics_refresh_s`` how often
+    at most the metrics' figures that need a query (the model's online MAE, the live coaches) are
+    refreshed (:mod:`trainclimate.service.metrics`)."""
 
     model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
 
@@ -117,9 +120,7 @@ class Settings(BaseSettings):
     cors_origins: list[str] = Field(default_factory=list)
     predictor_path: Path | None = None
     scheduler_interval_s: float = 0.5
-    frontend_dir: Path = Field(
-        default_factory=lambda: Path(__file__).resolve().parents[3] / "frontend"
-    )
+    frontend_dir: Path = Field(default_factory=resources.frontend_dir)
     max_body_bytes: int = Field(default=MAX_BODY_BYTES, gt=0)
     backfill_horizon_days: float = Field(
         default=BACKFILL_HORIZON_DAYS, gt=0, le=MAX_BACKFILL_HORIZON_DAYS
@@ -144,6 +145,7 @@ class Settings(BaseSettings):
     )
     loop_ready_s: float | None = Field(default=None, gt=0)
     guard_days: int = Field(default=GUARD_DAYS, ge=MIN_GUARD_DAYS)
+    metrics_refresh_s: float = Field(default=60.0, gt=0)
 
     @field_validator("fleet")
     @classmethod

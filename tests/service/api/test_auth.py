@@ -27,6 +27,7 @@ from trainclimate.service.store.tokens import RANK
 ROUTES = [
     ("GET", "/me", "viewer"),
     ("GET", "/replicas", "viewer"),
+    ("GET", "/metrics", "metrics"),
     ("GET", "/coaches", "viewer"),
     ("POST", "/coaches", "operator"),
     ("GET", "/coaches/{coach_id}", "viewer"),
@@ -117,7 +118,7 @@ def test_every_protected_route_checks_token_and_role(client, tokens):
             else:  # let in: whatever the route then says about the request itself
                 assert reply.status_code not in (401, 403, 500), (method, path, role, reply.text)
             checked += 1
-    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 320
+    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 330
 
 
 def test_health_and_readiness_need_no_token(client):

@@ -8,6 +8,8 @@ live fleet's tick in s with its database writes.
 - :mod:`.comparison` — part 2, the pair comparison and the fleet summary with much and with
   little data stored
 - :mod:`.tick` — part 3, the fleet tick with the database against the decisions in memory
+- :mod:`.metrics_cost` — part 4, the Prometheus metrics' cost on the tick, on a request's
+  latency (with against without, in the same run) and a scrape at the fleet's size
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from trainclimate.bench.common import machine
-from trainclimate.bench.service import comparison, ingest, tick
+from trainclimate.bench.service import comparison, ingest, metrics_cost, tick
 from trainclimate.bench.service.database import (
     PG_SERVER,
     RESET,
@@ -54,7 +56,7 @@ def run(
     :data:`PG_SERVER`) and dropped at the end, or on the empty database ``db_url``, migrated with
     :func:`~trainclimate.service.store.db.migrate`; the app runs in-process (FastAPI's
     TestClient) with the cached default model, or a small one fitted here if there is none. Raises
-    :class:`ServiceBenchError` if there is no such database. ``progress(1)`` after each of four
+    :class:`ServiceBenchError` if there is no such database. ``progress(1)`` after each of five
     stages.
 
     1. Ingest: ``ingest_coaches`` coaches × ``ingest_batches`` hourly batches of 60 rows through
@@ -74,6 +76,9 @@ def run(
        decisions in memory on the same samples (the controller steps alone). The tick's parts
        are timed on their own as well: its telemetry reads, the samples' extraction, and a tick
        with no telemetry in its window (every coach stale: the claim and the writes).
+    4. Metrics (:mod:`.metrics_cost`): their work in a tick of ``fleet`` coaches against the tick
+       of part 3; ``requests`` requests of ``GET /health`` and ``GET /me`` with and without the
+       observing middleware, taking turns; as many scrapes with ``fleet`` coaches tallied.
     """
     import tempfile
 
@@ -86,12 +91,15 @@ def run(
         compared = comparison.run(url, model, trains, days, requests, step)
         ticked = tick.run(url, model, fleet, LEAD_IN_TICKS, repeats)
         step(1)
+        observed = metrics_cost.run(url, model, fleet, ticked["tick_s"], requests)
+        step(1)
         if db_url is not None:
             sql(url, RESET)  # leave the given database as empty as it came
     return {
         "ingest": ingested,
         "comparison": compared,
         "fleet_tick": ticked,
+        "metrics": observed,
         "target": {
             "fleet_tick_s": ticked["target_s"],
             "summary_p95_ms": compared["summary"]["target_p95_ms"],
@@ -129,5 +137,6 @@ def text(d: dict) -> str:
         f"{summary['new_range']['large']['p95_ms']:.1f} ms\n"
         f"fleet tick of {t['coaches']} coaches with the database: {t['tick_s']:.2f} s "
         f"(target {t['target_s']:g} s); the decisions alone {t['controller_steps_s']:.2f} s "
-        f"({t['tick_vs_steps']:.0f}×); reasons: {reasons}"
+        f"({t['tick_vs_steps']:.0f}×); reasons: {reasons}\n"
+        f"{metrics_cost.text(d['metrics'])}"
     )

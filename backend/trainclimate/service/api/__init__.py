@@ -7,8 +7,9 @@ request that writes runs in one transaction.
 
 - :mod:`.deps` — the request's transaction, the role dependencies, the settings, the documented
   error answers; :mod:`.security` — the bearer token's check;
-- :mod:`.health`, :mod:`.users`, :mod:`.coaches`, :mod:`.overrides`, :mod:`.trains`, :mod:`.fleet`,
-  :mod:`.telemetry` (the live feed's push), :mod:`.models`, :mod:`.audit` — the routes;
+- :mod:`.health`, :mod:`.metrics`, :mod:`.users`, :mod:`.coaches`, :mod:`.overrides`,
+  :mod:`.trains`, :mod:`.fleet`, :mod:`.telemetry` (the live feed's push), :mod:`.models`,
+  :mod:`.audit` — the routes;
 - :mod:`.schemas` — the request and response bodies; :mod:`.apidoc` — ``docs/api.md``.
 """
 
@@ -22,6 +23,7 @@ from trainclimate.service.api import (
     deps,
     fleet,
     health,
+    metrics,
     models,
     overrides,
     telemetry,
@@ -33,6 +35,7 @@ from trainclimate.service.store import commands, queries
 #: Every route refuses a query parameter it does not declare (:func:`.deps.known_query_only`).
 router = APIRouter(prefix="/api/v1", dependencies=[Depends(deps.known_query_only)])
 router.include_router(health.router)
+router.include_router(metrics.router)
 router.include_router(users.router)
 router.include_router(coaches.router)
 router.include_router(overrides.router)

@@ -298,7 +298,7 @@ OVERLOAD_LOG_EVERY_S = 10.0
 SWITCH_INTERVAL_S = 0.001
 #: The API's paths that :class:`Admission` lets through without a slot: they stay cheap and say
 #: whether the service is alive and ready even when it is overloaded.
-UNCOUNTED = ("/api/v1/health", "/api/v1/ready")
+UNCOUNTED = ("/api/v1/health", "/api/v1/ready", "/api/v1/metrics")
 
 
 def pace_threads(worker_threads: int) -> None:

@@ -21,7 +21,7 @@ from trainclimate.service.store.attention import KINDS
 from trainclimate.service.store.queries import STATUSES
 from trainclimate.service.store.tokens import USER_NAME_MAX
 
-Role = Literal["gateway", "viewer", "operator", "admin"]
+Role = Literal["metrics", "gateway", "viewer", "operator", "admin"]
 Source = Literal["ddpc", "rule", "override", "fallback"]
 Mode = Literal["regular", "slumber", "off"]
 #: A coach's status (:data:`trainclimate.service.store.queries.STATUSES`).

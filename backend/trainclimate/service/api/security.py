@@ -15,7 +15,7 @@ from fastapi.security.utils import get_authorization_scheme_param
 from pydantic import BaseModel, ValidationError
 
 from trainclimate.service.store.db import Database
-from trainclimate.service.store.tokens import GATEWAY, Principal, authenticate
+from trainclimate.service.store.tokens import GATEWAY, METRICS, Principal, authenticate
 
 bearer = HTTPBearer(auto_error=False, description="a token from `trainclimate token create`")
 Credentials = Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
@@ -87,4 +87,18 @@ def require_coach(
 
     check.role = role  # read by the API reference (service/api/apidoc.py)
     check.gateway = True  # … which notes that a gateway token for the coach may call it too
+    return check
+
+
+def require_metrics() -> Callable[..., Principal]:
+    """A dependency giving the caller's :class:`Principal` if the request's bearer token is a
+    ``metrics`` token or a viewer's or above (else 401, or 403 for a gateway token)."""
+
+    def check(request: Request, credentials: Credentials) -> Principal:
+        who = _principal(request, credentials)
+        if who.role == GATEWAY or not who.can(METRICS):
+            raise _too_low(METRICS, who)
+        return who
+
+    check.role = METRICS  # read by the API reference (service/api/apidoc.py)
     return check

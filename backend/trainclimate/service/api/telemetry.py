@@ -35,4 +35,5 @@ def post_telemetry(
     ``GET /health``'s ``telemetry_refused``)."""
     rows = [from_wire(r.model_dump()) for r in batch.rows]
     stored, dup = commands.ingest(s, batch.coach_id, rows, request.app.state.backfill)
+    request.app.state.metrics.telemetry_stored("http", stored, dup)
     return {"received": len(rows), "stored": stored, "duplicates": dup}

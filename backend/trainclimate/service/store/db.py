@@ -1,7 +1,8 @@
 """Database engines and sessions (SQLAlchemy 2.0), and the schema through Alembic.
 
 SQLite (the embedded default) and PostgreSQL (psycopg 3) take the same code. The schema is only
-ever created by the Alembic migrations in ``migrations/``, applied at start (:func:`migrate`).
+ever created by the Alembic migrations in ``migrations/`` (shipped in the package), applied at
+start (:func:`migrate`).
 
 The connection pool is sized to the threads that use it, on both: the server's worker threads
 (``worker_threads`` of the settings, which also sets anyio's limit on the threads running the
@@ -15,14 +16,16 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.orm import Session, sessionmaker
 
 from trainclimate.paths import sqlite_file, writable_dir
+from trainclimate.resources import migrations_dir
 
-MIGRATIONS = Path(__file__).resolve().parents[4] / "migrations"
+#: The Alembic migrations, shipped in the package (:mod:`trainclimate.resources`; in a checkout
+#: the top-level ``migrations/`` directory).
+MIGRATIONS = migrations_dir().resolve()
 #: The server's worker threads by default (anyio's own default is 40). The requests are mostly
 #: Python work under one GIL: more threads add no throughput on 2 cores, only contention, which
 #: delays the event loop and takes CPU time from the control loop's threads (docs/benchmarks.md,

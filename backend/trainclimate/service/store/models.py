@@ -41,8 +41,9 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
-#: The roles, lowest first: a gateway (its token scoped to coaches) ranks below a viewer.
-ROLES = ("gateway", "viewer", "operator", "admin")
+#: The roles, lowest first: a metrics token (a Prometheus scraper: ``GET /api/v1/metrics`` and
+#: nothing else) ranks below a gateway (its token scoped to coaches), which ranks below a viewer.
+ROLES = ("metrics", "gateway", "viewer", "operator", "admin")
 SOURCES = ("ddpc", "rule", "override", "fallback")
 MODES = ("regular", "slumber", "off")
 #: The trial plans the database accepts: :data:`trainclimate.analysis.trial.PLANS`, named here so
@@ -254,7 +255,7 @@ class ShadowPrediction(Base):
 
 
 class User(Base):
-    """A user of the API with a role (gateway, viewer, operator or admin)."""
+    """A user of the API with a role (metrics, gateway, viewer, operator or admin)."""
 
     __tablename__ = "users"
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)

@@ -4,8 +4,8 @@ A token is 32 random bytes (``secrets.token_urlsafe``) prefixed ``tc_``, shown o
 (``trainclimate token create`` or ``POST /api/v1/tokens``); only its SHA-256 is stored. A fast hash
 is right here: the token is high-entropy random, not a password, so there is nothing to
 brute-force, and every request can check it in microseconds. Roles are ordered
-``gateway < viewer < operator < admin``: reads need viewer, writes operator, user and model
-management admin.
+``metrics < gateway < viewer < operator < admin``: reads need viewer, writes operator, user and
+model management admin; a ``metrics`` token (a Prometheus scraper's) reads the metrics only.
 
 Every token is a user's, and a user has one role, which all its tokens act with. Creating a token
 never changes another one: a new name becomes a user with the role asked for, an existing user's
@@ -40,6 +40,8 @@ from trainclimate.service.store.upsert import insert_new
 RANK = {role: i for i, role in enumerate(ROLES)}
 PREFIX = "tc_"
 GATEWAY = "gateway"
+#: The role of a metrics scraper's token: ``GET /api/v1/metrics`` only.
+METRICS = "metrics"
 #: The longest user name the API and the CLI take: its audit target ``user:<name>`` fits the
 #: audit log's 64-character ``target`` column (the ``users.name`` column holds 100).
 USER_NAME_MAX = 48
@@ -122,7 +124,7 @@ def create_token(
     if expires_at is not None and expires_at <= utcnow():
         raise ValueError("the expiry must lie in the future")
     if role not in ROLES:
-        raise ValueError(f"unknown role {role!r} (gateway, viewer, operator, admin)")
+        raise ValueError(f"unknown role {role!r} ({', '.join(ROLES)})")
     coaches = check_scope(role, coaches)
     name = name or f"{role}-{secrets.token_hex(3)}"
     # a new name becomes a user, also when two requests create it at once
