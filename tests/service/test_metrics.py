@@ -179,8 +179,16 @@ def test_answers_failures_throttling_and_telemetry_are_counted(client):
     codes = [client.get(f"{API}/coaches", headers=bad).status_code for _ in range(4)]
     assert codes == [401, 401, 401, 429]
     client.app.state.metrics_refresher.refresh(client.app.state.db, client.app.state.settings)
-    clock = client.app.state.metrics.clock
-    wait_for(lambda: clock.get("live") == at(9).timestamp(), 10, "the live loop to read the clock")
+    metrics = client.app.state.metrics
+    # the live loop issues the tick at or before the newest row (the row at 9 min is its minute)
+    wait_for(
+        lambda: (
+            metrics.clock.get("live") == at(9).timestamp()
+            and metrics.last_tick.get("live") == at(5).timestamp()
+        ),
+        10,
+        "the live loop to read the clock and issue its tick",
+    )
     before = time.time()
     samples = scrape(client, headers["metrics"])
     rows_taken = series(samples, "trainclimate_telemetry_rows_total")
@@ -204,7 +212,6 @@ def test_answers_failures_throttling_and_telemetry_are_counted(client):
     assert value(samples, "trainclimate_live_coaches") == 1
     live = {"fleet": "live"}
     assert value(samples, "trainclimate_fleet_clock_timestamp_seconds", **live) == at(9).timestamp()
-    # the live loop issued the tick at or before the newest row (the row at 9 min is its minute)
     assert value(samples, "trainclimate_last_tick_timestamp_seconds", **live) == at(5).timestamp()
     assert value(samples, "trainclimate_auth_failures_total") == 3
     assert value(samples, "trainclimate_auth_throttled_total") == 1
