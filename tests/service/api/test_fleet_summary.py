@@ -194,7 +194,8 @@ def test_empty_fleet_and_refusals(client, tokens):
     s = client.get(f"{API}/fleet/summary", headers=viewer).json()
     assert s["trains"] == [] and s["savings_pct"] is None and s["coaches_by_status"] == {}
     assert s["attention"] == [] and s["energy_activated_kwh"] == 0.0
-    for params in ({"hours": 0}, {"hours": 745}, {"hours": "x"}, {"end": "2024-11-28T06:00"}):
+    bad = ({"hours": 0}, {"hours": 745}, {"hours": "x"}, {"hours": "1.5"}, {"hours": "5e-324"})
+    for params in (*bad, {"end": "2024-11-28T06:00"}):
         assert client.get(f"{API}/fleet/summary", params=params, headers=viewer).status_code == 422
     assert client.get(f"{API}/fleet/summary").status_code == 401
 
@@ -309,7 +310,7 @@ def test_the_fleet_counts_the_hvac_units_when_every_train_splits_the_floor_off(c
             f"{train}-B",
             _rows(1, 60, power_kw=lambda m, p=pb: p, floor_power_kw=lambda m: 2.0),
         )
-    params = {"hours": 1.0, "end": at(60).isoformat()}
+    params = {"hours": 1, "end": at(60).isoformat()}
     s = client.get(f"{API}/fleet/summary", params=params, headers=viewer).json()
     trains = {t["id"]: t for t in s["trains"]}
     assert trains["S1"]["meter"] == trains["S2"]["meter"] == s["meter"] == "hvac"

@@ -15,6 +15,11 @@ from trainclimate.service.api.deps import AUTH, DB, Viewer
 from trainclimate.service.store import fleet_summary, queries
 
 router = APIRouter()
+#: The summary's window up to its end, whole hours 1 … 744 (31 days): its windows are 30
+#: minutes, and a float let 5e-324 hours through.
+Hours = Annotated[
+    int, Query(ge=1, le=744, description="the window, whole hours (1 … 744)"), schemas.DIGITS_ONLY
+]
 
 
 @router.get("/fleet/summary", response_model=schemas.FleetSummary, tags=["fleet"], responses=AUTH)
@@ -22,7 +27,7 @@ def get_fleet_summary(
     request: Request,
     s: DB,
     _: Viewer,
-    hours: Annotated[float, Query(gt=0, le=31 * 24, description="the window, h")] = 24.0,
+    hours: Hours = 24,
     end: Annotated[
         AwareDatetime | None, Query(description="default: each train's fleet clock")
     ] = None,
