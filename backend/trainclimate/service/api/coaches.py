@@ -23,7 +23,7 @@ from trainclimate.service.api.deps import (
     settings,
 )
 from trainclimate.service.store import commands, queries
-from trainclimate.service.store.models import Coach, FleetClock, utcnow
+from trainclimate.service.store.models import Coach, CoachLiveness, utcnow
 
 router = APIRouter()
 
@@ -33,7 +33,7 @@ def list_coaches(request: Request, s: DB, _: Viewer) -> list:
     """Every coach with its train, layer, status (ok, warm-up, stale, disconnected, fallback,
     override, inactive, not-regular, preparing, no-data), latest readings, whether its decks are
     within the comfort band now, and its setpoint (and whether the coach receives it)."""
-    live = queries.live_clock(s)
+    live = queries.live_clocks(s)
     return [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
 
 
@@ -71,22 +71,23 @@ def register_coach(
 def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
     """One coach, as in the list."""
     [(coach, state)] = queries.coach_states(s, coach_id)
-    return current_view(request, s, coach, state, queries.live_clock(s))
+    return current_view(request, s, coach, state, queries.live_clocks(s))
 
 
 def current_view(
-    request: Request, s: Session, coach: Coach, state: tuple, live_clock: FleetClock | None
+    request: Request, s: Session, coach: Coach, state: tuple, clocks: dict[str, CoachLiveness]
 ) -> dict:
     """The coach's view as the fleet list and the fleet summary show it: from the read cache
-    while its state is unchanged, with a live coach's silence judged now
-    (:func:`.queries.with_liveness`)."""
+    while its state is unchanged, with a live coach's silence judged now on its own clock
+    (``clocks``: :func:`.queries.live_clocks`; :func:`.queries.with_liveness`)."""
     stale_periods = settings(request).stale_periods
     view = request.app.state.read_cache.get(
         ("coach", coach.id),
         state,
         lambda: queries.coach_view(s, coach, period(request), stale_periods),
     )
-    return queries.with_liveness(view, live_clock, utcnow(), period(request), stale_periods)
+    clock = clocks.get(coach.id)
+    return queries.with_liveness(view, clock, utcnow(), period(request), stale_periods)
 
 
 @router.get(
@@ -159,5 +160,5 @@ def set_controller(
     stale_periods = settings(request).stale_periods
     view = queries.coach_view(s, coach, period(request), stale_periods)
     return queries.with_liveness(
-        view, queries.live_clock(s), utcnow(), period(request), stale_periods
+        view, queries.live_clocks(s).get(coach.id), utcnow(), period(request), stale_periods
     )
