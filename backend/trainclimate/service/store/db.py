@@ -20,8 +20,8 @@ longer than that. The readiness probe has a connection of its own (:meth:`Databa
 a short ``statement_timeout``, outside the pool the requests use.
 
 **Storage errors** (a full disk, an I/O error, a read-only file) are kept in
-:attr:`Database.storage` (:mod:`.storage`) as they happen, on any connection, and cleared by the
-next write that commits.
+:attr:`Database.storage` (:mod:`.storage`) as they happen, on any connection, and cleared by a
+write that commits once none has happened for a while.
 """
 
 from __future__ import annotations

@@ -4,14 +4,17 @@ Reads may go on while writes fail (SQLite on a full disk serves every read). A w
 so answers 503 like any database error; :class:`StorageHealth` keeps what failed, in memory, so
 that ``GET /api/v1/health`` and ``GET /api/v1/ready`` (and the dashboard) name it
 (``{"state": "error", "detail": "database or disk is full", "since": …}``) until a write commits
-again (``{"state": "ok", …}``). It watches an engine: every error of the database driver
-on any connection — a request's, a loop's, the MQTT bridge's — is classified
-(:func:`storage_error`), and a committed transaction that wrote clears it.
+again with no storage error for :data:`CLEAR_AFTER_S` (``{"state": "ok", …}``): on a disk that is
+nearly full a small write may still fit where a larger one fails, and one such write does not
+make the disk any less full. It watches an engine: every error of the database driver on any
+connection — a request's, a loop's, the MQTT bridge's — is classified (:func:`storage_error`),
+and a committed transaction that wrote may clear it.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 
@@ -29,6 +32,10 @@ SQLITE_STORAGE = (
     "database disk image is malformed",
     "unable to open database file",
 )
+
+#: The storage counts as working again once a write commits this long after the last storage
+#: error. [s]
+CLEAR_AFTER_S = 30.0
 
 
 def storage_error(exc: BaseException) -> str | None:
@@ -58,10 +65,14 @@ class StorageState:
 
 
 class StorageHealth:
-    """The storage's state (:class:`StorageState`), shared by the threads of a process."""
+    """The storage's state (:class:`StorageState`), shared by the threads of a process; an
+    error clears once a write commits ``clear_after_s`` seconds or more after the last storage
+    error."""
 
-    def __init__(self) -> None:
+    def __init__(self, clear_after_s: float = CLEAR_AFTER_S) -> None:
+        self.clear_after_s = clear_after_s
         self._state = StorageState()
+        self._last_error = 0.0  # monotonic [s]
         self._lock = threading.Lock()
 
     @property
@@ -75,12 +86,15 @@ class StorageHealth:
         with self._lock:
             since = self._state.since if self._state.state == "error" else None
             self._state = StorageState("error", detail, since or now or datetime.now(UTC))
+            self._last_error = time.monotonic()
 
     def wrote(self) -> None:
-        """A transaction that wrote has committed: the storage works."""
+        """A transaction that wrote has committed: the storage works again if no storage error
+        happened for ``clear_after_s``."""
         if self._state.state != "ok":
             with self._lock:
-                self._state = StorageState()
+                if time.monotonic() - self._last_error >= self.clear_after_s:
+                    self._state = StorageState()
 
     def watch(self, engine: Engine, sessions) -> None:
         """Classify every driver error of ``engine``; clear the state when a session of
