@@ -89,6 +89,7 @@ async def lifespan(app: FastAPI):
         settings.worker_threads,
         settings.db_lock_timeout_s,
         settings.db_idle_in_transaction_s,
+        application_name=f"trainclimate:{settings.replica_name}",
     )
     with db.transaction() as session:
         register_model_file(session, settings)

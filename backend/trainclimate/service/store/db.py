@@ -89,12 +89,14 @@ def make_engine(
     worker_threads: int = WORKER_THREADS,
     lock_timeout_s: float = LOCK_TIMEOUT_S,
     idle_in_transaction_s: float = IDLE_IN_TRANSACTION_S,
+    application_name: str | None = None,
 ) -> Engine:
     """An engine for ``url`` with its pool sized to ``worker_threads`` (:func:`pool_options`;
     an in-memory SQLite database keeps SQLAlchemy's one connection per thread). SQLite gets
     foreign keys, WAL and a busy timeout, so the scheduler thread and the API share one file
     safely; PostgreSQL sessions ``lock_timeout_s`` and ``idle_in_transaction_s`` (seconds; 0:
-    no limit; see the module docstring)."""
+    no limit; see the module docstring) and ``application_name`` (what ``pg_stat_activity``
+    shows: which replica holds a lock)."""
     url = normalise_url(url)
     pool = pool_options(worker_threads)
     if url.startswith("sqlite"):
@@ -117,7 +119,10 @@ def make_engine(
     options = session_options(
         lock_timeout=lock_timeout_s, idle_in_transaction_session_timeout=idle_in_transaction_s
     )
-    return create_engine(url, pool_pre_ping=True, connect_args={"options": options}, **pool)
+    connect = {"options": options}
+    if application_name:
+        connect["application_name"] = application_name[:63]
+    return create_engine(url, pool_pre_ping=True, connect_args=connect, **pool)
 
 
 def probe_engine(url: str) -> Engine:
@@ -180,8 +185,8 @@ def downgrade(url: str, revision: str = "base") -> None:
 
 class Database:
     """An engine (its pool sized to ``worker_threads``, its PostgreSQL sessions' timeouts in
-    seconds: :func:`make_engine`), its session factory and the state of its storage
-    (:attr:`storage`)."""
+    seconds and application name: :func:`make_engine`), its session factory and the state of
+    its storage (:attr:`storage`)."""
 
     def __init__(
         self,
@@ -189,9 +194,12 @@ class Database:
         worker_threads: int = WORKER_THREADS,
         lock_timeout_s: float = LOCK_TIMEOUT_S,
         idle_in_transaction_s: float = IDLE_IN_TRANSACTION_S,
+        application_name: str | None = None,
     ):
         self.url = normalise_url(url)
-        self.engine = make_engine(self.url, worker_threads, lock_timeout_s, idle_in_transaction_s)
+        self.engine = make_engine(
+            self.url, worker_threads, lock_timeout_s, idle_in_transaction_s, application_name
+        )
         self.sessions = sessionmaker(self.engine, expire_on_commit=False)
         self.storage = StorageHealth()
         self.storage.watch(self.engine, self.sessions)
