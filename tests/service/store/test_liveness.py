@@ -129,3 +129,15 @@ def test_the_status_a_live_coach_shows():
     # the demo fleet and coaches without data are judged as before
     assert with_liveness(view("ok", "demo"), fast, silent_now, PERIOD, 2)["status"] == "ok"
     assert with_liveness(view("no-data", seen=None), fast, now, PERIOD, 2)["status"] == "no-data"
+
+
+def test_a_coach_not_yet_measured_counts_at_the_fleet_pace():
+    """A gateway joining a fleet of emulators at 120× is judged at 120× from its first arrival
+    (the median of the measured paces), not at real time for its first 20 s."""
+    fleet = liveness.Clocks({"A": clock(3600, 30), "B": clock(3600, 30), "C": clock(600, 600)})
+    assert fleet.fleet_pace == pytest.approx(120)
+    new = CoachLiveness(coach_id="N", time=SIM, anchor_time=SIM, anchor_at=WALL, last_seen_at=WALL)
+    assert not liveness.measured(new)
+    assert liveness.allowed_silence(new, PERIOD, 2, fleet.fleet_pace) == timedelta(seconds=5)
+    assert liveness.silent(WALL, new, WALL + timedelta(seconds=6), PERIOD, 2, fleet.fleet_pace)
+    assert liveness.Clocks().fleet_pace == 1.0  # nothing measured: real time

@@ -22,8 +22,8 @@ from trainclimate.service.api.deps import (
     period,
     settings,
 )
-from trainclimate.service.store import commands, queries
-from trainclimate.service.store.models import Coach, CoachLiveness, utcnow
+from trainclimate.service.store import commands, liveness, queries
+from trainclimate.service.store.models import Coach, utcnow
 
 router = APIRouter()
 
@@ -75,7 +75,7 @@ def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
 
 
 def current_view(
-    request: Request, s: Session, coach: Coach, state: tuple, clocks: dict[str, CoachLiveness]
+    request: Request, s: Session, coach: Coach, state: tuple, clocks: liveness.Clocks
 ) -> dict:
     """The coach's view as the fleet list and the fleet summary show it: from the read cache
     while its state is unchanged, with a live coach's silence judged now on its own clock
@@ -86,8 +86,8 @@ def current_view(
         state,
         lambda: queries.coach_view(s, coach, period(request), stale_periods),
     )
-    clock = clocks.get(coach.id)
-    return queries.with_liveness(view, clock, utcnow(), period(request), stale_periods)
+    clock, prior = clocks.get(coach.id), clocks.fleet_pace
+    return queries.with_liveness(view, clock, utcnow(), period(request), stale_periods, prior)
 
 
 @router.get(
@@ -159,6 +159,6 @@ def set_controller(
     request.app.state.scheduler.forget(coach.id)
     stale_periods = settings(request).stale_periods
     view = queries.coach_view(s, coach, period(request), stale_periods)
-    return queries.with_liveness(
-        view, queries.live_clocks(s).get(coach.id), utcnow(), period(request), stale_periods
-    )
+    clocks = queries.live_clocks(s)
+    clock, prior = clocks.get(coach.id), clocks.fleet_pace
+    return queries.with_liveness(view, clock, utcnow(), period(request), stale_periods, prior)

@@ -17,8 +17,10 @@ arrived from it for ``stale_periods`` periods of its clock at its pace (10 min o
 1×, 5 s at 120×). One gateway that stops turns its coaches stale; all of them stopping turns
 every live coach stale, and the feed is **down** since the last arrival.
 
-Until :data:`PACE_MIN_S` of wall time has been measured the pace counts as 1 (real time: the
-slowest, so nothing is called stale too early). The measurement starts again after a silence of
+Until :data:`PACE_MIN_S` of wall time has been measured a coach's pace counts as the fleet's
+(:attr:`Clocks.fleet_pace`: the median of the measured coaches' paces; 1, real time, the slowest,
+without any), so a gateway that joins an accelerated fleet is judged at its speed from the start
+and nothing is called stale too early. The measurement starts again after a silence of
 the coach of :data:`PACE_RESET_S`, and when one arrival moves its clock forward by more than
 :data:`PACE_JUMP` (a backlog caught up, a gateway's clock corrected): a jump is no pace, and a
 coach that sends its week-old rows and then reports live is measured at its live pace.
@@ -30,6 +32,8 @@ tick nor for another coach's gateway.
 
 from __future__ import annotations
 
+import functools
+import statistics
 from datetime import datetime, timedelta
 
 from sqlalchemy import select
@@ -77,32 +81,48 @@ def note_arrival(session: Session, coach_id: str, newest: datetime, now: datetim
     row.last_seen_at = now
 
 
-def clocks(session: Session, coach_ids: list[str] | None = None) -> dict[str, CoachLiveness]:
+class Clocks(dict):
+    """The live coaches' liveness rows (their clocks) by coach id, and the fleet's pace."""
+
+    @functools.cached_property
+    def fleet_pace(self) -> float:
+        """The median :func:`pace` of the coaches whose pace is measured (1 without any): the
+        pace a coach counts at until its own is measured. [clock s per wall s]"""
+        paces = [pace(c) for c in self.values() if measured(c)]
+        return statistics.median(paces) if paces else 1.0
+
+
+def clocks(session: Session, coach_ids: list[str] | None = None) -> Clocks:
     """The live coaches' liveness rows (their clocks), by coach id (only ``coach_ids``, if
     given); a coach that never reported has none. Read without locking."""
     query = select(CoachLiveness)
     if coach_ids is not None:
         query = query.where(CoachLiveness.coach_id.in_(coach_ids))
-    return {row.coach_id: row for row in session.scalars(query)}
+    return Clocks((row.coach_id, row) for row in session.scalars(query))
 
 
-def pace(clock: CoachLiveness | None) -> float:
-    """Seconds of a coach's clock per second of wall time (≥ 1; 1 until measured over
-    :data:`PACE_MIN_S`)."""
+def measured(clock: CoachLiveness | None) -> bool:
+    """Whether the coach's pace has been measured over :data:`PACE_MIN_S` of wall time."""
     if clock is None or clock.anchor_at is None or clock.last_seen_at is None:
-        return 1.0
+        return False
+    return (clock.last_seen_at - clock.anchor_at).total_seconds() >= PACE_MIN_S
+
+
+def pace(clock: CoachLiveness | None, prior: float = 1.0) -> float:
+    """Seconds of a coach's clock per second of wall time (≥ 1); ``prior`` until measured over
+    :data:`PACE_MIN_S`."""
+    if not measured(clock):
+        return prior
     wall = (clock.last_seen_at - clock.anchor_at).total_seconds()
-    if wall < PACE_MIN_S:
-        return 1.0
     return max(1.0, (clock.time - clock.anchor_time).total_seconds() / wall)
 
 
 def allowed_silence(
-    clock: CoachLiveness | None, period: timedelta, stale_periods: int
+    clock: CoachLiveness | None, period: timedelta, stale_periods: int, prior: float = 1.0
 ) -> timedelta:
     """How long (wall time) a live coach may send nothing before it is stale:
-    ``stale_periods`` periods of its clock at its :func:`pace`."""
-    return stale_periods * period / pace(clock)
+    ``stale_periods`` periods of its clock at its :func:`pace` (``prior`` until measured)."""
+    return stale_periods * period / pace(clock, prior)
 
 
 def silent(
@@ -111,9 +131,11 @@ def silent(
     now: datetime,
     period: timedelta,
     stale_periods: int,
+    prior: float = 1.0,
 ) -> bool:
     """Whether a live coach last seen at ``last_seen_at`` (wall time; None: never), with its
-    ``clock`` (its liveness row), is stale at wall time ``now``."""
+    ``clock`` (its liveness row; its pace ``prior`` until measured, e.g. the fleet's), is stale
+    at wall time ``now``."""
     return last_seen_at is None or now - last_seen_at > allowed_silence(
-        clock, period, stale_periods
+        clock, period, stale_periods, prior
     )

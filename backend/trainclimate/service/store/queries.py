@@ -215,11 +215,17 @@ def last_seen(session: Session, coach: Coach) -> datetime | None:
 
 
 def with_liveness(
-    view: dict, clock: CoachLiveness | None, now: datetime, period: timedelta, stale_periods: int
+    view: dict,
+    clock: CoachLiveness | None,
+    now: datetime,
+    period: timedelta,
+    stale_periods: int,
+    prior: float = 1.0,
 ) -> dict:
     """The :func:`coach_view` ``view`` with a live coach's status judged by arrivals (wall time
     ``now``; ``clock`` its liveness row, :mod:`.liveness`): ``stale`` when nothing has arrived
-    from it for ``stale_periods`` periods at its clock's pace (whatever its newest row said:
+    from it for ``stale_periods`` periods at its clock's pace (``prior`` until measured, the
+    fleet's: :attr:`.liveness.Clocks.fleet_pace`; whatever its newest row said:
     ``disconnected`` too; its ``t_ref_applied`` and ``comfort`` then unknown, None); while its
     telemetry arrives, a tick decided ``stale`` (its rows behind its clock) shows as
     ``fallback``: its gateway is alive. Kept apart from the view, which is cached while its data
@@ -230,14 +236,14 @@ def with_liveness(
     view = {**view, "last_seen_at": clock.last_seen_at if clock is not None else None}
     if view["status"] == "no-data":
         return view
-    if liveness.silent(view["last_seen_at"], clock, now, period, stale_periods):
+    if liveness.silent(view["last_seen_at"], clock, now, period, stale_periods, prior):
         return {**view, "status": "stale", "t_ref_applied": None, "comfort": None}
     if view["status"] == "stale":
         return {**view, "status": "fallback"}
     return view
 
 
-def live_clocks(session: Session) -> dict[str, CoachLiveness]:
+def live_clocks(session: Session) -> liveness.Clocks:
     """The live coaches' own clocks and arrivals (:func:`.liveness.clocks`), by coach id."""
     return liveness.clocks(session)
 
