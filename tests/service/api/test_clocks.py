@@ -1,7 +1,8 @@
 """One gateway's clock moves no other coach: a gateway an hour ahead of the server's clock is
 refused (422 naming the row, counted as ``ahead_of_clock``) while another coach keeps getting its
 setpoints; a coach's week-old backlog leaves another live coach's staleness as it was — each live
-coach has its own clock, its own pace and its own ticks."""
+coach has its own clock, its own pace and its own ticks; and a setpoint expired on its coach's
+clock is not served."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ from fastapi.testclient import TestClient
 
 from service_support import (
     API,
+    at,
     flat_row,
+    flat_rows,
     post_rows,
     register,
     shared_coach_model,  # noqa: F401  (autouse)
@@ -22,6 +25,7 @@ from service_support import (
 from trainclimate.service.app import create_app
 from trainclimate.service.scheduler import floor_tick
 from trainclimate.service.store import liveness
+from trainclimate.service.store.models import Coach
 
 PERIOD = timedelta(minutes=5)
 
@@ -91,3 +95,31 @@ def test_a_backlog_leaves_another_live_coach_alive(client, tokens, settings, mon
         clocks = liveness.clocks(s)
     assert liveness.pace(clocks["A"]) == pytest.approx(1.0, abs=0.5)
     assert clocks["C"].time == week_ago + timedelta(days=2, minutes=720)
+
+
+def test_a_setpoint_expired_on_its_coach_clock_is_not_served(client, tokens, settings):
+    """The pull serves the newest setpoint only while it is valid on its coach's clock: when
+    no tick follows (the replica that holds the coach paused), the gateway is told nothing once
+    its rows pass ``valid_until``, and keeps T_rule."""
+    op, viewer = tokens["operator"], tokens["viewer"]
+    assert register(client, op, "A").status_code == 201
+    assert post_rows(client, op, "A", flat_rows(1, 5)).status_code == 200
+    sp = wait_for_tick(client, viewer, "A", at(5))
+    assert datetime.fromisoformat(sp["valid_until"]) == at(15)  # two periods
+    db = client.app.state.db
+    with db.transaction() as s:  # no further tick for A: as if its replica were paused
+        s.get(Coach, "A").last_tick = at(600)
+    assert post_rows(client, op, "A", flat_rows(6, 14)).status_code == 200
+    served = client.get(f"{API}/coaches/A/setpoint", headers=viewer).json()
+    assert datetime.fromisoformat(served["tick"]) == at(5) and served["t_ref_c"] is not None
+    assert post_rows(client, op, "A", flat_rows(15, 20)).status_code == 200
+    served = client.get(f"{API}/coaches/A/setpoint", headers=viewer).json()
+    assert served == {
+        "coach_id": "A",
+        "tick": None,
+        "t_ref_c": None,
+        "t_rule_c": None,
+        "source": None,
+        "reason": None,
+        "valid_until": None,
+    }
