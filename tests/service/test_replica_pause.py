@@ -177,4 +177,6 @@ def test_a_paused_replica_does_not_freeze_the_fleet(db_url, servers, proc_env, t
         if replica == "replica-2" and made < resumed_at and (tick, replica, made) not in during[c]
     ]
     assert late == [], late
-    assert "server closed the connection" in paused.output()  # its session was ended
+    # its session was ended by the server (the message depends on where it was waiting)
+    log = paused.log.read_text(errors="replace")
+    assert "idle-in-transaction timeout" in log or "server closed the connection" in log
