@@ -112,11 +112,13 @@ async function showPreparing() {
     return;
   }
   const items = health.preparing || [];
-  box.hidden = items.length === 0;
-  box.classList.toggle("failed", items.some((p) => p.state === "failed"));
+  const storage = health.storage && health.storage.state === "error" ? health.storage : null;
+  box.hidden = items.length === 0 && !storage;
+  box.classList.toggle("failed", Boolean(storage) || items.some((p) => p.state === "failed"));
   box.textContent = items.map((p) => (p.state === "failed"
     ? `Preparing the ${p.task} failed: ${p.detail}. The coaches stay on the rule-based setpoint T_rule.`
-    : `Preparing the ${p.task}: ${p.stage}, ${Math.round(p.percent)} %. Until it is ready the coaches follow the rule-based setpoint T_rule; the layer takes over on its own.`)).join(" ");
+    : `Preparing the ${p.task}: ${p.stage}, ${Math.round(p.percent)} %. Until it is ready the coaches follow the rule-based setpoint T_rule; the layer takes over on its own.`))
+    .concat(storage ? [`Storage error since ${new Date(storage.since).toLocaleString()}: ${storage.detail}. Writes are refused until it is resolved; reads go on.`] : []).join(" ");
 }
 showPreparing();
 setInterval(showPreparing, REFRESH_MS);

@@ -1,9 +1,10 @@
 """A dead feed shows as dead, with real processes: ``trainclimate serve`` and three gateway
 emulators (trains 124–126, 120×) with a gateway token. Stopping one gateway turns its coaches
-``stale`` within two periods of the fleet's pace (5 s of wall time at 120×) while the others stay
-live; a gateway joining later at another simulated time makes nobody stale; stopping every
-gateway turns every live coach ``stale`` — although the fleet's clock, the newest row, stands
-still — and the dashboard says the feed is down."""
+``stale`` within two periods of their pace (5 s of wall time at 120×) while the others stay
+live; a gateway joining later at another simulated time makes nobody stale (and is judged at the
+fleet's pace before its own is measured); stopping every gateway turns every live coach
+``stale`` — although their clocks, their newest rows, stand still — and the dashboard says the
+feed is down."""
 
 from __future__ import annotations
 

@@ -396,6 +396,29 @@ def test_setpoints_are_published_retained(db, bridges, broker):
 
 
 @needs_broker
+def test_an_expired_setpoint_is_never_published(db, bridges, broker):
+    """A replica paused between deciding a setpoint and publishing it resumes to find its
+    coach's clock past the setpoint's validity: it is not published (counted), and the coach's
+    retained setpoint stays whatever was valid; a setpoint still valid is published."""
+    with db.transaction() as s:  # 7-A's gateway has reported up to T0 + 20 min meanwhile
+        commands.ingest(s, "7-A", flat_rows(1, 20))
+        commands.ingest(s, "7-B", flat_rows(1, 5))
+    bridge = bridges()
+    rows = [
+        {"coach_id": "7-A", "tick": at(5), "t_ref_c": 21.4, "t_rule_c": 22.0}
+        | {"source": "ddpc", "reason": "ok"},  # valid until T0 + 15 min: expired
+        {"coach_id": "7-B", "tick": at(5), "t_ref_c": 22.0, "t_rule_c": 22.0}
+        | {"source": "rule", "reason": "inactive"},  # valid until T0 + 15 min; its clock at 5
+    ]
+    bridge.publish_setpoints("live", rows)
+    assert (bridge.status.setpoints_published, bridge.status.setpoints_expired) == (1, 1)
+    assert set(retained_setpoints(broker, ["7-B"])) == {"7-B"}
+    with pytest.raises(AssertionError, match="timed out"):  # nothing retained for 7-A
+        retained_setpoints(broker, ["7-A"], timeout_s=2)
+    _clear_retained(broker, ["7-B"])
+
+
+@needs_broker
 def test_setpoints_issued_while_away_are_published_on_connection(db, bridges, broker):
     with db.transaction() as s:
         s.execute(

@@ -4,8 +4,12 @@ reason); each setpoint records the replica that decided it and ``GET /replicas``
 
 from __future__ import annotations
 
+import socket
+import time
+
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import create_engine
 
 from service_support import API, at, flat_rows, post_rows, register, wait_for
 from trainclimate.service.app import create_app
@@ -83,17 +87,35 @@ def test_each_setpoint_records_its_replica_and_replicas_lists_them(app_client, s
 
 
 def test_a_database_that_does_not_answer_is_not_ready(app_client, monkeypatch):
-    from contextlib import contextmanager
-
-    from sqlalchemy.exc import OperationalError
-
-    @contextmanager
-    def unreachable():
-        raise OperationalError("SELECT 1", {}, Exception("connection refused"))
-        yield  # pragma: no cover - a generator, like the real one
-
-    monkeypatch.setattr(app_client.app.state.db, "transaction", unreachable)
+    """The probe's connection refused (nothing listens on port 1): 503 naming it."""
+    refused = create_engine("postgresql+psycopg://nobody@127.0.0.1:1/none")
+    monkeypatch.setattr(app_client.app.state.db, "probe", lambda: refused)
     reply = app_client.get(f"{API}/ready")
     assert reply.status_code == 503
-    assert any(r.startswith("database: ") and "connection refused" in r
+    assert any(r.startswith("database: ") and "connection refused" in r.lower()
                for r in reply.json()["reasons"])  # fmt: skip
+    refused.dispose()
+
+
+def test_a_database_that_hangs_leaves_ready_an_answer_in_time(settings, monkeypatch):
+    """The probe's database accepts the connection and never answers: ``/ready`` answers 503
+    within its timeout (here 1 s), on threads of its own, and ``/health`` at once meanwhile."""
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(8)
+    port = silent.getsockname()[1]
+    hanging = create_engine(f"postgresql+psycopg://nobody@127.0.0.1:{port}/none")
+    app = create_app(settings.model_copy(update={"ready_timeout_s": 1.0, "worker_threads": 2}))
+    try:
+        with TestClient(app) as client:
+            monkeypatch.setattr(app.state.db, "probe", lambda: hanging)
+            started = time.monotonic()
+            reply = client.get(f"{API}/ready")
+            took = time.monotonic() - started
+            assert reply.status_code == 503 and took < 2.5, (took, reply.text)
+            assert "database: no answer within 1 s" in reply.json()["reasons"]
+            started = time.monotonic()
+            assert client.get(f"{API}/health").status_code == 200
+            assert time.monotonic() - started < 0.5
+    finally:
+        silent.close()

@@ -27,7 +27,7 @@ from service_support import (
 from trainclimate.service import scheduler as scheduler_module
 from trainclimate.service.app import register_model_file
 from trainclimate.service.scheduler import Scheduler
-from trainclimate.service.store import commands
+from trainclimate.service.store import commands, liveness
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import (
     Coach,
@@ -63,7 +63,7 @@ def add_coaches(db: Database, ids, *, active: bool = True, train: str = "T", fle
 
 
 def ingest(db: Database, coach_id: str, rows: list[dict]) -> int:
-    """Store rows as ``POST /telemetry`` does (advancing the live clock)."""
+    """Store rows as ``POST /telemetry`` does (advancing the coach's clock)."""
     with db.transaction() as session:
         stored, _ = commands.ingest(session, coach_id, rows)
     return stored
@@ -279,27 +279,30 @@ def test_a_restarted_scheduler_continues_from_the_stored_history(db, settings):
     assert len(setpoints(db)) == 2 * 13
 
 
-def test_run_live_once_issues_only_the_current_tick(db, settings, caplog):
+def test_run_live_once_issues_each_coach_the_tick_of_its_own_clock(db, settings, caplog):
     scheduler = Scheduler(db, settings)
-    assert scheduler.run_live_once() == 0  # no live clock yet: nothing reported
+    assert scheduler.run_live_once() == 0  # nothing reported: no clock
     add_coaches(db, ["A", "B"])
     add_coaches(db, ["D-A"], train="D", fleet="demo")
     ingest(db, "A", sim_rows(0, 1, 62))
     ingest(db, "B", sim_rows(1, 1, 60))
     with db.transaction() as session:
-        assert session.get(FleetClock, "live").time == at(62)
+        assert {c: r.time for c, r in liveness.clocks(session).items()} == {
+            "A": at(62),
+            "B": at(60),
+        }
+        assert session.get(FleetClock, "live") is None  # no clock shared by the live coaches
     assert scheduler.run_live_once() == 2
     assert [(sp.coach_id, sp.tick) for sp in setpoints(db)] == [("A", at(60)), ("B", at(60))]
     assert scheduler.run_live_once() == 0
     ingest(db, "A", sim_rows(0, 63, 64))
     assert scheduler.run_live_once() == 0  # still the tick of T0 + 60 min
-    ingest(db, "A", sim_rows(0, 65, 75))  # the clock jumps two periods: only the newest tick
-    # … and for the first 4 minutes after it, only to the coaches whose row at it has arrived
+    ingest(db, "A", sim_rows(0, 65, 75))  # A's clock jumps two periods: only its newest tick
     assert scheduler.run_live_once() == 1
-    ingest(db, "A", sim_rows(0, 76, 78))
-    assert scheduler.run_live_once() == 0  # B may still report (its gateway is late)
-    ingest(db, "A", sim_rows(0, 79, 79))
-    assert scheduler.run_live_once() == 1  # the clock 4 min past the tick: B decides on its data
+    ingest(db, "A", sim_rows(0, 76, 79))
+    assert scheduler.run_live_once() == 0  # B's clock still at T0 + 60: its ticks wait for it
+    ingest(db, "B", sim_rows(1, 61, 77))  # B's late rows arrive: its newest tick, on its data
+    assert scheduler.run_live_once() == 1
     assert [(sp.coach_id, sp.tick) for sp in setpoints(db)] == [
         ("A", at(60)),
         ("B", at(60)),
@@ -307,12 +310,30 @@ def test_run_live_once_issues_only_the_current_tick(db, settings, caplog):
         ("B", at(75)),
     ]
     got = by_coach(db, at(75))
-    assert (got["A"].source, got["B"].source, got["B"].reason) == ("ddpc", "fallback", "stale")
+    assert (got["A"].source, got["B"].source) == ("ddpc", "ddpc")
     # the gap in the record is said, not silent
     skipped = [r.getMessage() for r in caplog.records if "skipped" in r.getMessage()]
     assert len(skipped) == 2 and all(
-        m.endswith("(the service was down or behind the live clock)") for m in skipped
+        m.endswith("(the service was down or behind its clock)") for m in skipped
     )
+
+
+def test_a_gateway_ahead_moves_only_its_own_coaches_ticks(db, settings):
+    """A gateway an hour ahead of the others (within what the server's clock allows, or an
+    emulator started later) ticks its own coaches an hour ahead; the other coaches keep their
+    ticks, decided on their own rows — never ``stale`` for being behind it, never frozen."""
+    add_coaches(db, ["A", "B"])
+    ingest(db, "A", sim_rows(0, 1, 120))  # an hour ahead of B
+    ingest(db, "B", sim_rows(1, 1, 60))
+    scheduler = Scheduler(db, settings)
+    assert scheduler.run_live_once() == 2
+    for minute in range(61, 91):  # B reports on, minute by minute; A stays where it is
+        ingest(db, "B", sim_rows(1, minute, minute))
+        scheduler.run_live_once()
+    ticks = [(sp.tick, sp.source, sp.reason) for sp in setpoints(db) if sp.coach_id == "B"]
+    assert [t for t, _, _ in ticks] == [at(m) for m in range(60, 91, 5)]
+    assert all(source == "ddpc" and reason == "ok" for _, source, reason in ticks), ticks
+    assert [sp.tick for sp in setpoints(db) if sp.coach_id == "A"] == [at(120)]
 
 
 def test_run_live_survives_the_database_going_away(db, settings, monkeypatch, caplog):
@@ -379,14 +400,15 @@ def test_the_tick_transaction_is_all_or_nothing(db, settings, monkeypatch):
 
 
 def test_a_live_coach_whose_gateway_is_late_gets_the_tick_with_its_row(db, settings):
-    """Gateways report at slightly different moments: the clock (the newest row of any coach)
-    passing a tick does not issue it to a coach whose row at the tick is on its way, so the
-    late coach's controller still has the reading at the tick."""
+    """Gateways report at slightly different moments: another coach's row passing a tick does
+    not issue it to a coach whose row at the tick is on its way (each coach ticks on its own
+    clock), so the late coach's controller still has the reading at the tick."""
     scheduler = Scheduler(db, settings)
     add_coaches(db, ["A", "B"])
     ingest(db, "A", sim_rows(0, 1, 60))
     ingest(db, "B", sim_rows(1, 1, 58))  # B's gateway is two minutes behind
-    assert scheduler.run_live_once() == 1
+    assert scheduler.run_live_once() == 2  # A's tick at T0 + 60 min, B's (its clock) at 55
+    assert [(sp.coach_id, sp.tick) for sp in setpoints(db)] == [("B", at(55)), ("A", at(60))]
     ingest(db, "B", sim_rows(1, 59, 60))
     assert scheduler.run_live_once() == 1
     got = by_coach(db, at(60))

@@ -35,6 +35,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
     from trainclimate.service import logs
     from trainclimate.service.app import create_app
     from trainclimate.service.settings import (
+        MAX_AHEAD_LIMIT_MIN,
         MAX_BACKFILL_HORIZON_DAYS,
         REPLICA_NAME_MAX,
         Settings,
@@ -58,6 +59,8 @@ def cmd_serve(args: argparse.Namespace) -> None:
         # a bad file is a one-line error before anything starts
         load_params(args.coach_params)
         twin.validated_range_of_file(args.coach_params)
+    if args.max_ahead_min is not None and not 0 < args.max_ahead_min <= MAX_AHEAD_LIMIT_MIN:
+        raise UsageError(f"--max-ahead-min takes minutes in (0, {MAX_AHEAD_LIMIT_MIN:g}]")
     if args.guard_days is not None and args.guard_days < MIN_GUARD_DAYS:
         raise UsageError(f"--guard-days must be at least {MIN_GUARD_DAYS}")
     if args.replica_name is not None and not (
@@ -80,6 +83,7 @@ def cmd_serve(args: argparse.Namespace) -> None:
         **({"backfill_horizon_days": horizon} if horizon is not None else {}),
         **({"forwarded_allow_ips": proxies} if proxies is not None else {}),
         **({"guard_days": args.guard_days} if args.guard_days is not None else {}),
+        **({"max_ahead_min": args.max_ahead_min} if args.max_ahead_min is not None else {}),
         **(
             {
                 "mqtt_url": args.mqtt,
@@ -347,6 +351,7 @@ def register(sub) -> None:
     """Add ``serve``, ``token create`` and ``gateway`` to ``sub``."""
     from trainclimate.analysis.guard import GUARD_DAYS
     from trainclimate.service.settings import BACKFILL_HORIZON_DAYS
+    from trainclimate.service.settings import MAX_AHEAD_MIN as MAX_AHEAD_MIN_DEFAULT
 
     p = add_command(sub, "serve", cmd_serve, "run the service (API, dashboard, control loop)")
     p.add_argument(
@@ -393,6 +398,13 @@ def register(sub) -> None:
         default=None,
         help="refuse live telemetry rows older than their coach's newest row less this many "
         f"days (default {BACKFILL_HORIZON_DAYS:g}; $TRAINCLIMATE_BACKFILL_HORIZON_DAYS)",
+    )
+    p.add_argument(
+        "--max-ahead-min",
+        type=float,
+        default=None,
+        help="refuse live telemetry rows stamped more than this many minutes ahead of the "
+        f"server's clock (default {MAX_AHEAD_MIN_DEFAULT:g}; $TRAINCLIMATE_MAX_AHEAD_MIN)",
     )
     p.add_argument(
         "--guard-days",

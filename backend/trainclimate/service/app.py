@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from datetime import timedelta
 from pathlib import Path
@@ -84,7 +85,13 @@ async def lifespan(app: FastAPI):
     app.state.migrations_head = head_revision()
     # the threads running the sync routes, and a pooled connection for each (store/db.py)
     pace_threads(settings.worker_threads)
-    db = Database(settings.database_url, settings.worker_threads)
+    db = Database(
+        settings.database_url,
+        settings.worker_threads,
+        settings.db_lock_timeout_s,
+        settings.db_idle_in_transaction_s,
+        application_name=f"trainclimate:{settings.replica_name}",
+    )
     with db.transaction() as session:
         register_model_file(session, settings)
         if settings.fleet == "demo":
@@ -123,6 +130,7 @@ async def lifespan(app: FastAPI):
             t.join(timeout=10)
         if app.state.mqtt is not None:
             app.state.mqtt.stop()
+        app.state.probe_threads.shutdown(wait=False, cancel_futures=True)
         db.dispose()
 
 
@@ -222,7 +230,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # of a NUL in the path or query, the body limit, the admission and the rerun of requests
     # that lost a race
     app.state.read_cache = ReadCache(settings.read_cache_size)
-    app.state.backfill = Backfill(timedelta(days=settings.backfill_horizon_days))
+    app.state.backfill = Backfill(
+        timedelta(days=settings.backfill_horizon_days), timedelta(minutes=settings.max_ahead_min)
+    )
+    # the readiness probe's own threads: it never waits for the requests' worker threads
+    app.state.probe_threads = ThreadPoolExecutor(2, thread_name_prefix="ready-probe")
     app.state.admission = Slots(settings.worker_threads, settings.overload_wait_s)
     app.add_middleware(RetryConflicts)
     app.add_middleware(Admission, slots=app.state.admission)

@@ -1,19 +1,29 @@
 """Whether this replica is ready to serve (``GET /api/v1/ready``): its database answers, the
 schema is at the newest migration, a predictor model is active or the layer knowingly runs under
 T_rule while the first one is prepared, and each of this replica's loops completed an iteration
-within two periods of its clock (:meth:`~trainclimate.service.scheduler.Scheduler.beat`)."""
+within two periods of its clock (:meth:`~trainclimate.service.scheduler.Scheduler.beat`), and
+its storage takes writes (:mod:`~trainclimate.service.store.storage`: a full disk is named).
+
+The database check runs on threads of its own (:func:`check_off_pool`) with the database's probe
+connection (:meth:`~trainclimate.service.store.db.Database.probe`), so a pool whose connections
+all wait — for locks a paused replica holds, say — leaves the probe an answer within its timeout.
+"""
 
 from __future__ import annotations
 
+import asyncio
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
 from sqlalchemy import select, text
 from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.orm import Session
 
 from trainclimate.service.preparation import ModelPreparation
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import PredictorModel
+from trainclimate.service.store.storage import StorageState
 
 
 @dataclass
@@ -24,6 +34,7 @@ class Readiness:
 
     replica: str
     reasons: list[str] = field(default_factory=list)
+    storage: dict = field(default_factory=lambda: StorageState().as_dict())
     migrations: str | None = None
     model_version: int | None = None
     under_rule: bool = False
@@ -37,7 +48,7 @@ def check(
     error."""
     ready = Readiness(replica=scheduler.replica)
     try:
-        with db.transaction() as session:
+        with Session(db.probe()) as session, session.begin():
             ready.migrations = session.execute(
                 text("SELECT version_num FROM alembic_version")
             ).scalar()
@@ -59,6 +70,34 @@ def check(
                 ready.reasons.append(f"no predictor model: its preparation failed: {status.detail}")
             else:
                 ready.reasons.append("no active predictor model")
+    storage = db.storage.state
+    ready.storage = storage.as_dict()
+    if storage.state != "ok":
+        since = f"{storage.since:%Y-%m-%dT%H:%M:%SZ}"
+        ready.reasons.append(f"storage: {storage.detail} (since {since})")
     ready.loops_s = scheduler.loop_ages()
     ready.reasons += scheduler.stalled_loops()
     return ready
+
+
+async def check_off_pool(
+    threads: Executor,
+    timeout_s: float,
+    db: Database,
+    head: str,
+    scheduler: Scheduler,
+    preparation: ModelPreparation,
+) -> Readiness:
+    """:func:`check` on ``threads`` (not the requests' worker threads), waited for at most
+    ``timeout_s`` seconds: a check that takes longer is a reason (the database does not
+    answer), the rest checked without it."""
+    loop = asyncio.get_running_loop()
+    job = loop.run_in_executor(threads, check, db, head, scheduler, preparation)
+    try:
+        return await asyncio.wait_for(job, timeout_s)
+    except TimeoutError:
+        ready = Readiness(replica=scheduler.replica, storage=db.storage.state.as_dict())
+        ready.reasons.append(f"database: no answer within {timeout_s:g} s")
+        ready.loops_s = scheduler.loop_ages()
+        ready.reasons += scheduler.stalled_loops()
+        return ready

@@ -1,9 +1,12 @@
 """The scheduler: one tick per coach per sampling period, each issued exactly once.
 
-A fleet's clock drives its ticks: the demo fleet's simulated clock (advanced by
+A clock drives the ticks: the demo fleet's simulated clock (advanced by
 :class:`~trainclimate.service.adapters.demo.DemoFleet`, which calls :meth:`Scheduler.tick_fleet`
-after each period it simulates), and for live coaches the newest telemetry time their gateways
-reported — real time in service (:meth:`Scheduler.run_live`).
+after each period it simulates), and for each live coach its own clock, the newest time of its
+own telemetry (:mod:`~trainclimate.service.store.liveness`) — real time in service
+(:meth:`Scheduler.run_live`). A live coach gets the tick its newest row has reached, as soon as
+that row is stored; one gateway's clock, ahead or behind or jumping, moves no other coach's
+ticks.
 
 A tick for coach c at time t is *claimed* in the database: the coach's row is locked
 (``SELECT … FOR UPDATE SKIP LOCKED`` on PostgreSQL, so replicas sharing the database take
@@ -61,7 +64,7 @@ from trainclimate.service.store import guard, plans
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import (
     Coach,
-    FleetClock,
+    CoachLiveness,
     Override,
     PredictorModel,
     Setpoint,
@@ -89,9 +92,6 @@ class Scheduler:
         self.settings = settings
         self.period = timedelta(minutes=settings.sampling_min)
         self.period_s = self.period.total_seconds()
-        #: how long (of the live clock) after a tick the live fleet waits for each coach's row at
-        #: the tick: a minute less than the period (4 min), so it is issued before the next tick
-        self.live_grace = max(self.period - timedelta(minutes=1), timedelta(0))
         self.coach_model = CoachModel(dt_s=self.period_s)
         self.ocp = OCPSettings()
         self._controllers: dict[str, DDPCController] = {}
@@ -205,23 +205,30 @@ class Scheduler:
         return policy.decide(coach, samples, override, tick, self.settings, controller, tripped)
 
     def tick_fleet(
-        self, fleet: str, tick: datetime, batch: int = 250, *, reported_only: bool = False
+        self,
+        fleet: str,
+        tick: datetime,
+        batch: int = 250,
+        *,
+        reported_only: bool = False,
+        coaches: list[str] | None = None,
     ) -> int:
-        """Issue tick ``tick`` to every coach of ``fleet`` that has not had it — with
-        ``reported_only``, only to those whose telemetry has reached the tick; returns how many
-        were issued here (0 if another replica or an earlier run did them)."""
+        """Issue tick ``tick`` to every coach of ``fleet`` (only of ``coaches``, if given) that
+        has not had it — with ``reported_only``, only to those whose telemetry has reached the
+        tick; returns how many were issued here (0 if another replica or an earlier run did
+        them)."""
         issued, left, started = 0, None, time.perf_counter()
         while True:
             try:
                 with logs.context(tick=tick.isoformat()):
-                    n = self._tick_batch(fleet, tick, batch, reported_only)
+                    n = self._tick_batch(fleet, tick, batch, reported_only, coaches)
             except IntegrityError:
                 # another scheduler issued some of these ticks first: on SQLite, which has no
                 # SKIP LOCKED, both may claim a coach and the unique (coach, tick) lets one
                 # win; this batch was rolled back, and the coaches still without the tick are
                 # taken again — unless nobody made progress since the last conflict: then it
                 # is no race, and it is raised
-                before, left = left, self._pending(fleet, tick, reported_only)
+                before, left = left, self._pending(fleet, tick, reported_only, coaches)
                 if before is not None and left >= before:
                     raise
                 log.info("tick %s: another scheduler issued part of it first", tick)
@@ -233,9 +240,11 @@ class Scheduler:
             issued += n
 
     @staticmethod
-    def _due(fleet: str, tick: datetime, reported_only: bool) -> list:
-        """The conditions of a coach of ``fleet`` still due ``tick``."""
+    def _due(fleet: str, tick: datetime, reported_only: bool, coaches: list[str] | None) -> list:
+        """The conditions of a coach of ``fleet`` (of ``coaches``) still due ``tick``."""
         due = [Coach.fleet == fleet, or_(Coach.last_tick.is_(None), Coach.last_tick < tick)]
+        if coaches is not None:
+            due.append(Coach.id.in_(coaches))
         if reported_only:
             reported = select(Telemetry.id).where(
                 Telemetry.coach_id == Coach.id, Telemetry.time >= tick
@@ -243,21 +252,30 @@ class Scheduler:
             due.append(reported.exists())
         return due
 
-    def _pending(self, fleet: str, tick: datetime, reported_only: bool) -> int:
-        """How many coaches of ``fleet`` are still due ``tick``."""
+    def _pending(
+        self, fleet: str, tick: datetime, reported_only: bool, coaches: list[str] | None
+    ) -> int:
+        """How many coaches of ``fleet`` (of ``coaches``) are still due ``tick``."""
         with self.db.transaction() as session:
-            due = self._due(fleet, tick, reported_only)
+            due = self._due(fleet, tick, reported_only, coaches)
             return session.scalar(select(func.count()).select_from(Coach).where(*due))
 
-    def _tick_batch(self, fleet: str, tick: datetime, batch: int, reported_only: bool) -> int:
-        """Claim and issue ``tick`` for up to ``batch`` coaches in one transaction; returns how
-        many (0: none left)."""
+    def _tick_batch(
+        self,
+        fleet: str,
+        tick: datetime,
+        batch: int,
+        reported_only: bool,
+        only: list[str] | None = None,
+    ) -> int:
+        """Claim and issue ``tick`` for up to ``batch`` coaches (of ``only``) in one
+        transaction; returns how many (0: none left)."""
         window = (self._rho() + 2) * self.period + timedelta(minutes=1)
         with self.db.transaction() as session:
             self.refresh_model(session)
             coaches = session.scalars(
                 select(Coach)
-                .where(*self._due(fleet, tick, reported_only))
+                .where(*self._due(fleet, tick, reported_only, only))
                 .order_by(Coach.id)
                 .limit(batch)
                 # FOR NO KEY UPDATE: telemetry of a coach being ticked (its foreign key takes
@@ -283,7 +301,7 @@ class Scheduler:
                 # record shows the gap, and this says why
                 log.warning(
                     "tick %s: %s skipped at least one tick (the service was down or behind "
-                    "the live clock)",
+                    "its clock)",
                     tick,
                     ", ".join(behind),
                 )
@@ -358,25 +376,37 @@ class Scheduler:
         return self._predictor.rho if self._predictor is not None else RHO
 
     # --- the live fleet ----------------------------------------------------------------------
-    def live_clock(self, session: Session) -> datetime | None:
-        """The live fleet's clock (its newest telemetry time), None before any telemetry."""
-        clock = session.get(FleetClock, "live")
-        return clock.time if clock is not None else None
+    def live_ticks(self, session: Session) -> tuple[dict[datetime, list[str]], datetime | None]:
+        """The tick each live coach is due now, by tick: its own clock's (the newest time of its
+        telemetry, :mod:`~trainclimate.service.store.liveness`), floored to the period, for the
+        coaches whose last tick is before it; and the newest of the clocks (None: no live coach
+        has reported)."""
+        rows = session.execute(
+            select(CoachLiveness.coach_id, CoachLiveness.time, Coach.last_tick)
+            .join(Coach, Coach.id == CoachLiveness.coach_id)
+            .where(Coach.fleet == "live")
+        ).all()
+        due: dict[datetime, list[str]] = {}
+        for coach_id, clock, last_tick in rows:
+            tick = floor_tick(clock, self.period)
+            if last_tick is None or last_tick < tick:
+                due.setdefault(tick, []).append(coach_id)
+        return due, max((clock for _, clock, _ in rows), default=None)
 
     def run_live_once(self) -> int:
-        """Issue the current tick of the live fleet (its clock is the newest telemetry of any
-        coach). Gateways report at slightly different moments, so for the first
-        ``live_grace`` after a tick only the coaches whose row at the tick has arrived get
-        it; after that every coach still due does (one without that row then decides on what it
-        has: stale, warm-up, …). Ticks older than the current one can no longer be applied and
-        are not issued late."""
+        """Issue each live coach the tick its own clock has reached (its newest row is at or
+        after the tick, so the tick decides on that row). Ticks older than a coach's current
+        one can no longer be applied and are not issued late; a coach whose gateway is silent
+        gets no tick (its last setpoint's validity runs out, and its gateway falls back to
+        T_rule)."""
         with self.db.transaction() as session:
-            now = self.live_clock(session)
-        if now is None:
-            return 0
-        self.metrics.clock["live"] = now.timestamp()
-        tick = floor_tick(now, self.period)
-        return self.tick_fleet("live", tick, reported_only=now < tick + self.live_grace)
+            due, newest = self.live_ticks(session)
+        if newest is not None:
+            self.metrics.clock["live"] = newest.timestamp()
+        issued = 0
+        for tick in sorted(due, reverse=True):
+            issued += self.tick_fleet("live", tick, reported_only=True, coaches=due[tick])
+        return issued
 
     # --- the loops' heartbeats ---------------------------------------------------------------
     def beat(self, loop: str, period_wall_s: float) -> None:

@@ -16,7 +16,7 @@ from trainclimate import resources
 from trainclimate.analysis.guard import GUARD_DAYS, MIN_GUARD_DAYS
 from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
-from trainclimate.service.store.db import WORKER_THREADS
+from trainclimate.service.store.db import IDLE_IN_TRANSACTION_S, LOCK_TIMEOUT_S, WORKER_THREADS
 
 #: The MQTT topics' prefix (see :mod:`trainclimate.service.adapters.mqtt`).
 MQTT_PREFIX = "trainclimate/v1"
@@ -25,6 +25,8 @@ MQTT_PREFIX = "trainclimate/v1"
 #: A loop of the service counts as running for at least this long after its last completed
 #: iteration (``/api/v1/ready``), however fast its clock. [s]
 LOOP_READY_MIN_S = 10.0
+#: How long ``/api/v1/ready`` waits for its database check by default. [s]
+READY_TIMEOUT_S = 3.0
 #: The longest replica name (the ``setpoints.replica`` column).
 REPLICA_NAME_MAX = 64
 #: The default limit of a request body: above the largest valid telemetry batch (10 000 rows,
@@ -36,6 +38,11 @@ MAX_BODY_BYTES = 6 * 1024 * 1024
 BACKFILL_HORIZON_DAYS = 7.0
 #: The longest backfill horizon that can be set (ten years). [days]
 MAX_BACKFILL_HORIZON_DAYS = 3650.0
+#: How far ahead of the server's clock a live telemetry row may be stamped by default (clock
+#: skew). [min]
+MAX_AHEAD_MIN = 5.0
+#: The most that ``max_ahead_min`` can be set to (a day). [min]
+MAX_AHEAD_LIMIT_MIN = 24 * 60.0
 
 
 def default_replica_name() -> str:
@@ -106,7 +113,13 @@ class Settings(BaseSettings):
     say the layer costs energy (95 % interval below 0) before its guard hands the pair back to
     T_rule (:mod:`trainclimate.service.store.guard`; at least 1); ``metrics_refresh_s`` how often
     at most the metrics' figures that need a query (the model's online MAE, the live coaches) are
-    refreshed (:mod:`trainclimate.service.metrics`)."""
+    refreshed (:mod:`trainclimate.service.metrics`); ``max_ahead_min``
+    (``--max-ahead-min``) how far ahead of the server's clock a live row may be stamped
+    (further: refused, reason ``ahead_of_clock``; default :data:`MAX_AHEAD_MIN`);
+    ``db_lock_timeout_s`` and ``db_idle_in_transaction_s`` the PostgreSQL sessions'
+    ``lock_timeout`` and ``idle_in_transaction_session_timeout`` (0: none; see
+    :mod:`trainclimate.service.store.db`); ``ready_timeout_s`` how long ``/api/v1/ready`` waits
+    for its database check before it answers 503."""
 
     model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
 
@@ -146,6 +159,10 @@ class Settings(BaseSettings):
     loop_ready_s: float | None = Field(default=None, gt=0)
     guard_days: int = Field(default=GUARD_DAYS, ge=MIN_GUARD_DAYS)
     metrics_refresh_s: float = Field(default=60.0, gt=0)
+    max_ahead_min: float = Field(default=MAX_AHEAD_MIN, gt=0, le=MAX_AHEAD_LIMIT_MIN)
+    db_lock_timeout_s: float = Field(default=LOCK_TIMEOUT_S, ge=0)
+    db_idle_in_transaction_s: float = Field(default=IDLE_IN_TRANSACTION_S, ge=0)
+    ready_timeout_s: float = Field(default=READY_TIMEOUT_S, gt=0)
 
     @field_validator("fleet")
     @classmethod

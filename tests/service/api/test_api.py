@@ -165,13 +165,16 @@ def test_override_outside_the_band_is_refused_and_nothing_stored(client, tokens,
     assert "input" not in error
     assert count(settings.database_url, Override) == 0
     assert count(settings.database_url, AuditLog) == audit_rows
-    # a coach without telemetry (the live clock exists) cannot be overridden; an unknown one is 404
+    # a coach without telemetry (no clock of its own: another coach's is not its) cannot be
+    # overridden; an unknown one is 404
     reply = client.post(
         f"{API}/coaches/B/override",
         json={"t_ref_c": 21, "duration_min": 5, "reason": "x"},
         headers=op,
     )
-    assert reply.status_code == 409 and reply.json() == {"detail": "coach 'B' has no T_rule yet"}
+    assert reply.status_code == 409 and reply.json() == {
+        "detail": "coach 'B' has reported nothing yet: no T_rule to check against"
+    }
     reply = client.post(
         f"{API}/coaches/Z/override",
         json={"t_ref_c": 21, "duration_min": 5, "reason": "x"},

@@ -20,7 +20,7 @@ from service_support import (
     to_wire,
 )
 from trainclimate.service.store.db import Database
-from trainclimate.service.store.models import AuditLog, Coach, FleetClock, Telemetry, Train
+from trainclimate.service.store.models import AuditLog, Coach, CoachLiveness, Telemetry, Train
 
 
 def accepted(received: int, stored: int) -> dict:
@@ -211,7 +211,7 @@ def test_malformed_telemetry_is_refused_whole(client, tokens, settings):
         assert client.post(f"{API}/telemetry", json=body, headers=op).status_code == 422, body
     assert _raw(client, op, '{"coach_id": "A", "rows": [').status_code == 422
     assert count(settings.database_url, Telemetry) == 0
-    assert count(settings.database_url, FleetClock) == 0
+    assert count(settings.database_url, CoachLiveness) == 0
     assert client.get(f"{API}/coaches/A", headers=tokens["viewer"]).json()["status"] == "no-data"
     # and the good rows alone are fine
     reply = client.post(f"{API}/telemetry", json={"coach_id": "A", "rows": good}, headers=op)
@@ -223,7 +223,7 @@ def test_telemetry_for_an_unknown_coach_is_404(client, tokens, settings):
     assert reply.status_code == 404 and reply.json() == {"detail": "no coach 'ghost'"}
     assert (
         count(settings.database_url, Telemetry) == 0
-        and count(settings.database_url, FleetClock) == 0
+        and count(settings.database_url, CoachLiveness) == 0
     )
 
 
@@ -250,4 +250,4 @@ def test_telemetry_for_a_demo_coach_is_refused(client, tokens, settings):
     assert reply.status_code == 409
     assert reply.json() == {"detail": "coach 'D1-A' is simulated by the demo fleet"}
     assert count(settings.database_url, Telemetry) == 0
-    assert count(settings.database_url, FleetClock) == 0
+    assert count(settings.database_url, CoachLiveness) == 0

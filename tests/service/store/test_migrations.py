@@ -8,19 +8,20 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
-from sqlalchemy import inspect
+from sqlalchemy import inspect, select
 
-from trainclimate.service.store import commands, plans
+from trainclimate.service.store import commands, liveness, plans
 from trainclimate.service.store.db import MIGRATIONS, Database, downgrade, make_engine, migrate
 from trainclimate.service.store.models import (
     AuditLog,
     Base,
     Coach,
+    FleetClock,
     Setpoint,
     Telemetry,
     Train,
@@ -33,6 +34,7 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 TABLES = {
+    "coach_liveness",
     "pair_guards",
     "train_plans",
     "trial_days",
@@ -48,6 +50,9 @@ TABLES = {
     "api_tokens",
     "audit_log",
 }
+
+#: The tables before 0008.
+BEFORE_0008 = TABLES - {"train_plans", "trial_days", "pair_guards", "coach_liveness"}
 
 
 def schema(url: str) -> tuple[set[str], str | None]:
@@ -116,7 +121,7 @@ def fill(url: str) -> None:
 
 def test_migrate_up_down_up(db_url):
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0010")
+    assert schema(db_url) == (TABLES, "0011")
     assert set(Base.metadata.tables) == TABLES
     assert differences(db_url) == []
     fill(db_url)
@@ -124,7 +129,7 @@ def test_migrate_up_down_up(db_url):
     downgrade(db_url)
     assert schema(db_url) == (set(), None)
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0010")
+    assert schema(db_url) == (TABLES, "0011")
     assert differences(db_url) == []
 
 
@@ -148,14 +153,14 @@ def alembic(db_url: str, tmp_path: Path, *args: str) -> subprocess.CompletedProc
 def test_alembic_command_line(db_url, tmp_path):
     assert ALEMBIC.exists(), f"no alembic script next to {sys.executable}"
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0010")
+    assert schema(db_url) == (TABLES, "0011")
     # `check` autogenerates against the models and fails on any difference
     assert "No new upgrade operations detected" in alembic(db_url, tmp_path, "check").stdout
     fill(db_url)
     alembic(db_url, tmp_path, "downgrade", "base")
     assert schema(db_url) == (set(), None)
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0010")
+    assert schema(db_url) == (TABLES, "0011")
     assert differences(db_url) == []
 
 
@@ -199,9 +204,9 @@ def test_trial_plans_upgrade_a_database_in_use(db_url):
                        Coach(id="T1-B", train_id="T1")])  # fmt: skip
             s.flush()
             s.add(Telemetry(coach_id="T1-A", time=now, t_room_mid_c=21.0))
-        assert schema(db_url) == (TABLES - {"train_plans", "trial_days", "pair_guards"}, "0007")
+        assert schema(db_url) == (BEFORE_0008, "0007")
         migrate(db_url)
-        assert schema(db_url) == (TABLES, "0010")
+        assert schema(db_url) == (TABLES, "0011")
         with db.transaction() as s:
             train = s.get(Train, "T1")
             assert plans.view(s, train)["plan"] == "fixed"
@@ -210,8 +215,56 @@ def test_trial_plans_upgrade_a_database_in_use(db_url):
             )
             assert view["pending"]["effective_from"] == "2024-11-29T02:00:00+00:00"
         downgrade(db_url, "0007")
-        assert schema(db_url) == (TABLES - {"train_plans", "trial_days", "pair_guards"}, "0007")
+        assert schema(db_url) == (BEFORE_0008, "0007")
         with db.transaction() as s:
             assert [c.id for c in s.get(Train, "T1").coaches] == ["T1-A", "T1-B"]
     finally:
         db.dispose()
+
+
+def test_liveness_moves_to_a_table_of_its_own(db_url):
+    """0011 moves each live coach's arrival out of ``coaches`` (which the ticks lock) and the
+    shared live clock out of ``fleet_clocks`` into ``coach_liveness``: each coach's clock its
+    newest row, its arrival as it was; the downgrade brings both back."""
+    from sqlalchemy import create_engine, text
+
+    migrate(db_url, "0010")
+    engine = create_engine(db_url)
+    t0 = datetime(2024, 11, 28, 6, 0, tzinfo=UTC)
+    seen = datetime(2026, 11, 27, 9, 0, tzinfo=UTC)
+    with engine.begin() as c:
+        train = text("INSERT INTO trains (id, name, created_at) VALUES ('T', 't', :t)")
+        c.execute(train, {"t": t0})
+        c.execute(
+            text(
+                "INSERT INTO coaches (id, train_id, fleet, ddpc_active, created_at, last_seen_at)"
+                " VALUES (:id, 'T', 'live', false, :t, :seen)"
+            ),
+            [{"id": "A", "t": t0, "seen": seen}, {"id": "B", "t": t0, "seen": None}],
+        )
+        c.execute(
+            text(
+                "INSERT INTO telemetry (coach_id, time, t_room_mid_c, mode, connected) "
+                "VALUES ('A', :t, 21.0, 'regular', true)"
+            ),
+            [{"t": t0 + timedelta(minutes=m)} for m in (1, 2, 3)],
+        )
+        c.execute(
+            text("INSERT INTO fleet_clocks (name, time, updated_at) VALUES ('live', :t, :t)"),
+            {"t": t0 + timedelta(minutes=3)},
+        )
+    migrate(db_url)
+    db = Database(db_url)
+    try:
+        with db.transaction() as s:
+            rows = {c: (r.time, r.last_seen_at) for c, r in liveness.clocks(s).items()}
+            assert rows == {"A": (t0 + timedelta(minutes=3), seen)}  # B never reported
+            assert [f.name for f in s.scalars(select(FleetClock))] == []
+    finally:
+        db.dispose()
+    downgrade(db_url, "0010")
+    with engine.begin() as c:
+        got = c.execute(text("SELECT id, last_seen_at FROM coaches ORDER BY id")).all()
+        assert [g[0] for g in got] == ["A", "B"] and got[1][1] is None and got[0][1] is not None
+        assert c.execute(text("SELECT count(*) FROM fleet_clocks WHERE name = 'live'")).scalar()
+    engine.dispose()

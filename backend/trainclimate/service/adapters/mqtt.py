@@ -17,7 +17,9 @@ Topics, under a prefix (``trainclimate/v1`` unless ``--mqtt-prefix`` says otherw
 - ``{prefix}/coaches/{coach_id}/setpoint`` — the service publishes every setpoint it issues to a
   live coach, **retained**, QoS 1, as the JSON of ``GET /api/v1/coaches/{id}/setpoint``
   (``coach_id``, ``tick``, ``t_ref_c``, ``t_rule_c``, ``source``, ``reason``, ``valid_until``). A
-  gateway that (re)connects gets its coaches' newest setpoint at once.
+  gateway that (re)connects gets its coaches' newest setpoint at once. A setpoint whose validity
+  has run out on its coach's clock (its newest row at or after ``valid_until``) is never
+  published: a replica paused after deciding it publishes nothing stale when it resumes.
 
 **Who sent it.** A subscriber never learns which broker user published a message, so the message
 carries its gateway's token, checked in the transaction that stores its rows as the HTTP API
@@ -38,7 +40,8 @@ confirms them (``…/stored``) and sends again what was never confirmed.
 
 **Bad messages** — a topic that names no coach, malformed JSON, no token, a token refused, rows the
 HTTP API would refuse (422; a row older than the backfill horizon among them, reason
-``outside_horizon``, its rows counted with the HTTP API's in
+``outside_horizon``, or more than ``max_ahead_min`` ahead of the server's clock, reason
+``ahead_of_clock``, their rows counted with the HTTP API's in
 :class:`~trainclimate.service.store.commands.Backfill`), a coach not registered, a coach of the
 simulated demo fleet — are counted by reason in :attr:`MqttBridge.status` (shown by ``GET
 /api/v1/health``), logged with the reason, acknowledged and dropped (never confirmed); they never
@@ -65,11 +68,21 @@ from sqlalchemy.orm import Session
 
 from trainclimate.service.api.schemas import MAX_BATCH_ROWS, TelemetryRow
 from trainclimate.service.settings import MQTT_PREFIX
-from trainclimate.service.store import commands
-from trainclimate.service.store.commands import Backfill, ConflictError, OutsideHorizonError
+from trainclimate.service.store import commands, liveness
+from trainclimate.service.store.commands import (
+    AheadOfClockError,
+    Backfill,
+    ConflictError,
+    OutsideHorizonError,
+)
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import Coach
-from trainclimate.service.store.queries import NotFoundError, newest_setpoint, setpoint_view
+from trainclimate.service.store.queries import (
+    NotFoundError,
+    expired,
+    newest_setpoint,
+    setpoint_view,
+)
 from trainclimate.service.store.telemetry import from_wire
 from trainclimate.service.store.tokens import COACH_ID, authenticate
 
@@ -181,7 +194,8 @@ class MqttStatus:
     """The bridge's state and counts since the service started: ``connected`` to ``broker``
     (the telemetry subscription confirmed; ``connections`` how many times); ``messages`` handled
     (stored or dropped), ``rows_stored``, ``duplicates`` (rows already stored), ``dropped`` by
-    reason, ``setpoints_published``, ``confirmations_published`` (batches confirmed on
+    reason, ``setpoints_published``, ``setpoints_expired`` (not published: their validity had
+    run out on their coach's clock), ``confirmations_published`` (batches confirmed on
     ``…/stored``), ``database_retries`` (a message retried while the database was unavailable)
     and the ``last_error``."""
 
@@ -193,6 +207,7 @@ class MqttStatus:
     duplicates: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
     setpoints_published: int = 0
+    setpoints_expired: int = 0
     confirmations_published: int = 0
     database_retries: int = 0
     last_error: str | None = None
@@ -362,6 +377,8 @@ class MqttBridge:
                     )
             except OutsideHorizonError as exc:
                 raise MessageError(Backfill.REASON, str(exc)) from None
+            except AheadOfClockError as exc:
+                raise MessageError(Backfill.AHEAD, str(exc)) from None
             except NotFoundError as exc:
                 raise MessageError("unknown_coach", str(exc)) from None
             except ConflictError as exc:
@@ -393,22 +410,47 @@ class MqttBridge:
 
     # --- setpoints out ------------------------------------------------------------------------
     def publish_setpoints(self, fleet: str, rows: list[dict]) -> None:
-        """Publish the setpoints just issued to live coaches (a scheduler listener), retained."""
-        if fleet != "live":
+        """Publish the setpoints just issued to live coaches (a scheduler listener), retained —
+        those still valid on their coach's clock: a replica paused between deciding and
+        publishing (SIGSTOP, a VM migration) publishes nothing it decided before the pause
+        that has expired since (counted in ``setpoints_expired``)."""
+        if fleet != "live" or not rows:
             return
-        for row in rows:
-            self._publish(setpoint_view(row["coach_id"], row, self.valid_for))
+        views = [setpoint_view(row["coach_id"], row, self.valid_for) for row in rows]
+        try:
+            with self.db.transaction() as session:
+                clocks = liveness.clocks(session, [v["coach_id"] for v in views])
+        except OperationalError as exc:  # the clocks unknown: nothing published that may be stale
+            log.warning("MQTT: setpoints not published (database unavailable): %s", exc)
+            return
+        for view in views:
+            clock = clocks.get(view["coach_id"])
+            if expired(view, clock.time if clock is not None else None):
+                self.status.setpoints_expired += 1
+                log.warning(
+                    "MQTT: setpoint of %s at %s not published: expired on its clock (%s)",
+                    view["coach_id"],
+                    view["tick"],
+                    clock.time,
+                )
+                continue
+            self._publish(view)
 
     def _republish(self) -> None:
-        """On (re)connection: every live coach's newest setpoint, in case one was issued while
-        the broker was away."""
+        """On (re)connection: every live coach's newest setpoint still valid on its clock, in
+        case one was issued while the broker was away."""
         try:
             with self.db.transaction() as session:
                 views = []
+                clocks = liveness.clocks(session)
                 for coach in session.scalars(select(Coach).where(Coach.fleet == "live")):
                     sp = newest_setpoint(session, coach)
-                    if sp is not None:
-                        views.append(setpoint_view(coach.id, sp, self.valid_for))
+                    if sp is None:
+                        continue
+                    view = setpoint_view(coach.id, sp, self.valid_for)
+                    clock = clocks.get(coach.id)
+                    if not expired(view, clock.time if clock is not None else None):
+                        views.append(view)
         except OperationalError as exc:
             log.warning("MQTT: setpoints not republished (database unavailable): %s", exc)
             return

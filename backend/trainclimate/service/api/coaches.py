@@ -22,8 +22,8 @@ from trainclimate.service.api.deps import (
     period,
     settings,
 )
-from trainclimate.service.store import commands, queries
-from trainclimate.service.store.models import Coach, FleetClock, utcnow
+from trainclimate.service.store import commands, liveness, queries
+from trainclimate.service.store.models import Coach, utcnow
 
 router = APIRouter()
 
@@ -33,7 +33,7 @@ def list_coaches(request: Request, s: DB, _: Viewer) -> list:
     """Every coach with its train, layer, status (ok, warm-up, stale, disconnected, fallback,
     override, inactive, not-regular, preparing, no-data), latest readings, whether its decks are
     within the comfort band now, and its setpoint (and whether the coach receives it)."""
-    live = queries.live_clock(s)
+    live = queries.live_clocks(s)
     return [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
 
 
@@ -71,22 +71,23 @@ def register_coach(
 def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
     """One coach, as in the list."""
     [(coach, state)] = queries.coach_states(s, coach_id)
-    return current_view(request, s, coach, state, queries.live_clock(s))
+    return current_view(request, s, coach, state, queries.live_clocks(s))
 
 
 def current_view(
-    request: Request, s: Session, coach: Coach, state: tuple, live_clock: FleetClock | None
+    request: Request, s: Session, coach: Coach, state: tuple, clocks: liveness.Clocks
 ) -> dict:
     """The coach's view as the fleet list and the fleet summary show it: from the read cache
-    while its state is unchanged, with a live coach's silence judged now
-    (:func:`.queries.with_liveness`)."""
+    while its state is unchanged, with a live coach's silence judged now on its own clock
+    (``clocks``: :func:`.queries.live_clocks`; :func:`.queries.with_liveness`)."""
     stale_periods = settings(request).stale_periods
     view = request.app.state.read_cache.get(
         ("coach", coach.id),
         state,
         lambda: queries.coach_view(s, coach, period(request), stale_periods),
     )
-    return queries.with_liveness(view, live_clock, utcnow(), period(request), stale_periods)
+    clock, prior = clocks.get(coach.id), clocks.fleet_pace
+    return queries.with_liveness(view, clock, utcnow(), period(request), stale_periods, prior)
 
 
 @router.get(
@@ -158,6 +159,6 @@ def set_controller(
     request.app.state.scheduler.forget(coach.id)
     stale_periods = settings(request).stale_periods
     view = queries.coach_view(s, coach, period(request), stale_periods)
-    return queries.with_liveness(
-        view, queries.live_clock(s), utcnow(), period(request), stale_periods
-    )
+    clocks = queries.live_clocks(s)
+    clock, prior = clocks.get(coach.id), clocks.fleet_pace
+    return queries.with_liveness(view, clock, utcnow(), period(request), stale_periods, prior)

@@ -40,6 +40,6 @@ def get_fleet_summary(
     overridden or outside the comfort band for more than 30 min."""
     if end is not None:
         queries.checked_range(end, None, timedelta(hours=hours))  # the API's bounds
-    live = queries.live_clock(s)
+    live = queries.live_clocks(s)
     views = [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
     return fleet_summary.summary(s, views, hours, end, cache=request.app.state.read_cache)

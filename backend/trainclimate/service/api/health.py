@@ -6,6 +6,7 @@ import dataclasses
 from datetime import UTC, datetime, timedelta
 
 from fastapi import APIRouter, Request
+from fastapi.encoders import jsonable_encoder
 from fastapi.responses import JSONResponse
 
 from trainclimate import __version__
@@ -21,20 +22,24 @@ router = APIRouter()
 
 
 @router.get("/health", response_model=schemas.Health, tags=["health"])
-def health(request: Request) -> dict:
+async def health(request: Request) -> dict:
     """Liveness, without authentication, and what the service is still preparing (e.g. the
-    predictor model, with how far it is), the telemetry rows refused since start, and the MQTT
-    feed's state and counts."""
-    status = request.app.state.preparation.status
-    mqtt = request.app.state.mqtt
+    predictor model, with how far it is), the telemetry rows refused since start, the MQTT
+    feed's state and counts, and the storage's state (a full disk named). Answered from memory
+    on the event loop: no worker thread, no database, so it answers while the process lives,
+    whatever the database or the requests are doing."""
+    state = request.app.state
+    status = state.preparation.status
+    mqtt = state.mqtt
     preparing = [status] if status.state != "done" else []
     return {
         "status": "ok",
         "version": __version__,
-        "database": request.app.state.db.dialect,
+        "database": state.db.dialect,
         "preparing": preparing,
-        "telemetry_refused": request.app.state.backfill.refused,
+        "telemetry_refused": state.backfill.refused,
         "mqtt": dataclasses.asdict(mqtt.status) if mqtt is not None else None,
+        "storage": state.db.storage.state.as_dict(),
     }
 
 
@@ -44,16 +49,26 @@ def health(request: Request) -> dict:
     tags=["health"],
     responses={503: {"model": schemas.NotReady}},
 )
-def ready(request: Request):
-    """Readiness of this replica: the database answers, its schema is at the newest migration,
-    a predictor model is active (or the first one is being prepared while the coaches run under
-    T_rule), and each loop of this replica completed an iteration within two periods of its
-    clock. Otherwise 503 with the reasons."""
+async def ready(request: Request):
+    """Readiness of this replica: the database answers (within ``ready_timeout_s``, 3 s by
+    default), its schema is at the newest migration, a predictor model is active (or the first
+    one is being prepared while the coaches run under T_rule), the storage takes writes (no
+    full disk), and each loop of this replica completed an iteration within two periods of its
+    clock. Otherwise 503 with the reasons. Its database check runs on threads and a connection
+    of its own, never behind the requests' worker threads."""
     state = request.app.state
-    found = readiness.check(state.db, state.migrations_head, state.scheduler, state.preparation)
+    found = await readiness.check_off_pool(
+        state.probe_threads,
+        state.settings.ready_timeout_s,
+        state.db,
+        state.migrations_head,
+        state.scheduler,
+        state.preparation,
+    )
     if found.reasons:
         detail = "not ready: " + "; ".join(found.reasons)
-        return JSONResponse({"detail": detail, "reasons": found.reasons}, status_code=503)
+        body = {"detail": detail, "reasons": found.reasons, "storage": found.storage}
+        return JSONResponse(jsonable_encoder(body), status_code=503)
     return {"status": "ready", **dataclasses.asdict(found)}
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from datetime import UTC, date, datetime, timedelta
+from datetime import UTC, date, datetime
 from typing import Annotated, Literal
 
 from pydantic import (
@@ -43,8 +43,6 @@ PLAN_DESCRIPTION = (
 )
 
 
-#: How far ahead of the server's clock a telemetry row may be stamped (clock skew).
-MAX_AHEAD = timedelta(minutes=5)
 #: The most rows in one telemetry batch (``POST /api/v1/telemetry``, an MQTT message).
 MAX_BATCH_ROWS = 10_000
 EARLIEST_ROW = datetime(2000, 1, 1, tzinfo=UTC)
@@ -130,13 +128,26 @@ class MqttFeed(BaseModel):
     dropped: dict[str, int] = Field(
         description="messages dropped, by reason: bad_topic, malformed_json, no_token, "
         "invalid_rows, coach_mismatch, revoked (the token unknown, revoked or expired), "
-        "forbidden (the token not for the coach), unknown_coach, not_live, outside_horizon",
+        "forbidden (the token not for the coach), unknown_coach, not_live, outside_horizon, "
+        "ahead_of_clock",
         examples=[{"unknown_coach": 2}],
     )
     setpoints_published: int
+    setpoints_expired: int = Field(
+        default=0, description="setpoints not published: expired on their coach's clock"
+    )
     confirmations_published: int = Field(description="batches confirmed to their gateway")
     database_retries: int
     last_error: str | None
+
+
+class Storage(BaseModel):
+    """Whether the database takes writes: ``error`` from the first write that failed for lack
+    of storage (a full disk, an I/O error, a read-only file) until a write commits again."""
+
+    state: Literal["ok", "error"] = Field(examples=["error"])
+    detail: str | None = Field(default=None, examples=["database or disk is full"])
+    since: datetime | None = Field(default=None, description="when the error first happened")
 
 
 class Health(BaseModel):
@@ -149,10 +160,12 @@ class Health(BaseModel):
     )
     telemetry_refused: dict[str, int] = Field(
         description="telemetry rows refused since start (HTTP and MQTT), by reason: "
-        "outside_horizon (older than the coach's newest row less the backfill horizon)",
+        "outside_horizon (older than the coach's newest row less the backfill horizon), "
+        "ahead_of_clock (more than max_ahead_min ahead of the server's clock)",
         examples=[{"outside_horizon": 1}],
     )
     mqtt: MqttFeed | None = Field(default=None, description="null without --mqtt")
+    storage: Storage
 
 
 class Ready(BaseModel):
@@ -168,11 +181,13 @@ class Ready(BaseModel):
         description="seconds since each loop of this replica completed an iteration",
         examples=[{"live": 0.4, "demo": 0.1}],
     )
+    storage: Storage
 
 
 class NotReady(BaseModel):
     detail: str = Field(examples=["not ready: the live loop completed no iteration for 700 s"])
     reasons: list[str]
+    storage: Storage | None = None
 
 
 class ReplicaOut(BaseModel):
@@ -419,11 +434,8 @@ class TelemetryRow(Strict):
             raise ValueError("time out of range") from None
         if v < EARLIEST_ROW:
             raise ValueError("time before 2000")
-        if v > datetime.now(UTC) + MAX_AHEAD:
-            # it would move the live fleet's clock, and every live coach's ticks, into the future
-            raise ValueError(
-                f"time more than {MAX_AHEAD.total_seconds() / 60:g} min ahead of the server's clock"
-            )
+        # a row ahead of the server's clock is refused when stored, and counted
+        # (store.commands.Backfill: ahead_of_clock)
         return v
 
     @field_validator("t_room_c")

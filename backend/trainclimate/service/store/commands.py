@@ -16,7 +16,6 @@ from trainclimate.service.store.models import (
     ApiToken,
     AuditLog,
     Coach,
-    FleetClock,
     Override,
     PredictorModel,
     Telemetry,
@@ -41,7 +40,7 @@ from trainclimate.service.store.tokens import (
     check_scope,
     create_token,
 )
-from trainclimate.service.store.upsert import advance, insert_new
+from trainclimate.service.store.upsert import insert_new
 from trainclimate.sim.setpoint import U_BAND_K
 
 
@@ -117,17 +116,31 @@ class OutsideHorizonError(RequestError):
     """A batch with rows older than the backfill horizon (→ 422, nothing of it stored)."""
 
 
+class AheadOfClockError(RequestError):
+    """A batch with rows stamped too far ahead of the server's clock (→ 422, nothing of it
+    stored)."""
+
+
 class Backfill:
-    """How far back the live feed's telemetry is taken, over HTTP and MQTT alike: a row older
-    than its coach's newest row — stored, or in the same batch — less ``horizon`` is refused, so
-    that a gateway's wrong clock (a row dated 2000-01-01) cannot stretch what the queries and the
-    next retraining read. ``refused`` counts the rows refused since start, by reason (one
-    reason: ``outside_horizon``); the server's threads share it."""
+    """Which rows of the live feed's telemetry are taken, over HTTP and MQTT alike.
+
+    - A row older than its coach's newest row — stored, or in the same batch — less ``horizon``
+      is refused (reason ``outside_horizon``), so that a gateway's wrong clock (a row dated
+      2000-01-01) cannot stretch what the queries and the next retraining read.
+    - A row more than ``max_ahead`` ahead of the server's clock is refused (reason
+      ``ahead_of_clock``): a gateway whose clock runs ahead would move its coaches' clocks, and
+      their ticks, into the future. Real gateways report UTC now; emulators replay a past
+      scenario, behind the server's clock.
+
+    ``refused`` counts the rows refused since start, by reason; the server's threads share it.
+    """
 
     REASON = "outside_horizon"
+    AHEAD = "ahead_of_clock"
 
-    def __init__(self, horizon: timedelta) -> None:
+    def __init__(self, horizon: timedelta, max_ahead: timedelta = timedelta(minutes=5)) -> None:
         self.horizon = horizon
+        self.max_ahead = max_ahead
         self._refused: dict[str, int] = {}
         self._lock = threading.Lock()
 
@@ -137,9 +150,28 @@ class Backfill:
         with self._lock:
             return dict(self._refused)
 
-    def check(self, session: Session, coach_id: str, rows: list[dict]) -> None:
-        """:class:`OutsideHorizonError` (counted), naming the first row out and why, if any of
-        ``rows`` (a batch of ``coach_id``, not empty) is older than the horizon allows."""
+    def _count(self, reason: str, rows: int) -> None:
+        with self._lock:
+            self._refused[reason] = self._refused.get(reason, 0) + rows
+
+    def check(
+        self, session: Session, coach_id: str, rows: list[dict], now: datetime | None = None
+    ) -> None:
+        """:class:`AheadOfClockError` if any of ``rows`` (a batch of ``coach_id``, not empty)
+        is stamped more than ``max_ahead`` after ``now`` (the server's clock, default the
+        wall clock), else :class:`OutsideHorizonError` if any is older than the horizon
+        allows; either counted, naming the first row out and why."""
+        limit = (now or utcnow()) + self.max_ahead
+        ahead = [i for i, r in enumerate(rows) if r["time"] > limit]
+        if ahead:
+            self._count(self.AHEAD, len(ahead))
+            first = rows[ahead[0]]["time"]
+            raise AheadOfClockError(
+                f"rows[{ahead[0]}]: time {first.isoformat()} is more than "
+                f"{self.max_ahead.total_seconds() / 60:g} min ahead of the server's clock "
+                f"({limit - self.max_ahead:%Y-%m-%dT%H:%M:%SZ}); {len(ahead)} row(s) that far "
+                "ahead, nothing stored"
+            )
         stored = session.scalar(
             select(func.max(Telemetry.time)).where(Telemetry.coach_id == coach_id)
         )
@@ -150,8 +182,7 @@ class Backfill:
         out = [i for i, r in enumerate(rows) if r["time"] < floor]
         if not out:
             return
-        with self._lock:
-            self._refused[self.REASON] = self._refused.get(self.REASON, 0) + len(out)
+        self._count(self.REASON, len(out))
         first = rows[out[0]]["time"]
         raise OutsideHorizonError(
             f"rows[{out[0]}]: time {first.isoformat()} is outside the backfill horizon: more "
@@ -163,9 +194,14 @@ class Backfill:
 def ingest(
     session: Session, coach_id: str, rows: list[dict], backfill: Backfill | None = None
 ) -> tuple[int, int]:
-    """Store a batch of telemetry, advance the live fleet's clock and note the arrival
+    """Store a batch of telemetry, advance the coach's own clock and note the arrival
     (:mod:`.liveness`). Returns (stored, duplicates). With ``backfill``, a batch with a row
-    older than its horizon is refused whole (:class:`OutsideHorizonError`)."""
+    ahead of the server's clock or older than its horizon is refused whole
+    (:class:`AheadOfClockError`, :class:`OutsideHorizonError`).
+
+    Nothing here locks a row a tick holds: the telemetry's foreign key takes a key-share lock
+    on the coach, which the tick's ``FOR NO KEY UPDATE`` lets through, and the arrival is
+    stamped in the coach's own ``coach_liveness`` row, not in ``coaches``."""
     coach = coach_or_404(session, coach_id)
     if coach.fleet != "live":
         # the demo fleet writes its coaches' rows itself, without skipping any: a row posted
@@ -177,9 +213,7 @@ def ingest(
         backfill.check(session, coach.id, rows)
     newest = max(r["time"] for r in rows)
     stored = insert_rows(session, coach.id, rows)
-    # the clock is created by the first post ever, concurrent ones included
-    advance(session, FleetClock.__table__, {"name": liveness.LIVE}, "time", newest)
-    liveness.note_arrival(session, coach, utcnow())
+    liveness.note_arrival(session, coach.id, newest, utcnow())
     return stored, len(rows) - stored
 
 

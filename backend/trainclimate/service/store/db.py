@@ -10,6 +10,19 @@ sync routes) plus :data:`BACKGROUND_THREADS`. A request holds at most one connec
 so with at most ``worker_threads`` requests admitted at once
 (:class:`~trainclimate.service.api.hardening.Admission`) no thread waits for one; if one still
 does for :data:`POOL_TIMEOUT_S`, the request answers 503 with ``Retry-After``.
+
+**No session waits long on PostgreSQL.** Each connection sets ``lock_timeout``
+(:data:`LOCK_TIMEOUT_S` by default) and ``idle_in_transaction_session_timeout``
+(:data:`IDLE_IN_TRANSACTION_S`): a statement that waits for a row lock longer fails (the request
+answers 503 with ``Retry-After``, a loop retries), and a session that holds its transaction open
+without a statement for longer — its process paused (SIGSTOP, a VM migration, a stuck disk) — is
+ended by the server, its locks released, so a paused replica cannot hold the others up for
+longer than that. The readiness probe has a connection of its own (:meth:`Database.probe`), with
+a short ``statement_timeout``, outside the pool the requests use.
+
+**Storage errors** (a full disk, an I/O error, a read-only file) are kept in
+:attr:`Database.storage` (:mod:`.storage`) as they happen, on any connection, and cleared by a
+write that commits once none has happened for a while.
 """
 
 from __future__ import annotations
@@ -22,6 +35,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from trainclimate.paths import sqlite_file, writable_dir
 from trainclimate.resources import migrations_dir
+from trainclimate.service.store.storage import StorageHealth
 
 #: The Alembic migrations, shipped in the package (:mod:`trainclimate.resources`; in a checkout
 #: the top-level ``migrations/`` directory).
@@ -39,6 +53,13 @@ BACKGROUND_THREADS = 4
 POOL_OVERFLOW = 10
 #: How long a thread waits for a connection before the request answers 503. [s]
 POOL_TIMEOUT_S = 10.0
+#: How long a PostgreSQL statement waits for a lock before it fails (``lock_timeout``). [s]
+LOCK_TIMEOUT_S = 2.0
+#: How long a PostgreSQL session may stay idle inside a transaction before the server ends it
+#: (``idle_in_transaction_session_timeout``). [s]
+IDLE_IN_TRANSACTION_S = 30.0
+#: The readiness probe's limit on its statements and on connecting. [s]
+PROBE_TIMEOUT_S = 2.0
 
 
 def normalise_url(url: str) -> str:
@@ -60,11 +81,25 @@ def pool_options(worker_threads: int) -> dict:
     }
 
 
-def make_engine(url: str, worker_threads: int = WORKER_THREADS) -> Engine:
+def session_options(**timeouts_s: float) -> str:
+    """libpq ``options`` setting each PostgreSQL parameter of ``timeouts_s`` (name → seconds;
+    0: no limit) for every session of a connection."""
+    return " ".join(f"-c {name}={round(value * 1000)}" for name, value in timeouts_s.items())
+
+
+def make_engine(
+    url: str,
+    worker_threads: int = WORKER_THREADS,
+    lock_timeout_s: float = LOCK_TIMEOUT_S,
+    idle_in_transaction_s: float = IDLE_IN_TRANSACTION_S,
+    application_name: str | None = None,
+) -> Engine:
     """An engine for ``url`` with its pool sized to ``worker_threads`` (:func:`pool_options`;
     an in-memory SQLite database keeps SQLAlchemy's one connection per thread). SQLite gets
     foreign keys, WAL and a busy timeout, so the scheduler thread and the API share one file
-    safely."""
+    safely; PostgreSQL sessions ``lock_timeout_s`` and ``idle_in_transaction_s`` (seconds; 0:
+    no limit; see the module docstring) and ``application_name`` (what ``pg_stat_activity``
+    shows: which replica holds a lock)."""
     url = normalise_url(url)
     pool = pool_options(worker_threads)
     if url.startswith("sqlite"):
@@ -84,7 +119,27 @@ def make_engine(url: str, worker_threads: int = WORKER_THREADS) -> Engine:
             cursor.close()
 
         return engine
-    return create_engine(url, pool_pre_ping=True, **pool)
+    options = session_options(
+        lock_timeout=lock_timeout_s, idle_in_transaction_session_timeout=idle_in_transaction_s
+    )
+    connect = {"options": options}
+    if application_name:
+        connect["application_name"] = application_name[:63]
+    return create_engine(url, pool_pre_ping=True, connect_args=connect, **pool)
+
+
+def probe_engine(url: str) -> Engine:
+    """A PostgreSQL engine of one connection (two at a pinch, waited for 1 s at most) for the
+    readiness probe: connecting and each statement limited to :data:`PROBE_TIMEOUT_S`."""
+    options = session_options(statement_timeout=PROBE_TIMEOUT_S, lock_timeout=PROBE_TIMEOUT_S)
+    return create_engine(
+        url,
+        pool_pre_ping=True,
+        pool_size=1,
+        max_overflow=1,
+        pool_timeout=1.0,
+        connect_args={"options": options, "connect_timeout": round(PROBE_TIMEOUT_S)},
+    )
 
 
 def sqlite_directory(url: str) -> None:
@@ -132,13 +187,36 @@ def downgrade(url: str, revision: str = "base") -> None:
 
 
 class Database:
-    """An engine (its pool sized to ``worker_threads``, :func:`make_engine`) and its session
-    factory."""
+    """An engine (its pool sized to ``worker_threads``, its PostgreSQL sessions' timeouts in
+    seconds and application name: :func:`make_engine`), its session factory and the state of
+    its storage (:attr:`storage`)."""
 
-    def __init__(self, url: str, worker_threads: int = WORKER_THREADS):
+    def __init__(
+        self,
+        url: str,
+        worker_threads: int = WORKER_THREADS,
+        lock_timeout_s: float = LOCK_TIMEOUT_S,
+        idle_in_transaction_s: float = IDLE_IN_TRANSACTION_S,
+        application_name: str | None = None,
+    ):
         self.url = normalise_url(url)
-        self.engine = make_engine(self.url, worker_threads)
+        self.engine = make_engine(
+            self.url, worker_threads, lock_timeout_s, idle_in_transaction_s, application_name
+        )
         self.sessions = sessionmaker(self.engine, expire_on_commit=False)
+        self.storage = StorageHealth()
+        self.storage.watch(self.engine, self.sessions)
+        self._probe: Engine | None = None
+
+    def probe(self) -> Engine:
+        """The engine the readiness probe uses: on PostgreSQL one of its own
+        (:func:`probe_engine`), which neither waits for the requests' pool nor for long; on
+        SQLite the main one (its reads wait for no writer)."""
+        if self.dialect != "postgresql":
+            return self.engine
+        if self._probe is None:
+            self._probe = probe_engine(self.url)
+        return self._probe
 
     @property
     def dialect(self) -> str:
@@ -152,5 +230,7 @@ class Database:
             yield session
 
     def dispose(self) -> None:
-        """Close the engine's pooled connections."""
+        """Close the engines' pooled connections."""
         self.engine.dispose()
+        if self._probe is not None:
+            self._probe.dispose()

@@ -106,24 +106,32 @@ class Coach(Base):
     ddpc_active: Mapped[bool] = mapped_column(Boolean, default=False)
     last_tick: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
-    #: when its telemetry last arrived (wall time; live coaches)
-    last_seen_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     train: Mapped[Train] = relationship(back_populates="coaches")
 
 
+class CoachLiveness(Base):
+    """A live coach's own clock, ``time`` (the newest time of its telemetry), when its
+    telemetry last arrived (``last_seen_at``, wall time) and the anchor its clock's pace is
+    measured from (:mod:`trainclimate.service.store.liveness`). Kept apart from ``coaches``,
+    whose rows the scheduler's ticks lock: storing telemetry never waits for a tick."""
+
+    __tablename__ = "coach_liveness"
+    coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"), primary_key=True)
+    time: Mapped[datetime] = mapped_column(UTCDateTime)
+    last_seen_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    anchor_time: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    anchor_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+
+
 class FleetClock(Base):
-    """A fleet's clock: the demo fleet's simulated time with the simulator's state, or the
-    live fleet's newest telemetry time, with when telemetry last arrived (wall time) and the
-    anchor its pace is measured from (:mod:`trainclimate.service.store.liveness`)."""
+    """A simulated fleet's clock: the demo fleet's simulated time with the simulator's state
+    (each live coach has a clock of its own, :class:`CoachLiveness`)."""
 
     __tablename__ = "fleet_clocks"
     name: Mapped[str] = mapped_column(String(16), primary_key=True)
     time: Mapped[datetime] = mapped_column(UTCDateTime)
     state: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, onupdate=utcnow)
-    arrived_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
-    anchor_time: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
-    anchor_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
 
 
 class Telemetry(Base):

@@ -20,6 +20,7 @@ from trainclimate.service.store import liveness
 from trainclimate.service.store.comfort import comfort_now
 from trainclimate.service.store.models import (
     Coach,
+    CoachLiveness,
     FleetClock,
     Override,
     Setpoint,
@@ -93,10 +94,16 @@ def train_or_404(session: Session, train_id: str) -> Train:
 
 
 def fleet_clock(session: Session, coach: Coach) -> datetime | None:
-    """The coach's fleet clock: the demo's simulated time, or the live fleet's newest telemetry."""
-    clock = session.get(FleetClock, coach.fleet)
-    if clock is not None:
-        return clock.time
+    """The coach's clock: its fleet's simulated time (the demo), or a live coach's own — the
+    newest time of its telemetry (:mod:`.liveness`); None before any."""
+    if coach.fleet == liveness.LIVE:
+        own = session.get(CoachLiveness, coach.id)
+        if own is not None:
+            return own.time
+    else:
+        clock = session.get(FleetClock, coach.fleet)
+        if clock is not None:
+            return clock.time
     return session.scalar(select(func.max(Telemetry.time)).where(Telemetry.coach_id == coach.id))
 
 
@@ -197,32 +204,48 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
         "last_solve_ms": setpoint.solve_time_ms if setpoint else None,
         "override_until": override.ends_at if override else None,
         "clock": clock,
-        "last_seen_at": coach.last_seen_at,
+        "last_seen_at": last_seen(session, coach),
     }
 
 
+def last_seen(session: Session, coach: Coach) -> datetime | None:
+    """When the live coach's telemetry last arrived (wall time; None: never, or not live)."""
+    own = session.get(CoachLiveness, coach.id) if coach.fleet == liveness.LIVE else None
+    return own.last_seen_at if own is not None else None
+
+
 def with_liveness(
-    view: dict, live_clock: FleetClock | None, now: datetime, period: timedelta, stale_periods: int
+    view: dict,
+    clock: CoachLiveness | None,
+    now: datetime,
+    period: timedelta,
+    stale_periods: int,
+    prior: float = 1.0,
 ) -> dict:
     """The :func:`coach_view` ``view`` with a live coach's status judged by arrivals (wall time
-    ``now``; :mod:`.liveness`): ``stale`` when nothing has arrived from it for ``stale_periods``
-    periods at the live clock's pace (whatever its newest row said: ``disconnected`` too; its
-    ``t_ref_applied`` and ``comfort`` then unknown, None); while its telemetry arrives, a tick
-    decided ``stale`` (its rows behind the fleet's clock) shows as ``fallback``: its gateway is
-    alive. Kept apart from the view, which is cached while its data is unchanged: silence
-    changes nothing stored."""
-    if view["fleet"] != liveness.LIVE or view["status"] == "no-data":
+    ``now``; ``clock`` its liveness row, :mod:`.liveness`): ``stale`` when nothing has arrived
+    from it for ``stale_periods`` periods at its clock's pace (``prior`` until measured, the
+    fleet's: :attr:`.liveness.Clocks.fleet_pace`; whatever its newest row said:
+    ``disconnected`` too; its ``t_ref_applied`` and ``comfort`` then unknown, None); while its
+    telemetry arrives, a tick decided ``stale`` (its rows behind its clock) shows as
+    ``fallback``: its gateway is alive. Kept apart from the view, which is cached while its data
+    is unchanged: silence changes nothing stored (its ``last_seen_at`` is taken from
+    ``clock``)."""
+    if view["fleet"] != liveness.LIVE:
         return view
-    if liveness.silent(view["last_seen_at"], live_clock, now, period, stale_periods):
+    view = {**view, "last_seen_at": clock.last_seen_at if clock is not None else None}
+    if view["status"] == "no-data":
+        return view
+    if liveness.silent(view["last_seen_at"], clock, now, period, stale_periods, prior):
         return {**view, "status": "stale", "t_ref_applied": None, "comfort": None}
     if view["status"] == "stale":
         return {**view, "status": "fallback"}
     return view
 
 
-def live_clock(session: Session) -> FleetClock | None:
-    """The live fleet's clock row (None before any telemetry)."""
-    return session.get(FleetClock, liveness.LIVE)
+def live_clocks(session: Session) -> liveness.Clocks:
+    """The live coaches' own clocks and arrivals (:func:`.liveness.clocks`), by coach id."""
+    return liveness.clocks(session)
 
 
 def coach_states(session: Session, coach_id: str | None = None) -> list[tuple[Coach, tuple]]:
@@ -253,9 +276,7 @@ def coach_states(session: Session, coach_id: str | None = None) -> list[tuple[Co
     rows = session.execute(query).all()
     if coach_id is not None and not rows:
         raise NotFoundError(f"no coach {coach_id!r}")
-    return [
-        (c, (c.train_id, c.fleet, c.ddpc_active, c.last_seen_at, *newest)) for c, *newest in rows
-    ]
+    return [(c, (c.train_id, c.fleet, c.ddpc_active, *newest)) for c, *newest in rows]
 
 
 def time_range(
@@ -356,12 +377,23 @@ def setpoint_history(session: Session, coach: Coach, start: datetime, end: datet
 
 
 def current_setpoint(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
-    """The newest setpoint, valid until ``stale_periods`` periods after its tick."""
+    """The newest setpoint, valid until ``stale_periods`` periods after its tick — if it still
+    is on the coach's clock (:func:`expired`); else, as before any, all None: the gateway keeps
+    its HVAC's T_rule."""
     sp = newest_setpoint(session, coach)
-    if sp is None:
+    view = None if sp is None else setpoint_view(coach.id, sp, stale_periods * period)
+    if view is None or expired(view, fleet_clock(session, coach)):
         empty = ("tick", "t_ref_c", "t_rule_c", "source", "reason", "valid_until")
         return {"coach_id": coach.id, **dict.fromkeys(empty)}
-    return setpoint_view(coach.id, sp, stale_periods * period)
+    return view
+
+
+def expired(view: dict, clock: datetime | None) -> bool:
+    """Whether the setpoint ``view`` (:func:`setpoint_view`) is no longer valid at ``clock``
+    (its coach's clock now; None: unknown, taken as valid): a setpoint decided by a replica
+    that was paused, published or served after its validity, would hold the coach at a stale
+    T_ref."""
+    return clock is not None and clock >= view["valid_until"]
 
 
 def setpoint_view(coach_id: str, sp, valid_for: timedelta) -> dict:
