@@ -23,6 +23,7 @@ from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
+from fastapi.middleware.gzip import GZipMiddleware
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
@@ -30,7 +31,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from trainclimate import __version__
-from trainclimate.service import api, docpages
+from trainclimate.service import api, dashboard_files, docpages
 from trainclimate.service.adapters import demo
 from trainclimate.service.adapters.dynsec import BrokerClients, DynsecError
 from trainclimate.service.adapters.mqtt import Broker, MqttBridge
@@ -236,6 +237,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         verify=lambda authorization: valid_authorization(app.state.db, authorization),
     )
     app.add_middleware(SecurityHeaders)
+    # the dashboard's files kept by the browser (versioned) or revalidated; gzip on every answer
+    # of 1 kB or more (Plotly.js, the scripts, the API's JSON and CSV) to a client that takes it
+    app.add_middleware(dashboard_files.DashboardCaching)
+    app.add_middleware(GZipMiddleware, minimum_size=1000)
     if settings.forwarded_allow_ips:
         app.add_middleware(ProxyHeadersMiddleware, trusted_hosts=settings.forwarded_allow_ips)
     if (settings.frontend_dir / "index.html").exists():
@@ -245,5 +250,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             lambda: FileResponse(PLOTLY_JS, media_type="text/javascript"),
             include_in_schema=False,
         )
+        # index.html with versioned URLs for its script, style and Plotly.js
+        for path in ("/", "/index.html"):
+            app.add_api_route(
+                path,
+                lambda: dashboard_files.index_response(settings.frontend_dir),
+                include_in_schema=False,
+            )
         app.mount("/", StaticFiles(directory=settings.frontend_dir, html=True), name="frontend")
     return app
