@@ -131,15 +131,18 @@ function drawSavingsPerTrain(view, trains) {
   const shown = (t) => t.counted_windows > 0 && t.savings_pct !== null;
   const ci = (t) => shown(t) && t.savings_ci95_pct;
   const common = { type: "bar", x: names, hovertext: hover, customdata: names, hovertemplate: "%{x}: %{hovertext}<extra></extra>",
-    texttemplate: "%{y:.1f} %", textposition: "outside", cliponaxis: false, textfont: { color: "#1b1f24" } };
+    textposition: "outside", cliponaxis: false, textfont: { color: "#1b1f24" } };
+  // each bar's value written above it (a trace without a bar gets no text: Plotly would draw
+  // empty bars for it)
+  const labels = (ys) => (ys.some((v) => v !== null) ? { y: ys, text: ys.map((v) => (v === null ? "" : `${fmt(v, 1)} %`)) } : { y: ys });
   const savings = view.$("#savings-figure");
   plot(savings, [
-    { ...common, name: "with a 95 % interval (error bars)", y: trains.map((t) => (ci(t) ? t.savings_pct : null)),
+    { ...common, name: "with a 95 % interval (error bars)", ...labels(trains.map((t) => (ci(t) ? t.savings_pct : null))),
       marker: { color: BAR.solid, line: { color: BAR.solid, width: 1.5 } },
       error_y: { type: "data", symmetric: false, color: BAR.whisker, thickness: 1.5, width: 6,
         array: trains.map((t) => (ci(t) ? t.savings_ci95_pct[1] - t.savings_pct : null)),
         arrayminus: trains.map((t) => (ci(t) ? t.savings_pct - t.savings_ci95_pct[0] : null)) } },
-    { ...common, name: "no interval (confounded or too few days)", y: trains.map((t) => (shown(t) && !ci(t) ? t.savings_pct : null)),
+    { ...common, name: "no interval (confounded or too few days)", ...labels(trains.map((t) => (shown(t) && !ci(t) ? t.savings_pct : null))),
       marker: { color: BAR.light, line: { color: BAR.solid, width: 1.5 }, pattern: { shape: "/", fgcolor: BAR.solid, bgcolor: BAR.light, size: 8, solidity: 0.25 } } },
   ], { barmode: "overlay", margin: { t: 40, r: 20, l: 70, b: 50 }, showlegend: true, legend: LEGEND_TOP,
     yaxis: { title: { text: "savings (%)" }, zeroline: true, zerolinecolor: "#5b6470", automargin: true }, xaxis: { title: { text: "train" }, type: "category" },
