@@ -16,9 +16,7 @@ import logging
 import threading
 from contextlib import asynccontextmanager
 from datetime import timedelta
-from pathlib import Path
 
-import plotly
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
@@ -61,8 +59,6 @@ from trainclimate.sim import twin
 from trainclimate.sim.params import load_params
 
 log = logging.getLogger(__name__)
-#: Plotly.js as the installed plotly package ships it (served at /vendor/plotly.min.js).
-PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 
 
 def register_model_file(session, settings: Settings) -> None:
@@ -244,10 +240,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     if settings.forwarded_allow_ips:
         app.add_middleware(ProxyHeadersMiddleware, trusted_hosts=settings.forwarded_allow_ips)
     if (settings.frontend_dir / "index.html").exists():
-        # Plotly.js from the installed plotly package: the dashboard needs no CDN and no build
+        # Plotly.js from npm's basic bundle or the plotly package: no CDN and no build
         app.add_api_route(
             "/vendor/plotly.min.js",
-            lambda: FileResponse(PLOTLY_JS, media_type="text/javascript"),
+            lambda: FileResponse(
+                dashboard_files.plotly_js(settings.frontend_dir), media_type="text/javascript"
+            ),
             include_in_schema=False,
         )
         # index.html with versioned URLs for its script, style and Plotly.js
