@@ -41,7 +41,7 @@ export function plotConfig(filename) {
  *  `title` names both. */
 export function plot(node, traces, layout, title) {
   const filename = node.id.replace(/-figure$/, "");
-  node.setAttribute("role", "img");
+  node.setAttribute("role", "figure");
   node.setAttribute("aria-label", `${title} (chart; its data as a table below)`);
   window.Plotly.react(node, traces, layout, plotConfig(filename));
   const table = dataTable(node, title);

@@ -34,18 +34,36 @@ export const el = (tag, attrs = {}, ...children) => {
   return node;
 };
 
-/** Replaces `parent`'s children by `children`, keeping each child equal to its replacement
- *  (same tag, attributes and text) in place: a refresh that changes nothing there moves no
- *  focus and announces nothing. */
+/** Replaces `parent`'s children by `children`, changing only what differs: a child equal to its
+ *  replacement stays, one of the same kind is updated in place (its attributes, then its own
+ *  children alike), so that a refresh that changes a row's figures keeps the link or button in
+ *  it that has the focus, and announces nothing new. Buttons and form fields are replaced whole
+ *  when they differ (their listeners belong to the new ones). */
 export function sync(parent, children) {
   if (parent.tagName === "TBODY") labelCells(parent.closest("table"), children);
   const old = [...parent.childNodes];
   children.forEach((child, i) => {
     const current = old[i];
-    if (current && current.isEqualNode(child)) return;
-    if (current) parent.replaceChild(child, current); else parent.append(child);
+    if (!current) parent.append(child);
+    else if (!current.isEqualNode(child)) morph(parent, current, child);
   });
   for (const extra of old.slice(children.length)) extra.remove();
+}
+
+const WHOLE = new Set(["BUTTON", "INPUT", "SELECT", "TEXTAREA"]);
+
+function morph(parent, current, next) {
+  if (current.nodeName !== next.nodeName || WHOLE.has(next.nodeName)) {
+    parent.replaceChild(next, current);
+    return;
+  }
+  if (current.nodeType === Node.TEXT_NODE) {
+    current.nodeValue = next.nodeValue;
+    return;
+  }
+  for (const { name } of [...current.attributes]) if (!next.hasAttribute(name)) current.removeAttribute(name);
+  for (const { name, value } of [...next.attributes]) if (current.getAttribute(name) !== value) current.setAttribute(name, value);
+  sync(current, [...next.childNodes]);
 }
 
 /** Each cell of `rows` without a `data-label` gets its column's header text (a phone shows the
