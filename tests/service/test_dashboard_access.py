@@ -12,7 +12,8 @@
 - Escape leaves the sign-in dialog open, and a ``#token=`` URL pasted into it signs in;
 - Plotly's PNG download works under the page's CSP, and its cloud buttons are gone;
 - activated and deactivated, ok and stale stay apart under a deuteranopia simulation;
-- at 390 px nothing scrolls sideways and "Needs attention" comes first.
+- at 390 px nothing scrolls sideways and "Needs attention" comes first;
+- the first load is at most 1.5 MB and an idle overview asks at most 12 times a minute.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import pytest
 from service import test_dashboard
 from service_processes import CLI, Server, free_port
 from service_support import wait_for
+from trainclimate.service import dashboard_files
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
 
@@ -457,5 +459,71 @@ def test_a_phone_shows_attention_first_and_nothing_scrolls_sideways(browser, ser
             label = page.locator("tr[data-coach='D1-A'] td").nth(2).get_attribute("data-label")
             assert label == "Layer"
             s.shot("dashboard-phone-coaches")
+    assert s.errors == []
+    s.close()
+
+
+def test_the_first_load_and_the_idle_overview_are_light(server):
+    """``bench dashboard`` on the demo: the first load at most 1.5 MB transferred (gzip, Plotly's
+    basic bundle; 4.9 MB before), an idle overview at most 12 requests a minute (36 before)."""
+    from trainclimate.bench import dashboard
+
+    if not (Path(__file__).parents[2] / dashboard_files.PLOTLY_BASIC).exists():
+        pytest.skip("no Plotly basic bundle (npm ci --prefix npm): the full one is 1.47 MB alone")
+    d = dashboard.run(server.url, server.tokens["viewer"], idle_s=60)
+    assert d["first_load_bytes"] <= 1_500_000, d
+    assert d["idle_overview_requests_per_min"] <= 12, d
+    assert d["idle_coach_requests_per_min"] <= 20, d
+    assert d["reload_bytes"] < d["first_load_bytes"] / 10, d  # versioned files from the cache
+    assert d["target_met"]
+
+
+def test_charts_show_what_matters_and_each_has_its_data_table(browser, server):
+    s = Session(browser, server, "viewer")
+    page = s.page
+    _drawn(page, "#savings-figure")
+    # the savings bars carry their values; every chart has its data table behind a toggle
+    texts = page.evaluate("() => document.querySelector('#savings-figure').data.map((t) => t.text)")
+    assert any(t and any(v.endswith(" %") for v in t) for t in texts), texts
+    for figure in ("#energy-figure", "#savings-figure", "#violation-figure"):
+        toggle = page.locator(f"{figure} + .table-toggle")
+        assert toggle.get_attribute("aria-expanded") == "false"
+    assert "fleet clock" in page.locator("#overview-clock").inner_text()
+    s.go("#/train/D1")
+    _drawn(page, "#pair-figure")
+    layout = page.evaluate(
+        "() => { const l = document.querySelector('#pair-figure').layout;"
+        " return { y: l.yaxis, y2: l.yaxis2, y5: l.yaxis5, y6: l.yaxis6 }; }"
+    )
+    # the temperature panels around the band while in service (not 0 … 22 °C for the night)
+    low, high = layout["y"]["range"]
+    assert high - low <= 10 and low > 10, layout["y"]
+    assert layout["y2"]["range"] == layout["y"]["range"]
+    # the savings on their own axis, not overlaying the energy's
+    assert (
+        "overlaying" not in layout["y6"] and layout["y6"]["domain"][1] < layout["y5"]["domain"][0]
+    )
+    page.check("#whole-range")
+    page.wait_for_function(
+        "() => document.querySelector('#pair-figure').layout.yaxis.autorange !== false"
+    )
+    # the coach's telemetry export: the API's rows over the range asked
+    s.go("#/coach/D1-A")
+    page.wait_for_selector("#coach-clock:has-text('fleet clock')")
+    page.select_option("#export-hours", "6")
+    with page.expect_download() as info, page.expect_request(lambda r: ".csv" in r.url) as asked:
+        page.click("#coach-export")
+    query = asked.value.url.split("timeseries.csv", 1)[1]
+    rows = _rows(Path(info.value.path()).read_text())
+    ts = httpx.get(
+        f"{server.url}/api/v1/coaches/D1-A/timeseries{query}",
+        headers={"Authorization": f"Bearer {server.tokens['viewer']}"},
+    ).json()
+    assert len(rows) == len(ts["time"]) > 60
+    cell = lambda v: "" if v is None else repr(v)  # noqa: E731
+    assert [r["power_kw"] for r in rows] == [cell(v) for v in ts["power_kw"]]
+    assert [r["t_room_mid_c"] for r in rows] == [cell(t[1]) for t in ts["t_room_c"]]
+    s.go("#/audit")
+    assert "wall time" in page.locator("#audit thead").inner_text()
     assert s.errors == []
     s.close()
