@@ -64,33 +64,47 @@ def _idle(context, url: str, token: str, hash_: str, seconds: float) -> float:
 
 
 def run(
-    url: str, token: str, idle_s: float = 60.0, chromium: Path = CHROMIUM, progress=None
+    url: str,
+    token: str,
+    idle_s: float = 60.0,
+    chromium: Path = CHROMIUM,
+    progress=None,
+    browser=None,
 ) -> dict:
     """The dashboard at ``url`` (a running service; ``token`` a viewer's or better): first load
     [bytes, requests], a reload with the cache kept, idle requests a minute on the overview and
-    on coach D1-A's page (or the first coach) over ``idle_s`` [s] each."""
+    on coach D1-A's page over ``idle_s`` [s] each. ``browser``: a Playwright Chromium already
+    launched (else one is, from ``chromium``)."""
+    if browser is not None:
+        return _measure(browser, url.rstrip("/"), token, idle_s, progress)
     try:
         from playwright.sync_api import sync_playwright
     except ImportError as exc:
         raise DashboardBenchError("bench dashboard needs the playwright package") from exc
     if not chromium.exists():
         raise DashboardBenchError(f"no Chromium at {chromium}")
-    url = url.rstrip("/")
-    step = progress or (lambda *a: None)
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(chromium), headless=True, args=ARGS)
+        launched = p.chromium.launch(executable_path=str(chromium), headless=True, args=ARGS)
         try:
-            context = browser.new_context(viewport={"width": 1440, "height": 900})
-            first = _load(context, url, token, cache=False)
-            step(1)
-            again = _load(context, url, token, cache=True)
-            step(1)
-            overview = _idle(context, url, token, "#/", idle_s)
-            step(1)
-            coach = _idle(context, url, token, "#/coach/D1-A", idle_s)
-            step(1)
+            return _measure(launched, url.rstrip("/"), token, idle_s, progress)
         finally:
-            browser.close()
+            launched.close()
+
+
+def _measure(browser, url: str, token: str, idle_s: float, progress) -> dict:
+    step = progress or (lambda *a: None)
+    context = browser.new_context(viewport={"width": 1440, "height": 900})
+    try:
+        first = _load(context, url, token, cache=False)
+        step(1)
+        again = _load(context, url, token, cache=True)
+        step(1)
+        overview = _idle(context, url, token, "#/", idle_s)
+        step(1)
+        coach = _idle(context, url, token, "#/coach/D1-A", idle_s)
+        step(1)
+    finally:
+        context.close()
     data = {
         "url": url,
         "first_load_bytes": first["bytes"],
