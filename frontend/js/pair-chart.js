@@ -140,7 +140,7 @@ export function drawPair(node, cmp, a, b, act, deact, band, whole = false) {
   const range = serviceRange([a, b], band, whole);
   const temperature = (text, domain) => ({ title: { text }, domain, anchor: "x", automargin: true, ...(range ? { range, autorange: false } : {}) });
   const layout = {
-    margin: { t: 30, r: 80, l: 80, b: 110 }, hovermode: "x unified", legend: { orientation: "h", x: 0, y: -0.06, yanchor: "top" },
+    margin: { t: 30, r: 80, l: 80, b: 130 }, hovermode: "x unified", legend: { orientation: "h", x: 0, y: -0.1, yanchor: "top" },
     xaxis: { title: { text: `time (${FLEET})` }, anchor: "y6", automargin: true },
     yaxis: temperature(`${deact} deact. (°C)`, [0.8, 1]),
     yaxis2: temperature(`${act} act. (°C)`, [0.61, 0.77]),

@@ -162,7 +162,7 @@ function drawAttention(body, items) {
     el("td", {}, el("a", { href: `#/coach/${encodeURIComponent(a.coach_id)}`, text: a.coach_id })),
     el("td", {}, statusBadge(a.kind === "comfort" ? "comfort-out" : a.status, KIND_LABEL[a.kind])),
     el("td", { text: a.detail })))
-    : [el("tr", {}, el("td", { text: "nothing: every coach is fed, on its setpoint and within comfort" }))]);
+    : [el("tr", {}, el("td", { colspan: "3", text: "nothing: every coach is fed, on its setpoint and within comfort" }))]);
 }
 
 /** "Feed down since …" when there are live coaches and nothing arrives from any of them. */
