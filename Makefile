@@ -6,11 +6,14 @@ STAMP := $(VENV)/.installed
 
 .PHONY: install test demo lint bench clean
 
-$(STAMP): requirements.lock pyproject.toml
+$(STAMP): requirements.lock pyproject.toml npm/package-lock.json
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r requirements.lock
 	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
+	# the dashboard's Plotly.js (basic bundle); without npm it serves the plotly package's full one
+	(command -v npm >/dev/null && npm ci --prefix npm --no-audit --no-fund --loglevel=error) \
+		|| echo "no npm: the dashboard loads the full Plotly.js bundle (4.8 MB)" >&2
 	touch $(STAMP)
 
 install: $(STAMP)

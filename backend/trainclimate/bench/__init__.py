@@ -17,4 +17,6 @@ Every benchmark module has ``run(...) -> dict`` (the figures, the JSON of ``benc
   (ms), the live fleet's tick (s)
 - :mod:`.load` — ``serve --fleet demo`` as its own process under many concurrent clients
   (statuses, latency in ms, requests/s, the loop's ticks) against one client in sequence
+- :mod:`.dashboard` — the operator dashboard of a running service in Chromium: first-load bytes
+  transferred, idle requests a minute
 """

@@ -25,6 +25,7 @@ def cmd_bench(args: argparse.Namespace) -> None:
     from trainclimate.bench import (
         calibration,
         controller,
+        dashboard,
         load,
         pipeline,
         predictor,
@@ -93,6 +94,15 @@ def cmd_bench(args: argparse.Namespace) -> None:
             except replicas.ReplicasBenchError as exc:
                 raise UsageError(str(exc)) from None
         report(args, data, replicas.text)
+    elif args.target == "dashboard":
+        if not args.url or not args.token:
+            raise UsageError("bench dashboard needs --url and --token of a running service")
+        with progress_bar(4, "dashboard benchmark", "stage") as bar:
+            try:
+                data = dashboard.run(args.url, args.token, args.idle_s, progress=bar.update)
+            except dashboard.DashboardBenchError as exc:
+                raise UsageError(str(exc)) from None
+        report(args, data, dashboard.text)
     else:
         report(args, controller.run(), controller.text)
 
@@ -112,7 +122,13 @@ def register(sub) -> None:
             "load",
             "replicas",
             "study",
+            "dashboard",
         ),
+    )
+    p.add_argument("--url", default=None, help="dashboard: the running service's URL")
+    p.add_argument("--token", default=None, help="dashboard: a viewer's (or better) token")
+    p.add_argument(
+        "--idle-s", type=float, default=60.0, help="dashboard: seconds idle on each page"
     )
     p.add_argument("--scales", default="1,10,100", help="predictor: column multiples to fit")
     p.add_argument(

@@ -17,13 +17,12 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from datetime import timedelta
-from pathlib import Path
 
-import plotly
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
+from fastapi.middleware.gzip import GZipMiddleware
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
@@ -31,7 +30,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from trainclimate import __version__
-from trainclimate.service import api, docpages, metrics
+from trainclimate.service import api, dashboard_files, docpages, metrics
 from trainclimate.service.adapters import demo
 from trainclimate.service.adapters.dynsec import BrokerClients, DynsecError
 from trainclimate.service.adapters.mqtt import Broker, MqttBridge
@@ -62,8 +61,6 @@ from trainclimate.sim import twin
 from trainclimate.sim.params import load_params
 
 log = logging.getLogger(__name__)
-#: Plotly.js as the installed plotly package ships it (served at /vendor/plotly.min.js).
-PLOTLY_JS = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
 
 
 def register_model_file(session, settings: Settings) -> None:
@@ -249,6 +246,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         verify=lambda authorization: valid_authorization(app.state.db, authorization),
     )
     app.add_middleware(SecurityHeaders)
+    # the dashboard's files kept by the browser (versioned) or revalidated; gzip on every answer
+    # of 1 kB or more (Plotly.js, the scripts, the API's JSON and CSV) to a client that takes it
+    app.add_middleware(dashboard_files.DashboardCaching)
+    app.add_middleware(GZipMiddleware, minimum_size=1000)
     if settings.forwarded_allow_ips:
         app.add_middleware(ProxyHeadersMiddleware, trusted_hosts=settings.forwarded_allow_ips)
     # outermost: the request id on every answer and in the log lines, the metrics of every answer
@@ -257,11 +258,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.metrics_refresher = metrics.install(app.state.metrics, app.state, refresher).refresher
     app.add_middleware(Observe, metrics=app.state.metrics)
     if (settings.frontend_dir / "index.html").exists():
-        # Plotly.js from the installed plotly package: the dashboard needs no CDN and no build
+        # Plotly.js from npm's basic bundle or the plotly package: no CDN and no build
         app.add_api_route(
             "/vendor/plotly.min.js",
-            lambda: FileResponse(PLOTLY_JS, media_type="text/javascript"),
+            lambda: FileResponse(
+                dashboard_files.plotly_js(settings.frontend_dir), media_type="text/javascript"
+            ),
             include_in_schema=False,
         )
+        # index.html with versioned URLs for its script, style and Plotly.js
+        for path in ("/", "/index.html"):
+            app.add_api_route(
+                path,
+                lambda: dashboard_files.index_response(settings.frontend_dir),
+                include_in_schema=False,
+            )
         app.mount("/", StaticFiles(directory=settings.frontend_dir, html=True), name="frontend")
     return app

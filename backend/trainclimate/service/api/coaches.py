@@ -10,6 +10,7 @@ from fastapi import APIRouter, Query, Request, Response
 from pydantic import AwareDatetime
 from sqlalchemy.orm import Session
 
+from trainclimate.service import exports
 from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
     AUTH,
@@ -107,6 +108,26 @@ def coach_timeseries(
     coach = queries.coach_or_404(s, coach_id)
     start, end = queries.time_range(s, coach, start, end)
     return queries.timeseries(s, coach, start, end)
+
+
+@router.get(
+    "/coaches/{coach_id}/timeseries.csv",
+    response_class=Response,
+    tags=["coaches"],
+    responses={**exports.CSV_RESPONSE, **AUTH, **NOT_FOUND},
+)
+def coach_timeseries_csv(
+    coach_id: str,
+    s: DB,
+    who: Viewer,
+    start: Annotated[AwareDatetime | None, Query(description="ISO 8601 with offset")] = None,
+    end: Annotated[AwareDatetime | None, Query(description="default: the coach's clock")] = None,
+) -> Response:
+    """The coach's telemetry as CSV (``text/csv``), the same rows as
+    ``GET /coaches/{coach_id}/timeseries`` over the same range (default the last 24 h of its
+    clock): one row a minute, times in UTC on the fleet clock, the decks split into columns."""
+    ts = coach_timeseries(coach_id, s, who, start, end)
+    return exports.response(exports.telemetry_csv(ts), "telemetry", coach_id)
 
 
 @router.get(

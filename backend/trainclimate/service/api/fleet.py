@@ -6,9 +6,10 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query, Request, Response
 from pydantic import AwareDatetime
 
+from trainclimate.service import exports
 from trainclimate.service.api import schemas
 from trainclimate.service.api.coaches import current_view
 from trainclimate.service.api.deps import AUTH, DB, Viewer
@@ -43,3 +44,25 @@ def get_fleet_summary(
     live = queries.live_clocks(s)
     views = [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
     return fleet_summary.summary(s, views, hours, end, cache=request.app.state.read_cache)
+
+
+@router.get(
+    "/fleet/summary.csv",
+    response_class=Response,
+    tags=["fleet"],
+    responses={**exports.CSV_RESPONSE, **AUTH},
+)
+def get_fleet_summary_csv(
+    request: Request,
+    s: DB,
+    who: Viewer,
+    hours: Annotated[float, Query(gt=0, le=31 * 24, description="the window, h")] = 24.0,
+    end: Annotated[
+        AwareDatetime | None, Query(description="default: each train's fleet clock")
+    ] = None,
+) -> Response:
+    """The fleet summary per train as CSV (``text/csv``), the same figures as
+    ``GET /fleet/summary``: each train's pair, range (UTC, fleet clock), savings with their
+    95 % interval, energies, violations, excluded minutes and counted windows."""
+    summary = get_fleet_summary(request, s, who, hours, end)
+    return exports.response(exports.fleet_csv(summary), "fleet-summary", f"{hours:g}h")

@@ -47,10 +47,11 @@ log = logging.getLogger(__name__)
 
 #: The dashboard loads its script, style and Plotly.js from the same origin and uses no inline
 #: script or event handler; inline styles are allowed because Plotly.js sets style attributes
-#: (a stricter ``style-src 'self'`` blocks them in the browser).
+#: (a stricter ``style-src 'self'`` blocks them in the browser); images from ``data:`` and
+#: ``blob:`` URLs because Plotly.js draws a chart's PNG download from a blob of its SVG.
 CONTENT_SECURITY_POLICY = (
     "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
-    "img-src 'self' data:; "
+    "img-src 'self' data: blob:; "
     "connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'self'"
 )
 SECURITY_HEADERS = {

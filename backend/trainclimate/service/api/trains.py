@@ -6,10 +6,11 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query, Request, Response
 from pydantic import AwareDatetime
 from sqlalchemy import select
 
+from trainclimate.service import exports
 from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import AUTH, CONFLICT, DB, NOT_FOUND, Operator, Viewer
 from trainclimate.service.store import commands, comparison, guard, plans, queries
@@ -139,3 +140,30 @@ def train_comparison(
         comparison.comparison_state(s, train, start, end, window_min),
         lambda: comparison.comparison(s, train, start, end, window_min),
     )
+
+
+@router.get(
+    "/trains/{train_id}/comparison.csv",
+    response_class=Response,
+    tags=["trains"],
+    responses={**exports.CSV_RESPONSE, **AUTH, **NOT_FOUND},
+)
+def train_comparison_csv(
+    train_id: str,
+    request: Request,
+    s: DB,
+    who: Viewer,
+    start: AwareDatetime | None = None,
+    end: AwareDatetime | None = None,
+    window_min: Annotated[
+        int,
+        Query(ge=WINDOW_MIN[0], le=WINDOW_MIN[1], description="the window, whole minutes"),
+        schemas.DIGITS_ONLY,
+    ] = 30,
+) -> Response:
+    """The pair comparison's windows as CSV (``text/csv``), the same figures as
+    ``GET /trains/{train_id}/comparison`` over the same range: per window its start and end
+    (UTC, fleet clock), the coach under the layer, each coach's energy, the saving and why the
+    window is excluded."""
+    cmp = train_comparison(train_id, request, s, who, start, end, window_min)
+    return exports.response(exports.comparison_csv(cmp), "comparison", train_id)
