@@ -34,9 +34,10 @@ PLOTLY_BASIC = Path("npm") / "node_modules" / "plotly.js-basic-dist-min" / "plot
 
 
 def plotly_js(frontend_dir: Path) -> Path:
-    """The Plotly.js the dashboard loads: :data:`PLOTLY_BASIC` beside ``frontend_dir`` when
-    installed, else :data:`PLOTLY_FULL`."""
-    basic = frontend_dir.parent / PLOTLY_BASIC
+    """The Plotly.js the dashboard loads: :data:`PLOTLY_BASIC` beside ``frontend_dir`` (the
+    checkout's, which the package's ``resources/frontend`` links to) when installed, else
+    :data:`PLOTLY_FULL`."""
+    basic = frontend_dir.resolve().parent / PLOTLY_BASIC
     return basic if basic.exists() else PLOTLY_FULL
 
 
