@@ -10,8 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from trainclimate.sim.setpoint import COMFORT_BAND_K
 
-def violation_k(t_room_c: np.ndarray, t_rule_c: np.ndarray, t_max_k: float = 1.0) -> np.ndarray:
+
+def violation_k(
+    t_room_c: np.ndarray, t_rule_c: np.ndarray, t_max_k: float = COMFORT_BAND_K
+) -> np.ndarray:
     """Violation of the comfort band T_rule ± T_max, max(0, |T_room − T_rule| − T_max).
 
     Parameters
@@ -20,7 +24,7 @@ def violation_k(t_room_c: np.ndarray, t_rule_c: np.ndarray, t_max_k: float = 1.0
         Deck temperatures up, mid, low. [°C]
     t_rule_c : array-like of shape (...)
         T_rule, broadcast against ``t_room_c`` as (..., 1). [°C]
-    t_max_k : float, default 1.0
+    t_max_k : float, default COMFORT_BAND_K
         Comfort half-band T_max. [K]
 
     Returns
@@ -41,7 +45,7 @@ def discomfort_kh(
     t_rule_c: np.ndarray,
     dt_s: float,
     *,
-    t_max_k: float = 1.0,
+    t_max_k: float = COMFORT_BAND_K,
     mask: np.ndarray | None = None,
 ) -> np.ndarray:
     """Thermal discomfort per deck: ∫ violation dt over the counted samples.
@@ -54,7 +58,7 @@ def discomfort_kh(
         T_rule. [°C]
     dt_s : float
         Sampling interval. [s]
-    t_max_k : float, default 1.0
+    t_max_k : float, default COMFORT_BAND_K
         Comfort half-band T_max. [K]
     mask : numpy.ndarray of bool, shape (S,), optional
         The counted samples (default: all).
@@ -75,7 +79,7 @@ def avg_hourly_violation_k(
     t_rule_c: np.ndarray,
     dt_s: float,
     *,
-    t_max_k: float = 1.0,
+    t_max_k: float = COMFORT_BAND_K,
     mask: np.ndarray | None = None,
 ) -> float:
     """The paper's average hourly constraint violation (Table II).

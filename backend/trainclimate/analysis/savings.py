@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from trainclimate.analysis.kpi import discomfort_kh
+from trainclimate.sim.setpoint import COMFORT_BAND_K
 
 
 @dataclass
@@ -273,7 +274,7 @@ def compare(
     start: pd.Timestamp | None = None,
     end: pd.Timestamp | None = None,
     window_min: float = 30.0,
-    t_max_k: float = 1.0,
+    t_max_k: float = COMFORT_BAND_K,
 ) -> Comparison:
     """Energy per window, savings and comfort of an activated/deactivated pair.
 
@@ -293,7 +294,7 @@ def compare(
         End of the counted period (default: the end of the last sample's step).
     window_min : float, default 30.0
         Window length. [min]
-    t_max_k : float, default 1.0
+    t_max_k : float, default COMFORT_BAND_K
         Comfort half-band T_max. [K]
 
     Returns

@@ -6,10 +6,11 @@ import numpy as np
 
 from trainclimate.analysis.kpi import avg_hourly_violation_k, discomfort_kh, energy_kwh
 from trainclimate.sim.rule import MODE_REGULAR
+from trainclimate.sim.setpoint import COMFORT_BAND_K
 from trainclimate.sim.simulator import SimulationResult
 
 
-def coach_kpis(result: SimulationResult, coach: int, t_max_k: float = 1.0) -> dict:
+def coach_kpis(result: SimulationResult, coach: int, t_max_k: float = COMFORT_BAND_K) -> dict:
     """The KPIs of one coach of a simulation run, from its true room temperatures.
 
     Discomfort and violation count the time in regular mode, when the comfort band applies.
@@ -20,7 +21,7 @@ def coach_kpis(result: SimulationResult, coach: int, t_max_k: float = 1.0) -> di
         The run.
     coach : int
         Coach index.
-    t_max_k : float, default 1.0
+    t_max_k : float, default COMFORT_BAND_K
         Comfort half-band T_max. [K]
 
     Returns
@@ -46,14 +47,14 @@ def coach_kpis(result: SimulationResult, coach: int, t_max_k: float = 1.0) -> di
     }
 
 
-def fleet_kpis(result: SimulationResult, t_max_k: float = 1.0) -> dict:
+def fleet_kpis(result: SimulationResult, t_max_k: float = COMFORT_BAND_K) -> dict:
     """The KPIs of every coach of a simulation run, and their mean.
 
     Parameters
     ----------
     result : SimulationResult
         The run.
-    t_max_k : float, default 1.0
+    t_max_k : float, default COMFORT_BAND_K
         Comfort half-band T_max. [K]
 
     Returns

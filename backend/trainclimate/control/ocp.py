@@ -48,7 +48,7 @@ import scipy.sparse as sp
 
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.predict.hankel import NU, NY, NZ
-from trainclimate.sim.setpoint import U_BAND_K
+from trainclimate.sim.setpoint import COMFORT_BAND_K, U_BAND_K
 
 #: The objectives: the paper's Eq. (10), and Eq. (10) with T_ref kept within a margin of the
 #: predicted room temperature (the module docstring).
@@ -104,7 +104,7 @@ class OCPSettings:
     sigma: float = 3.0
     tau: float = 100.0
     gamma: float = 1.0
-    t_max: float = 1.0
+    t_max: float = COMFORT_BAND_K
     du_max: float = 0.5
     u_band: float = U_BAND_K
     time_limit_s: float = REAL_TIME_LIMIT_S

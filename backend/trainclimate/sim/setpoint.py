@@ -2,7 +2,9 @@
 
 The layer may move the setpoint only within the band the driver could set by hand,
 T_rule ± :data:`U_BAND_K` (the paper's constraint (6)); operators' overrides are held to the same
-band. Whatever sends a reference — the closed-loop simulation, the demo fleet, an onboard gateway —
+band. The comfort band the decks are held to is the narrower T_rule ± :data:`COMFORT_BAND_K`
+(the paper's T_max, Eq. (4)): the controller's bound, and what every violation figure measures.
+Whatever sends a reference — the closed-loop simulation, the demo fleet, an onboard gateway —
 applies it the same way (:func:`apply_setpoint`).
 """
 
@@ -12,6 +14,8 @@ import numpy as np
 
 #: Half-width of the band around T_rule the reference must stay in. [K]
 U_BAND_K = 2.0
+#: Half-width T_max of the comfort band around T_rule (paper, Eq. (4)). [K]
+COMFORT_BAND_K = 1.0
 
 
 def apply_setpoint(t_ref, t_rule, use) -> np.ndarray:

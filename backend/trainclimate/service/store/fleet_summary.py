@@ -58,6 +58,7 @@ from trainclimate.service.store.models import (
 from trainclimate.service.store.pair_trial import energy_columns, figures, pair_result
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 from trainclimate.sim.power import HEADLINE_METER, METERS
+from trainclimate.sim.setpoint import COMFORT_BAND_K
 
 DECKS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
 ID, TIME = Telemetry.coach_id.type, UTCDateTime()
@@ -111,7 +112,7 @@ def window_sums(
     session: Session,
     pairs: list[tuple[str, str, datetime, datetime]],
     window_min: float = 30.0,
-    t_max_k: float = queries.COMFORT_BAND_K,
+    t_max_k: float = COMFORT_BAND_K,
     overrides: list | None = None,
 ) -> dict[str, dict[int, np.ndarray]]:
     """Per pair and window, the sums a pair comparison is made of, read in one statement.
@@ -483,7 +484,7 @@ def handed_back(session: Session) -> dict[str, dict]:
 
 
 def comfort_violations(
-    session: Session, ends: dict[str, datetime], t_max_k: float = queries.COMFORT_BAND_K
+    session: Session, ends: dict[str, datetime], t_max_k: float = COMFORT_BAND_K
 ) -> dict[str, float]:
     """How long each coach's decks have been outside the comfort band without a break, up to
     its newest row, over the :data:`.attention.VIOLATION_LOOKBACK_MIN` before ``ends[coach]``.

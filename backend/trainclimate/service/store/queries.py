@@ -15,7 +15,6 @@ import pandas as pd
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from trainclimate.control.ocp import OCPSettings
 from trainclimate.service.store import liveness
 from trainclimate.service.store.comfort import comfort_now
 from trainclimate.service.store.models import (
@@ -28,10 +27,7 @@ from trainclimate.service.store.models import (
     Train,
 )
 from trainclimate.service.store.telemetry import load_frame
-from trainclimate.sim.setpoint import U_BAND_K
-
-#: The comfort bound the controller holds the decks to around T_rule (T_max of its problem). [K]
-COMFORT_BAND_K = OCPSettings().t_max
+from trainclimate.sim.setpoint import COMFORT_BAND_K, U_BAND_K
 
 #: A coach's status from the reason of its newest setpoint (any other reason: ``fallback``).
 #: Before it come, in this order: ``no-data`` (nothing reported), ``stale`` (no telemetry in
