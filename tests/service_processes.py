@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import getpass
 import json
+import os
 import re
 import shutil
 import signal
@@ -79,6 +80,34 @@ class Server:
         """SIGKILL: no shutdown, transactions cut where they are."""
         self.proc.send_signal(signal.SIGKILL)
         self.proc.wait(timeout=10)
+
+
+def demo_server(home: Path, model_file: Path, *extra: str) -> Server:
+    """``serve --fleet demo --speedup 600`` on a SQLite file in ``home`` (``extra`` appended to
+    the command), started with an environment free of ``TRAINCLIMATE_*`` variables."""
+    db_url = f"sqlite:///{home / 'trainclimate.db'}"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
+    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+    port = free_port()
+    args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
+    srv = Server([*args, "--fleet", "demo", "--speedup", "600", *extra], env, port,
+                 home / "server.log")  # fmt: skip
+    srv.db_url = db_url
+    srv.start()
+    return srv
+
+
+def wait_for_ddpc(srv: Server, token: str, coach: str = "D1-A", n: int = 20) -> None:
+    """Wait (at most 120 s) until ``coach`` has ``n`` DDPC setpoints."""
+
+    def predicted() -> bool:
+        reply = httpx.get(
+            f"{srv.url}/api/v1/coaches/{coach}/setpoints",
+            headers={"Authorization": f"Bearer {token}"},
+        )
+        return sum(s == "ddpc" for s in reply.json()["source"]) >= n
+
+    wait_for(predicted, 120, f"{n} DDPC setpoints of {coach}")
 
 
 def token_cli(db_url: str, role: str, env: dict[str, str], *options: str) -> str:

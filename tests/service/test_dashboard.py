@@ -28,7 +28,7 @@ from zoneinfo import ZoneInfo
 import httpx
 import pytest
 
-from service_processes import CLI, Server, free_port
+from service_processes import CLI, Server, demo_server, free_port, wait_for_ddpc
 from service_support import decided, flat_rows, post_rows, register, wait_for
 from trainclimate.service.adapters import demo
 from trainclimate.service.store.db import Database, migrate
@@ -58,32 +58,18 @@ def server(tmp_path_factory, model_file):
     """The demo fleet at 600× on SQLite (a 5-min tick every 0.5 s), with a viewer and an
     operator token; running until its activated coaches have a completed prediction (the layer's
     first hour) and 20 DDPC setpoints."""
-    home = tmp_path_factory.mktemp("dashboard")
-    db_url = f"sqlite:///{home / 'trainclimate.db'}"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
-    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
-    port = free_port()
-    args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
     # as `make demo` runs it: the operator token and the dashboard's URL printed at start
-    demo = ["--fleet", "demo", "--speedup", "600", "--new-token", "operator"]
-    srv = Server([*args, *demo], env, port, home / "server.log")
-    srv.start()
+    srv = demo_server(tmp_path_factory.mktemp("dashboard"), model_file, "--new-token", "operator")
     printed = srv.printed(r"dashboard: (\S+)\noperator token: (tc_\S+)")
     assert printed.group(1) == f"{srv.url}/#token={printed.group(2)}", srv.output()
     srv.signin_url = printed.group(1)
-    migrate(db_url)
-    db = Database(db_url)
+    migrate(srv.db_url)
+    db = Database(srv.db_url)
     with db.transaction() as s:
         srv.tokens = {"viewer": create_token(s, "viewer", "browser-viewer")[0]}
     db.dispose()
     srv.tokens["operator"] = printed.group(2)
-    headers = {"Authorization": f"Bearer {srv.tokens['viewer']}"}
-
-    def predicted() -> bool:
-        sp = httpx.get(f"{srv.url}/api/v1/coaches/D1-A/setpoints", headers=headers).json()
-        return sum(s == "ddpc" for s in sp["source"]) >= 20
-
-    wait_for(predicted, 120, "20 DDPC setpoints of D1-A")
+    wait_for_ddpc(srv, srv.tokens["viewer"])
     yield srv
     srv.stop()
 

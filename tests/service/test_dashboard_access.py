@@ -30,8 +30,7 @@ import httpx
 import pytest
 
 from service import test_dashboard
-from service_processes import CLI, Server, free_port
-from service_support import wait_for
+from service_processes import demo_server, wait_for_ddpc
 from trainclimate.service import dashboard_files
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
@@ -53,37 +52,15 @@ AXE_RUN = """(tags) => axe.run(document, { runOnly: { type: 'tag', values: tags 
 def server(tmp_path_factory, model_file):
     """The demo fleet at 600× on SQLite, with a viewer, an operator and an admin token, running
     until D1-A has 20 DDPC setpoints."""
-    home = tmp_path_factory.mktemp("dashboard-access")
-    db_url = f"sqlite:///{home / 'trainclimate.db'}"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
-    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
-    port = free_port()
-    args = [
-        *CLI,
-        "serve",
-        "--db",
-        db_url,
-        "--port",
-        str(port),
-        "--predictor",
-        str(Path(model_file)),
-    ]
-    srv = Server([*args, "--fleet", "demo", "--speedup", "600"], env, port, home / "server.log")
-    srv.start()
-    migrate(db_url)
-    db = Database(db_url)
+    srv = demo_server(tmp_path_factory.mktemp("dashboard-access"), Path(model_file))
+    migrate(srv.db_url)
+    db = Database(srv.db_url)
     with db.transaction() as s:
         srv.tokens = {
             r: create_token(s, r, f"access-{r}")[0] for r in ("viewer", "operator", "admin")
         }
     db.dispose()
-    headers = {"Authorization": f"Bearer {srv.tokens['viewer']}"}
-
-    def predicted() -> bool:
-        sp = httpx.get(f"{srv.url}/api/v1/coaches/D1-A/setpoints", headers=headers).json()
-        return sum(s == "ddpc" for s in sp["source"]) >= 20
-
-    wait_for(predicted, 120, "20 DDPC setpoints of D1-A")
+    wait_for_ddpc(srv, srv.tokens["viewer"])
     yield srv
     srv.stop()
 

@@ -107,6 +107,14 @@ def reset_guard(train_id: str, body: schemas.GuardReset, s: DB, who: Operator) -
     return commands.reset_guard(s, who, train_id, body.reason)
 
 
+#: The comparison's window, whole minutes within :data:`WINDOW_MIN`.
+WindowMin = Annotated[
+    int,
+    Query(ge=WINDOW_MIN[0], le=WINDOW_MIN[1], description="the window, whole minutes"),
+    schemas.DIGITS_ONLY,
+]
+
+
 @router.get(
     "/trains/{train_id}/comparison",
     response_model=schemas.Comparison,
@@ -120,11 +128,7 @@ def train_comparison(
     _: Viewer,
     start: AwareDatetime | None = None,
     end: AwareDatetime | None = None,
-    window_min: Annotated[
-        int,
-        Query(ge=WINDOW_MIN[0], le=WINDOW_MIN[1], description="the window, whole minutes"),
-        schemas.DIGITS_ONLY,
-    ] = 30,
+    window_min: WindowMin = 30,
 ) -> dict:
     """The train's pair: per window (30 min by default; whole minutes, 5 … 1440) the coach that
     ran the layer, the energies and the saving, or why the window does not count; the totals
@@ -155,11 +159,7 @@ def train_comparison_csv(
     who: Viewer,
     start: AwareDatetime | None = None,
     end: AwareDatetime | None = None,
-    window_min: Annotated[
-        int,
-        Query(ge=WINDOW_MIN[0], le=WINDOW_MIN[1], description="the window, whole minutes"),
-        schemas.DIGITS_ONLY,
-    ] = 30,
+    window_min: WindowMin = 30,
 ) -> Response:
     """The pair comparison's windows as CSV (``text/csv``), the same figures as
     ``GET /trains/{train_id}/comparison`` over the same range: per window its start and end
