@@ -42,6 +42,7 @@ from trainclimate.data.pipeline import PipelineError
 from trainclimate.paths import StorageError
 from trainclimate.predict import PredictorDataError
 from trainclimate.predict.artifact import ArtifactError
+from trainclimate.service.logs import StderrHandler
 from trainclimate.sim.params import ParamsError
 from trainclimate.sim.scenarios import ScenarioError
 from trainclimate.sim.weather import WeatherError
@@ -81,7 +82,7 @@ class _LogFormat(logging.Formatter):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command ``argv`` (default: the process's arguments); returns the exit code."""
-    handler = logging.StreamHandler(sys.stderr)
+    handler = StderrHandler()
     handler.setFormatter(_LogFormat())
     logging.basicConfig(level=logging.WARNING, handlers=[handler], force=True)
     logging.getLogger("trainclimate").setLevel(logging.INFO)

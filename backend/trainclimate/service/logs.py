@@ -65,6 +65,23 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(out, ensure_ascii=False, default=str)
 
 
+class StderrHandler(logging.StreamHandler):
+    """A handler writing to whatever ``sys.stderr`` is when a line is written, not the one at
+    its creation: a thread still logging after a command run in-process has returned (and its
+    captured stderr closed) writes to the process's stderr instead of failing."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value) -> None:
+        pass
+
+
 def configure(log_format: str, level: str, replica: str) -> dict | None:
     """Set the process's logging up for ``serve``: with ``json``, every logger (the service's,
     uvicorn's and its access lines, the libraries') writes :class:`JsonFormatter` lines to
@@ -77,7 +94,7 @@ def configure(log_format: str, level: str, replica: str) -> dict | None:
         from uvicorn.config import LOGGING_CONFIG
 
         return LOGGING_CONFIG
-    handler = logging.StreamHandler(sys.stderr)
+    handler = StderrHandler()
     handler.setFormatter(JsonFormatter(replica))
     logging.basicConfig(level=logging.WARNING, handlers=[handler], force=True)
     numeric = logging.getLevelName(level.upper())
