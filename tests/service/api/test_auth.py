@@ -32,6 +32,7 @@ ROUTES = [
     ("POST", "/coaches", "operator"),
     ("GET", "/coaches/{coach_id}", "viewer"),
     ("GET", "/coaches/{coach_id}/timeseries", "viewer"),
+    ("GET", "/coaches/{coach_id}/timeseries.csv", "viewer"),
     ("GET", "/coaches/{coach_id}/setpoint", "viewer"),
     ("GET", "/coaches/{coach_id}/setpoints", "viewer"),
     ("POST", "/coaches/{coach_id}/override", "operator"),
@@ -45,7 +46,9 @@ ROUTES = [
     ("GET", "/trains/{train_id}/guard", "viewer"),
     ("POST", "/trains/{train_id}/guard/reset", "operator"),
     ("GET", "/trains/{train_id}/comparison", "viewer"),
+    ("GET", "/trains/{train_id}/comparison.csv", "viewer"),
     ("GET", "/fleet/summary", "viewer"),
+    ("GET", "/fleet/summary.csv", "viewer"),
     ("POST", "/telemetry", "operator"),
     ("GET", "/models", "viewer"),
     ("POST", "/models/retrain", "admin"),
@@ -118,7 +121,7 @@ def test_every_protected_route_checks_token_and_role(client, tokens):
             else:  # let in: whatever the route then says about the request itself
                 assert reply.status_code not in (401, 403, 500), (method, path, role, reply.text)
             checked += 1
-    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 330
+    assert checked == len(ROUTES) * (len(invalid) + len(ROLES)) == 360
 
 
 def test_health_and_readiness_need_no_token(client):

@@ -8,7 +8,6 @@ from __future__ import annotations
 from datetime import timedelta
 
 import pytest
-from sqlalchemy import select
 
 from service_support import (
     API,
@@ -19,11 +18,9 @@ from service_support import (
     post_rows,
     register,
     shared_coach_model,  # noqa: F401  (autouse)
-    wait_for,
-)
+    )
 from trainclimate.service.settings import Settings
 from trainclimate.service.store import fleet_summary, queries
-from trainclimate.service.store.models import Setpoint
 
 FIGURES = (
     "savings_pct",
@@ -97,13 +94,6 @@ def _fleet(client, op) -> None:
     for cid, rows in parts.items():
         rest = [r for r in rows if r["time"] > at(150)]
         assert post_rows(client, op, cid, rest).status_code == 200
-
-    def ticked() -> bool:  # each coach ticks on its own clock: the live loop's tick at 180
-        with client.app.state.db.transaction() as s:
-            ticks = s.scalars(select(Setpoint.coach_id).where(Setpoint.tick == at(180)))
-            return set(ticks) == set(parts)
-
-    wait_for(ticked, 30, "every coach's tick at T0 + 180 min")
 
 
 def test_summary_is_the_pair_comparisons_pooled(client, tokens):

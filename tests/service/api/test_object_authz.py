@@ -63,6 +63,7 @@ RULES = {
     ("GET", "/coaches/{coach_id}/setpoint"): Rule("viewer", gateway=True),
     ("GET", "/coaches/{coach_id}"): Rule("viewer"),
     ("GET", "/coaches/{coach_id}/timeseries"): Rule("viewer"),
+    ("GET", "/coaches/{coach_id}/timeseries.csv"): Rule("viewer"),
     ("GET", "/coaches/{coach_id}/setpoints"): Rule("viewer"),
     ("GET", "/coaches/{coach_id}/overrides"): Rule("viewer"),
     ("POST", "/coaches/{coach_id}/override"): Rule(
@@ -74,6 +75,7 @@ RULES = {
     ),
     ("GET", "/trains/{train_id}"): Rule("viewer"),
     ("GET", "/trains/{train_id}/comparison"): Rule("viewer"),
+    ("GET", "/trains/{train_id}/comparison.csv"): Rule("viewer"),
     ("GET", "/trains/{train_id}/plan"): Rule("viewer"),
     ("PUT", "/trains/{train_id}/plan"): Rule(
         "operator", body=lambda t: {"plan": "fixed", "reason": "probe"}
