@@ -18,7 +18,7 @@ from service_support import (
     post_rows,
     register,
     shared_coach_model,  # noqa: F401  (autouse)
-    )
+)
 from trainclimate.service.settings import Settings
 from trainclimate.service.store import fleet_summary, queries
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, create_engine, event, make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from trainclimate.paths import sqlite_file, writable_dir
@@ -81,10 +81,14 @@ def pool_options(worker_threads: int) -> dict:
     }
 
 
-def session_options(**timeouts_s: float) -> str:
+def session_options(url: str, **timeouts_s: float) -> str:
     """libpq ``options`` setting each PostgreSQL parameter of ``timeouts_s`` (name → seconds;
-    0: no limit) for every session of a connection."""
-    return " ".join(f"-c {name}={round(value * 1000)}" for name, value in timeouts_s.items())
+    0: no limit) for every session of a connection, after the ``options`` the URL carries
+    (e.g. ``-csearch_path=…``), which they would otherwise replace."""
+    own = " ".join(f"-c {name}={round(value * 1000)}" for name, value in timeouts_s.items())
+    given = make_url(url).query.get("options")
+    given = " ".join(given) if isinstance(given, tuple) else given
+    return f"{given} {own}" if given else own
 
 
 def make_engine(
@@ -120,7 +124,7 @@ def make_engine(
 
         return engine
     options = session_options(
-        lock_timeout=lock_timeout_s, idle_in_transaction_session_timeout=idle_in_transaction_s
+        url, lock_timeout=lock_timeout_s, idle_in_transaction_session_timeout=idle_in_transaction_s
     )
     connect = {"options": options}
     if application_name:
@@ -131,7 +135,7 @@ def make_engine(
 def probe_engine(url: str) -> Engine:
     """A PostgreSQL engine of one connection (two at a pinch, waited for 1 s at most) for the
     readiness probe: connecting and each statement limited to :data:`PROBE_TIMEOUT_S`."""
-    options = session_options(statement_timeout=PROBE_TIMEOUT_S, lock_timeout=PROBE_TIMEOUT_S)
+    options = session_options(url, statement_timeout=PROBE_TIMEOUT_S, lock_timeout=PROBE_TIMEOUT_S)
     return create_engine(
         url,
         pool_pre_ping=True,
