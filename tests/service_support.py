@@ -261,3 +261,9 @@ def crossover_train(client, op, train: str, ratio: float, saving: float, days: i
         a = level * ratio * (1 - saving if d % 2 == 0 else 1.0) * np.exp(rng.normal(0, 0.01))
         post_rows(client, op, f"{train}-A", flat_rows(first + 1, first + HOURS, power_kw=a))
         post_rows(client, op, f"{train}-B", flat_rows(first + 1, first + HOURS, power_kw=b))
+
+
+def no_setpoint(coach_id: str) -> dict:
+    """``GET /coaches/{id}/setpoint`` of a coach without a valid setpoint: every field null."""
+    fields = ("tick", "t_ref_c", "t_rule_c", "source", "reason", "valid_until")
+    return {"coach_id": coach_id, **dict.fromkeys(fields)}

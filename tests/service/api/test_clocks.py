@@ -17,6 +17,7 @@ from service_support import (
     at,
     flat_row,
     flat_rows,
+    no_setpoint,
     post_rows,
     register,
     shared_coach_model,  # noqa: F401  (autouse)
@@ -114,12 +115,4 @@ def test_a_setpoint_expired_on_its_coach_clock_is_not_served(client, tokens, set
     assert datetime.fromisoformat(served["tick"]) == at(5) and served["t_ref_c"] is not None
     assert post_rows(client, op, "A", flat_rows(15, 20)).status_code == 200
     served = client.get(f"{API}/coaches/A/setpoint", headers=viewer).json()
-    assert served == {
-        "coach_id": "A",
-        "tick": None,
-        "t_ref_c": None,
-        "t_rule_c": None,
-        "source": None,
-        "reason": None,
-        "valid_until": None,
-    }
+    assert served == no_setpoint("A")

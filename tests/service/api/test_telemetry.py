@@ -13,6 +13,7 @@ from service_support import (
     at,
     count,
     flat_row,
+    no_setpoint,
     post_rows,
     register,
     shared_coach_model,  # noqa: F401  (autouse)
@@ -71,15 +72,7 @@ def test_setpoint_is_null_before_any_tick(client, tokens):
     register(client, tokens["operator"], "A")
     reply = client.get(f"{API}/coaches/A/setpoint", headers=tokens["viewer"])
     assert reply.status_code == 200
-    assert reply.json() == {
-        "coach_id": "A",
-        "tick": None,
-        "t_ref_c": None,
-        "t_rule_c": None,
-        "source": None,
-        "reason": None,
-        "valid_until": None,
-    }
+    assert reply.json() == no_setpoint("A")
     history = client.get(f"{API}/coaches/A/setpoints", headers=tokens["viewer"]).json()
     assert history["tick"] == [] and history["source"] == []
 
