@@ -83,10 +83,11 @@ def browser():
 
 
 class Watched:
-    """A page with its console errors and uncaught exceptions collected."""
+    """A page with its console errors and uncaught exceptions collected, signed in as ``role``
+    (``context`` more options of the browser context)."""
 
-    def __init__(self, browser, server: Server, role: str, viewport=LAPTOP):
-        self.context = browser.new_context(viewport=viewport)
+    def __init__(self, browser, server: Server, role: str, viewport=LAPTOP, **context):
+        self.context = browser.new_context(viewport=viewport, **context)
         self.page = self.context.new_page()
         self.errors: list[str] = []
         self.page.on("console", lambda m: m.type == "error" and self.errors.append(m.text))

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 import random
 import re
 import time
@@ -65,26 +64,12 @@ def server(tmp_path_factory, model_file):
     srv.stop()
 
 
-class Session:
+class Session(test_dashboard.Watched):
     """A signed-in page with its page errors and console errors collected; ``csp=False``
     bypasses the page's CSP (to inject axe-core only)."""
 
     def __init__(self, browser, server, role: str, viewport=LAPTOP, csp: bool = True):
-        self.context = browser.new_context(
-            viewport=viewport, accept_downloads=True, bypass_csp=not csp
-        )
-        self.page = self.context.new_page()
-        self.server = server
-        self.errors: list[str] = []
-        self.page.on("console", lambda m: m.type == "error" and self.errors.append(m.text))
-        self.page.on("pageerror", lambda e: self.errors.append(f"page error: {e}"))
-        self.page.goto(server.url + "/")
-        self.page.fill("#token", server.tokens[role])
-        self.page.press("#token", "Enter")
-        self.page.wait_for_selector(f"#who:has-text('({role})')")
-
-    def go(self, hash_: str) -> None:
-        self.page.goto(f"{self.server.url}/{hash_}")
+        super().__init__(browser, server, role, viewport, accept_downloads=True, bypass_csp=not csp)
 
     def api(self, path: str, role: str = "viewer", **params):
         headers = {"Authorization": f"Bearer {self.server.tokens[role]}"}
@@ -104,15 +89,6 @@ class Session:
             self.page.add_script_tag(path=str(AXE))
         found = self.page.evaluate(AXE_RUN, WCAG_AA)
         assert found == [], (state, found)
-
-    def shot(self, name: str) -> None:
-        out = os.environ.get("TRAINCLIMATE_SCREENSHOT_DIR")
-        if out:
-            Path(out).mkdir(parents=True, exist_ok=True)
-            self.page.screenshot(path=str(Path(out) / f"{name}.png"), full_page=True)
-
-    def close(self) -> None:
-        self.context.close()
 
 
 def _drawn(page, figure: str) -> None:
