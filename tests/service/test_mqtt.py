@@ -501,13 +501,21 @@ def test_gateway_over_mqtt_end_to_end(db_url, servers, proc_env, broker):
     feed = wait_for(
         lambda: (h := _health(server)["mqtt"])["rows_stored"] == 2 * minutes and h, 10, "rows"
     )
-    assert feed["dropped"] == {} and feed["setpoints_published"] >= 2 * (minutes // 5 - 1)
+    assert feed["dropped"] == {}
     db = Database(db_url)
     try:
         for coach in ("8-A", "8-B"):
             assert len(telemetry_times(db, coach)) == minutes
+        with db.transaction() as s:
+            live = Setpoint.coach_id.in_(["8-A", "8-B"])
+            issued = s.scalar(select(func.count()).select_from(Setpoint).where(live))
     finally:
         db.dispose()
+    # how many ticks the server ran in the gateway's nine seconds depends on the machine's load;
+    # that every setpoint it issued went out (or was counted as expired on its coach's clock)
+    # does not
+    assert issued >= 2 and feed["setpoints_published"] >= 2
+    assert feed["setpoints_published"] + feed["setpoints_expired"] >= issued
     server.stop()
     _clear_retained(broker, ["8-A", "8-B"])
     cleaner = broker.client(client_id)
