@@ -257,13 +257,13 @@ def test_summary_kept_while_the_counted_windows_are_unchanged(client, tokens, mo
     op, viewer = tokens["operator"], tokens["viewer"]
     _fleet(client, op)
     summed = []  # the trains whose windows were summed in the database
-    window_sums = fleet_summary.window_sums
+    pair_sums = fleet_summary.pair_sums
 
     def spy(session, pairs, *args, **kwargs):
         summed.append(sorted(p[0][:2] for p in pairs))
-        return window_sums(session, pairs, *args, **kwargs)
+        return pair_sums(session, pairs, *args, **kwargs)
 
-    monkeypatch.setattr(fleet_summary, "window_sums", spy)
+    monkeypatch.setattr(fleet_summary, "pair_sums", spy)
 
     def summary() -> dict:
         params = {"hours": 3, "end": at(180).isoformat()}

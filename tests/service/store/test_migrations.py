@@ -11,6 +11,7 @@ import sys
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect, select
@@ -21,6 +22,7 @@ from trainclimate.service.store.models import (
     AuditLog,
     Base,
     Coach,
+    CoachComfort,
     FleetClock,
     Setpoint,
     Telemetry,
@@ -28,12 +30,17 @@ from trainclimate.service.store.models import (
     TrainPlan,
     TrialDay,
     User,
+    WindowRollup,
 )
 from trainclimate.service.store.tokens import Principal, create_token
 
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
+#: The newest revision.
+HEAD = "0012"
 TABLES = {
+    "window_rollups",
+    "coach_comfort",
     "coach_liveness",
     "pair_guards",
     "train_plans",
@@ -52,7 +59,14 @@ TABLES = {
 }
 
 #: The tables before 0008.
-BEFORE_0008 = TABLES - {"train_plans", "trial_days", "pair_guards", "coach_liveness"}
+BEFORE_0008 = TABLES - {
+    "train_plans",
+    "trial_days",
+    "pair_guards",
+    "coach_liveness",
+    "window_rollups",
+    "coach_comfort",
+}
 
 
 def schema(url: str) -> tuple[set[str], str | None]:
@@ -121,7 +135,7 @@ def fill(url: str) -> None:
 
 def test_migrate_up_down_up(db_url):
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0011")
+    assert schema(db_url) == (TABLES, HEAD)
     assert set(Base.metadata.tables) == TABLES
     assert differences(db_url) == []
     fill(db_url)
@@ -129,7 +143,7 @@ def test_migrate_up_down_up(db_url):
     downgrade(db_url)
     assert schema(db_url) == (set(), None)
     migrate(db_url)
-    assert schema(db_url) == (TABLES, "0011")
+    assert schema(db_url) == (TABLES, HEAD)
     assert differences(db_url) == []
 
 
@@ -153,14 +167,14 @@ def alembic(db_url: str, tmp_path: Path, *args: str) -> subprocess.CompletedProc
 def test_alembic_command_line(db_url, tmp_path):
     assert ALEMBIC.exists(), f"no alembic script next to {sys.executable}"
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0011")
+    assert schema(db_url) == (TABLES, HEAD)
     # `check` autogenerates against the models and fails on any difference
     assert "No new upgrade operations detected" in alembic(db_url, tmp_path, "check").stdout
     fill(db_url)
     alembic(db_url, tmp_path, "downgrade", "base")
     assert schema(db_url) == (set(), None)
     alembic(db_url, tmp_path, "upgrade", "head")
-    assert schema(db_url) == (TABLES, "0011")
+    assert schema(db_url) == (TABLES, HEAD)
     assert differences(db_url) == []
 
 
@@ -206,7 +220,7 @@ def test_trial_plans_upgrade_a_database_in_use(db_url):
             s.add(Telemetry(coach_id="T1-A", time=now, t_room_mid_c=21.0))
         assert schema(db_url) == (BEFORE_0008, "0007")
         migrate(db_url)
-        assert schema(db_url) == (TABLES, "0011")
+        assert schema(db_url) == (TABLES, HEAD)
         with db.transaction() as s:
             train = s.get(Train, "T1")
             assert plans.view(s, train)["plan"] == "fixed"
@@ -268,3 +282,45 @@ def test_liveness_moves_to_a_table_of_its_own(db_url):
         assert [g[0] for g in got] == ["A", "B"] and got[1][1] is None and got[0][1] is not None
         assert c.execute(text("SELECT count(*) FROM fleet_clocks WHERE name = 'live'")).scalar()
     engine.dispose()
+
+
+def test_rollups_are_computed_for_the_telemetry_already_stored(db_url):
+    """0012 adds the window rollups and comfort states and computes them from the telemetry a
+    database at 0011 holds: the rows stamped 06:01–06:03 are bits 0–2 of their window."""
+    from sqlalchemy import create_engine, text
+
+    migrate(db_url, "0011")
+    engine = create_engine(db_url)
+    t0 = datetime(2024, 11, 28, 6, 0, tzinfo=UTC)
+    with engine.begin() as c:
+        train = text("INSERT INTO trains (id, name, created_at) VALUES ('T', 't', :t)")
+        c.execute(train, {"t": t0})
+        c.execute(
+            text(
+                "INSERT INTO coaches (id, train_id, fleet, ddpc_active, created_at)"
+                " VALUES ('A', 'T', 'live', false, :t)"
+            ),
+            {"t": t0},
+        )
+        c.execute(
+            text(
+                "INSERT INTO telemetry (coach_id, time, t_room_mid_c, t_rule_c, power_kw, mode,"
+                " connected) VALUES ('A', :t, 21.0, 21.0, 6.0, 'regular', :up)"
+            ),
+            [{"t": t0 + timedelta(minutes=m), "up": m != 2} for m in (1, 2, 3)],
+        )
+    engine.dispose()
+    migrate(db_url)
+    db = Database(db_url)
+    try:
+        with db.transaction() as s:
+            (rollup,) = s.scalars(select(WindowRollup))
+            assert (rollup.coach_id, rollup.window) == ("A", round(t0.timestamp()) // 1800)
+            assert (rollup.present, rollup.connected, rollup.powered) == (0b111, 0b101, 0b111)
+            assert rollup.energy_kwh == pytest.approx(3 * 6.0 / 60)
+            comfort = s.get(CoachComfort, "A")
+            assert comfort.newest == comfort.last_ok == t0 + timedelta(minutes=3)
+    finally:
+        db.dispose()
+    downgrade(db_url, "0011")
+    assert schema(db_url) == (TABLES - {"window_rollups", "coach_comfort"}, "0011")

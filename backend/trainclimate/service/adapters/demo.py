@@ -47,7 +47,7 @@ from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
 
 from trainclimate.service.scheduler import Scheduler
-from trainclimate.service.store import commands
+from trainclimate.service.store import commands, rollups
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import (
     Coach,
@@ -339,6 +339,7 @@ class DemoFleet:
                 Telemetry.__table__.insert(),
                 [{**r, "coach_id": cid} for cid, coach_rows in rows.items() for r in coach_rows],
             )
+            rollups.add_rows(session, rows)
             clock = session.get(FleetClock, FLEET)
             clock.time = t1
             clock.state = self.sim.snapshot()

@@ -38,7 +38,7 @@ from sqlalchemy.sql.expression import ColumnElement
 
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
-from trainclimate.service.store import pair_trial, plans, queries
+from trainclimate.service.store import pair_trial, plans, queries, rollups
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
     attention,
@@ -47,6 +47,7 @@ from trainclimate.service.store.attention import (
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.models import (
     Coach,
+    CoachComfort,
     FleetClock,
     Override,
     PairGuard,
@@ -237,6 +238,23 @@ def window_sums(
     return out
 
 
+def pair_sums(
+    session: Session,
+    pairs: list[tuple[str, str, datetime, datetime]],
+    window_min: float,
+    overrides: list,
+) -> dict[str, dict[int, np.ndarray]]:
+    """:func:`window_sums` of the pairs: from the window rollups (:mod:`.rollups`) where they
+    give them exactly, from the raw minutes for the other windows (and for any window length but
+    the rollups')."""
+    if window_min != rollups.WINDOW_MIN:
+        return window_sums(session, pairs, window_min, overrides=overrides)
+    sums, raw = rollups.pair_sums(session, pairs, overrides)
+    for c0, by_window in window_sums(session, raw, window_min, overrides=overrides).items():
+        sums.setdefault(c0, {}).update(by_window)
+    return sums
+
+
 def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
     """Each coach's first and newest telemetry time: two index probes per coach, in one
     statement (one plan for all coaches)."""
@@ -315,7 +333,7 @@ def pair_data(
     if not missing:
         return out
     todo = [m[0] for m in missing]
-    sums = window_sums(session, todo, window_min, overrides=overrides)
+    sums = pair_sums(session, todo, window_min, overrides)
     counts = pair_trial.setpoint_counts(
         session,
         sorted({c for pair in todo for c in pair[:2]}),
@@ -483,11 +501,11 @@ def handed_back(session: Session) -> dict[str, dict]:
     return {t: {"coach_id": c, "figures": f} for t, c, f in rows}
 
 
-def comfort_violations(
-    session: Session, ends: dict[str, datetime], t_max_k: float = COMFORT_BAND_K
-) -> dict[str, float]:
+def comfort_violations(session: Session, ends: dict[str, datetime]) -> dict[str, float]:
     """How long each coach's decks have been outside the comfort band without a break, up to
-    its newest row, over the :data:`.attention.VIOLATION_LOOKBACK_MIN` before ``ends[coach]``.
+    its newest row, over the :data:`.attention.VIOLATION_LOOKBACK_MIN` before ``ends[coach]``,
+    from each coach's comfort state kept at ingest (:class:`~.models.CoachComfort`: two times
+    per coach, whatever the history kept).
 
     A row is within comfort when every deck is within T_rule ± T_max or the coach is not in
     regular mode (the band applies in regular mode only).
@@ -507,20 +525,17 @@ def comfort_violations(
     if not ends:
         return {}
     lookback = timedelta(minutes=VIOLATION_LOOKBACK_MIN)
-    c = _literal_table(
-        "lookback", {"id": ID, "lo": TIME}, [(cid, t - lookback) for cid, t in ends.items()]
-    )
-    row = Telemetry.__table__.alias("r")
-    outside = or_(*(v > 0 for v in _violation(row, t_max_k)))
-    ok = or_(row.c.mode != "regular", not_(outside))
     found = session.execute(
-        select(row.c.coach_id, func.max(row.c.time), func.max(case((ok, row.c.time))), c.c.lo)
-        .select_from(c)
-        .join(row, and_(row.c.coach_id == c.c.id, row.c.time > c.c.lo))
-        .group_by(row.c.coach_id, c.c.lo)
-    ).all()
+        select(CoachComfort.coach_id, CoachComfort.newest, CoachComfort.last_ok).where(
+            CoachComfort.coach_id.in_(list(ends))
+        )
+    )
     out = {}
-    for cid, newest, last_ok, lo in found:
-        if last_ok != newest:
-            out[cid] = ((newest - (last_ok or lo)).total_seconds()) / 60.0
+    for cid, newest, last_ok in found:
+        lo = ends[cid] - lookback
+        if newest <= lo:
+            continue  # no row in the lookback
+        since = last_ok if last_ok is not None and last_ok > lo else lo
+        if since != newest:
+            out[cid] = (newest - since).total_seconds() / 60.0
     return out

@@ -12,7 +12,9 @@
   log of every write;
 - trial plans: each train's plan changes (``train_plans``) and each service day's assignment as
   the scheduler first applied it (``trial_days``);
-- each train's guard (``pair_guards``): whether its pair's own outcome handed the layer back.
+- each train's guard (``pair_guards``): whether its pair's own outcome handed the layer back;
+- per coach and 30-minute window, its telemetry summed as it arrives (``window_rollups``), and
+  each coach's newest row and newest row within comfort (``coach_comfort``).
 
 Every timestamp is stored in UTC and read back timezone-aware (:class:`UTCDateTime`).
 """
@@ -161,6 +163,41 @@ class Telemetry(Base):
     floor_power_kw: Mapped[float | None] = mapped_column(Float)
     mode: Mapped[str] = mapped_column(String(16), default="regular")
     connected: Mapped[bool] = mapped_column(Boolean, default=True)
+
+
+class WindowRollup(Base):
+    """One coach's telemetry in one 30-minute window, summed as it arrives
+    (:mod:`trainclimate.service.store.rollups`): bit i of each mask is the row stamped
+    ``window start + (i + 1) min`` — ``present`` (a row on the minute grid), ``connected``,
+    ``powered`` (HVAC power reported), ``regular`` (regular mode), ``split`` (the floor heating's
+    share reported); the energy on both meters [kWh] over the present minutes and the discomfort
+    per deck [K·h] over the minutes that are present, connected, powered and regular. ``window``
+    counts windows since 1970-01-01 UTC."""
+
+    __tablename__ = "window_rollups"
+    coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"), primary_key=True)
+    window: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
+    present: Mapped[int] = mapped_column(BigInteger, default=0)
+    connected: Mapped[int] = mapped_column(BigInteger, default=0)
+    powered: Mapped[int] = mapped_column(BigInteger, default=0)
+    regular: Mapped[int] = mapped_column(BigInteger, default=0)
+    split: Mapped[int] = mapped_column(BigInteger, default=0)
+    energy_kwh: Mapped[float] = mapped_column(Float, default=0.0)
+    hvac_kwh: Mapped[float] = mapped_column(Float, default=0.0)
+    discomfort_up_kh: Mapped[float] = mapped_column(Float, default=0.0)
+    discomfort_mid_kh: Mapped[float] = mapped_column(Float, default=0.0)
+    discomfort_low_kh: Mapped[float] = mapped_column(Float, default=0.0)
+
+
+class CoachComfort(Base):
+    """A coach's comfort as its telemetry arrives: the time of its newest row and of its newest
+    row within comfort (every deck within T_rule ± T_max, or not in regular mode), so the
+    attention list reads two times per coach instead of its last hours of rows."""
+
+    __tablename__ = "coach_comfort"
+    coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"), primary_key=True)
+    newest: Mapped[datetime] = mapped_column(UTCDateTime)
+    last_ok: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
 
 
 class Setpoint(Base):

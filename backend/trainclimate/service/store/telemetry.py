@@ -19,8 +19,9 @@ import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from trainclimate.service.store import rollups
 from trainclimate.service.store.models import Telemetry
-from trainclimate.service.store.upsert import insert_new
+from trainclimate.service.store.upsert import insert_new_keys
 
 Y_COLS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
 D_COLS = ("t_amb_c", "q_gt_w_m2", "q_gs_w_m2", "occupancy_pct", "speed_kmh")
@@ -30,16 +31,18 @@ VALUE_COLS = (*Y_COLS, "t_ref_c", "t_rule_c", *D_COLS, "ghi_w_m2", "power_kw", "
 def insert_rows(session: Session, coach_id: str, rows: list[dict]) -> int:
     """Insert telemetry rows of one coach, skipping times already stored (a gateway that resends
     a batch after a lost connection changes nothing, also when both copies arrive at once) and
-    repeated in the batch (the first is kept). Returns how many were new. Inserted in time
-    order, so two writers of overlapping batches take the rows' locks in the same order and
-    cannot deadlock."""
+    repeated in the batch (the first is kept), and add those stored to the coach's window
+    rollups (:mod:`.rollups`). Returns how many were new. Inserted in time order, so two writers
+    of overlapping batches take the rows' locks in the same order and cannot deadlock."""
     fresh, seen = [], set()
     for r in rows:
         if r["time"] not in seen:
             seen.add(r["time"])
             fresh.append({**r, "coach_id": coach_id})
     fresh.sort(key=lambda r: r["time"])
-    return insert_new(session, Telemetry.__table__, fresh, ["coach_id", "time"])
+    stored = set(insert_new_keys(session, Telemetry.__table__, fresh, ["coach_id", "time"], "time"))
+    rollups.add_rows(session, {coach_id: [r for r in fresh if r["time"] in stored]})
+    return len(stored)
 
 
 FRAME_COLS = ("time", *VALUE_COLS, "mode", "connected")

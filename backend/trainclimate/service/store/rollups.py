@@ -1,0 +1,278 @@
+"""Window rollups: each coach's telemetry summed per 30-minute window as it arrives, so the pair
+comparison, the fleet summary and the trial estimates read a few sums per window instead of
+every minute, and a refresh does not grow with the history kept.
+
+A row stamped t is the minute (t − 1 min, t]: minute m = t / 60 s − 1 since 1970, window
+⌊m / 30⌋, bit m mod 30 of the window's masks (:class:`~.models.WindowRollup`). Rows are only
+ever inserted, each (coach, time) once, so a new row adds its bit and its values to its window —
+a late row updates the window it belongs to like any other. What a pair comparison needs of a
+window (:data:`~.pair_trial.SUMS`) follows from both coaches' rollups exactly whenever the two
+coaches have the same minutes (``present``), the same minutes that count for comfort
+(present, connected, powered, regular) and no override touches the window: the counts come
+from the masks, the energies and the discomfort from each coach's own sums. Any other window —
+a minute one coach has and the other not, a link lost on one coach only, an override — is summed
+from the raw minutes (:func:`.fleet_summary.window_sums`); such windows are few.
+
+Each coach's comfort state (:class:`~.models.CoachComfort`: its newest row and its newest row
+within comfort) is kept the same way, for the attention list.
+
+After raw minutes are dropped (``trainclimate retention``), their windows' rollups stay: a window
+that needed its raw minutes and has none left has no sums, and is excluded as one without data.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+
+import numpy as np
+from sqlalchemy import BigInteger, Integer, and_, case, cast, delete, func, literal, or_, select
+from sqlalchemy.orm import Session
+
+from trainclimate.service.store.models import CoachComfort, Telemetry, WindowRollup
+from trainclimate.service.store.pair_trial import SUMS, SUMS_INDEX
+from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
+from trainclimate.service.store.upsert import accumulate, keep_latest
+from trainclimate.sim.setpoint import COMFORT_BAND_K
+
+#: The rollups' window. [min]
+WINDOW_MIN = 30
+_WINDOW_S = WINDOW_MIN * 60
+#: Every minute of a window present.
+FULL = (1 << WINDOW_MIN) - 1
+MASKS = ("present", "connected", "powered", "regular", "split")
+DECKS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
+DISCOMFORT = ("discomfort_up_kh", "discomfort_mid_kh", "discomfort_low_kh")
+TOTALS = ("energy_kwh", "hvac_kwh", *DISCOMFORT)
+
+
+def _excess(deck, rule, t_max_k: float) -> float:
+    """max(0, |T_room − T_rule| − T_max) of one deck (paper, Eq. (4)); 0 if either is unknown.
+    [K]"""
+    if deck is None or rule is None:
+        return 0.0
+    return max(0.0, abs(deck - rule) - t_max_k)
+
+
+def increments(rows: list[dict], t_max_k: float = COMFORT_BAND_K) -> list[dict]:
+    """What one coach's new telemetry ``rows`` add to its windows: per window its ``window``
+    index, the bits of :data:`MASKS` and the sums of :data:`TOTALS` (energy [kWh], discomfort
+    [K·h]). Rows off the minute grid add nothing (the comparison counts the grid's minutes)."""
+    out: dict[int, dict] = {}
+    for r in rows:
+        t = r["time"]
+        if t.second or t.microsecond:
+            continue
+        window, bit = divmod(round(t.timestamp()) // 60 - 1, WINDOW_MIN)
+        one = 1 << bit
+        acc = out.get(window)
+        if acc is None:
+            acc = out[window] = {"window": window, **dict.fromkeys(MASKS, 0)}
+            acc.update(dict.fromkeys(TOTALS, 0.0))
+        connected, power = r.get("connected", True), r.get("power_kw")
+        regular = r.get("mode", "regular") == "regular"
+        acc["present"] += one
+        acc["connected"] += one if connected else 0
+        acc["powered"] += one if power is not None else 0
+        acc["regular"] += one if regular else 0
+        acc["split"] += one if r.get("floor_power_kw") is not None else 0
+        acc["energy_kwh"] += (power or 0.0) / 60.0
+        acc["hvac_kwh"] += ((power or 0.0) - (r.get("floor_power_kw") or 0.0)) / 60.0
+        if connected and power is not None and regular:
+            for deck, name in zip(DECKS, DISCOMFORT, strict=True):
+                acc[name] += _excess(r.get(deck), r.get("t_rule_c"), t_max_k) / 60.0
+    return [out[w] for w in sorted(out)]
+
+
+def comfort_state(rows: list[dict], t_max_k: float = COMFORT_BAND_K) -> dict:
+    """One coach's ``newest`` row time among ``rows`` and ``last_ok``, its newest within
+    comfort (every deck within T_rule ± T_max, or not in regular mode; None if none is)."""
+    ok = [
+        r["time"]
+        for r in rows
+        if r.get("mode", "regular") != "regular"
+        or not any(_excess(r.get(d), r.get("t_rule_c"), t_max_k) > 0 for d in DECKS)
+    ]
+    return {"newest": max(r["time"] for r in rows), "last_ok": max(ok, default=None)}
+
+
+def add_rows(session: Session, rows_by_coach: dict[str, list[dict]]) -> None:
+    """Add newly stored telemetry (coach id → its rows, each stored for the first time) to the
+    coaches' window rollups and comfort states, in the caller's transaction, coach by coach and
+    window by window (two writers take the rows' locks in one order)."""
+    windows, comfort = [], []
+    for coach_id in sorted(rows_by_coach):
+        rows = rows_by_coach[coach_id]
+        if not rows:
+            continue
+        windows += [{"coach_id": coach_id, **inc} for inc in increments(rows)]
+        comfort.append({"coach_id": coach_id, **comfort_state(rows)})
+    accumulate(session, WindowRollup.__table__, windows, ["coach_id", "window"], [*MASKS, *TOTALS])
+    keep_latest(session, CoachComfort.__table__, comfort, ["coach_id"], ["newest", "last_ok"])
+
+
+def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
+    """Recompute every rollup and comfort state from the stored telemetry, in the database (for
+    data loaded around the ingest path, e.g. with COPY, and the migration that adds them).
+    Returns how many window rollups there are."""
+    t = Telemetry.__table__
+    minute = (EpochSeconds(t.c.time) - 60) // 60
+    window = (minute // WINDOW_MIN).label("window")
+    one = cast(literal(1), BigInteger).op("<<")(cast(minute % WINDOW_MIN, Integer))
+
+    def bits(condition):
+        return func.sum(case((condition, one), else_=0))
+
+    powered = t.c.power_kw.is_not(None)
+    regular = t.c.mode == "regular"
+    ok = and_(t.c.connected, powered, regular)
+    excess = [func.abs(t.c[d] - t.c.t_rule_c) - t_max_k for d in DECKS]
+    columns = {
+        "present": func.sum(one),
+        "connected": bits(t.c.connected),
+        "powered": bits(powered),
+        "regular": bits(regular),
+        "split": bits(t.c.floor_power_kw.is_not(None)),
+        "energy_kwh": func.sum(func.coalesce(t.c.power_kw, 0.0)) / 60.0,
+        "hvac_kwh": func.sum(
+            func.coalesce(t.c.power_kw, 0.0) - func.coalesce(t.c.floor_power_kw, 0.0)
+        )
+        / 60.0,
+        **{
+            name: func.sum(case((and_(ok, e > 0), e), else_=0.0)) / 60.0
+            for name, e in zip(DISCOMFORT, excess, strict=True)
+        },
+    }
+    summed = (
+        select(t.c.coach_id, window, *(v.label(k) for k, v in columns.items()))
+        .where(OnMinute(t.c.time))
+        .group_by(t.c.coach_id, window)
+    )
+    session.execute(delete(WindowRollup))
+    session.execute(
+        WindowRollup.__table__.insert().from_select(["coach_id", "window", *columns], summed)
+    )
+    within = or_(t.c.mode != "regular", and_(*(func.coalesce(e, 0.0) <= 0 for e in excess)))
+    session.execute(delete(CoachComfort))
+    session.execute(
+        CoachComfort.__table__.insert().from_select(
+            ["coach_id", "newest", "last_ok"],
+            select(t.c.coach_id, func.max(t.c.time), func.max(case((within, t.c.time)))).group_by(
+                t.c.coach_id
+            ),
+        )
+    )
+    return session.scalar(select(func.count()).select_from(WindowRollup))
+
+
+def _index(when: datetime) -> int:
+    """The window that starts at ``when`` (a window boundary)."""
+    return round(when.timestamp()) // _WINDOW_S
+
+
+def _overridden(overrides: list, coaches: tuple[str, str], windows: np.ndarray) -> np.ndarray:
+    """Whether an override of either coach overlaps each of ``windows`` (its minutes
+    (starts, ends or cancelled] against the window's (start, start + 30 min])."""
+    hit = np.zeros(len(windows), bool)
+    for _, coach_id, starts, ends, cancelled in overrides:
+        if coach_id in coaches:
+            lo = starts.astimezone(UTC).timestamp() / _WINDOW_S
+            hi = (cancelled or ends).astimezone(UTC).timestamp() / _WINDOW_S
+            hit |= (windows < hi) & (windows + 1 > lo)
+    return hit
+
+
+def pair_sums(
+    session: Session, pairs: list[tuple[str, str, datetime, datetime]], overrides: list
+) -> tuple[dict[str, dict[int, np.ndarray]], list[tuple[str, str, datetime, datetime]]]:
+    """Per pair and window the :data:`~.pair_trial.SUMS` a comparison is made of, from the
+    rollups where they give them exactly (see the module's description).
+
+    Parameters
+    ----------
+    pairs : list of (coach 0 id, coach 1 id, lo, hi)
+        Each counted over (lo, hi], both on window boundaries.
+    overrides : list
+        :func:`.fleet_summary.overrides_over` the pairs.
+
+    Returns
+    -------
+    (dict, list)
+        Coach 0's id → window index → sums, and the windows the rollups cannot give, as
+        ranges (coach 0, coach 1, lo, hi) of one window each, for the raw sums.
+    """
+    if not pairs:
+        return {}, []
+    coaches = sorted({c for p in pairs for c in p[:2]})
+    lo_w = min(_index(p[2]) for p in pairs)
+    hi_w = max(_index(p[3]) for p in pairs)
+    r = WindowRollup
+    rows = session.execute(
+        select(r.coach_id, r.window, *(r.__table__.c[c] for c in (*MASKS, *TOTALS)))
+        .where(r.coach_id.in_(coaches), r.window >= lo_w, r.window < hi_w)
+        .order_by(r.coach_id, r.window)
+    ).all()
+    by_coach: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    if rows:
+        ids = np.array([row[0] for row in rows])
+        window = np.array([row[1] for row in rows], np.int64)
+        masks = np.array([row[2:7] for row in rows], np.int64)
+        totals = np.array([row[7:] for row in rows], float)
+        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+        for a, b in zip(starts, [*starts[1:], len(ids)], strict=True):
+            by_coach[str(ids[a])] = (window[a:b], masks[a:b], totals[a:b])
+    empty = (np.zeros(0, np.int64), np.zeros((0, len(MASKS)), np.int64), np.zeros((0, 5)))
+    out: dict[str, dict[int, np.ndarray]] = {}
+    raw = []
+    for c0, c1, lo, hi in pairs:
+        w_lo, w_hi = _index(lo), _index(hi)
+        sides = []
+        for c in (c0, c1):
+            w, m, s = by_coach.get(c, empty)
+            keep = (w >= w_lo) & (w < w_hi)
+            sides.append((w[keep], m[keep], s[keep]))
+        (wa, ma, sa), (wb, mb, sb) = sides
+        both, ia, ib = np.intersect1d(wa, wb, assume_unique=True, return_indices=True)
+        ma, mb, sa, sb = ma[ia], mb[ib], sa[ia], sb[ib]
+        pa, pb = ma[:, 0], mb[:, 0]
+        ok_a = pa & ma[:, 1] & ma[:, 2] & ma[:, 3]
+        ok_b = pb & mb[:, 1] & mb[:, 2] & mb[:, 3]
+        paired = (pa & pb) != 0
+        dirty = paired & ((pa != pb) | (ok_a != ok_b) | _overridden(overrides, (c0, c1), both))
+        # a window only one coach has rows in has no paired minute; nor is it in the raw sums
+        for w in both[dirty]:
+            start = datetime.fromtimestamp(int(w) * _WINDOW_S, UTC)
+            end = datetime.fromtimestamp((int(w) + 1) * _WINDOW_S, UTC)
+            raw.append((c0, c1, start, end))
+        exact = paired & ~dirty
+        if not exact.any():
+            continue
+        sums = _sums(ma[exact], mb[exact], sa[exact], sb[exact])
+        out[c0] = {int(w): row for w, row in zip(both[exact], sums, strict=True)}
+    return out, raw
+
+
+def _sums(mask_a: np.ndarray, mask_b: np.ndarray, tot_a: np.ndarray, tot_b: np.ndarray):
+    """The :data:`~.pair_trial.SUMS` of windows where both coaches have the same minutes and
+    the same minutes that count for comfort, and no override: one row per window, from the two
+    coaches' masks (:data:`MASKS` columns) and totals (:data:`TOTALS` columns)."""
+    present = mask_a[:, 0]
+    connected = mask_a[:, 1] & mask_b[:, 1]
+    good = connected & mask_a[:, 2] & mask_b[:, 2]
+    sums = np.zeros((len(present), len(SUMS)))
+    columns = {
+        "minutes": np.bitwise_count(present),
+        "affected_minutes": np.bitwise_count(present & ~good),
+        "counted_minutes": np.bitwise_count(good & mask_a[:, 3]),
+        "energy_0_kwh": tot_a[:, 0],
+        "energy_1_kwh": tot_b[:, 0],
+        "energy_0_hvac_kwh": tot_a[:, 1],
+        "energy_1_hvac_kwh": tot_b[:, 1],
+        "unsplit_minutes": np.bitwise_count(present & ~(mask_a[:, 4] & mask_b[:, 4])),
+        "disconnected_minutes": np.bitwise_count(present & ~connected),
+    }
+    for i, deck in enumerate(("up", "mid", "low")):
+        columns[f"discomfort_0_{deck}_kh"] = tot_a[:, 2 + i]
+        columns[f"discomfort_1_{deck}_kh"] = tot_b[:, 2 + i]
+    for name, values in columns.items():
+        sums[:, SUMS_INDEX[name]] = values
+    return sums
