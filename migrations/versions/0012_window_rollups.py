@@ -1,7 +1,8 @@
-"""window rollups: each coach's telemetry summed per 30-minute window, and its comfort state
+"""window rollups: each coach's telemetry summed per 30-minute window, and its feed's state
 
 The pair comparison, the fleet summary and the trial estimates read these sums instead of every
-minute; the attention list reads each coach's newest row and newest row within comfort. Both are
+minute; the attention list reads each coach's newest row and newest row within comfort, the read
+cache its late rows. Both are
 kept by the ingest path; here they are computed once from the telemetry already stored.
 
 Revision ID: 0012
@@ -39,10 +40,11 @@ def upgrade() -> None:
         *(sa.Column(t, sa.Float(), nullable=False) for t in TOTALS),
     )
     op.create_table(
-        "coach_comfort",
+        "coach_feed",
         sa.Column("coach_id", sa.String(32), sa.ForeignKey("coaches.id"), primary_key=True),
         sa.Column("newest", sa.DateTime(timezone=True), nullable=False),
         sa.Column("last_ok", sa.DateTime(timezone=True), nullable=True),
+        sa.Column("late_rows", sa.BigInteger(), nullable=False),
     )
     from trainclimate.service.store import rollups  # the sums as the service computes them
 
@@ -50,5 +52,5 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    op.drop_table("coach_comfort")
+    op.drop_table("coach_feed")
     op.drop_table("window_rollups")

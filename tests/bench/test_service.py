@@ -17,27 +17,50 @@ def test_the_service_benchmark_runs_at_a_small_scale():
     d = service.run(
         ingest_coaches=4,
         ingest_batches=2,
-        trains=2,
+        pairs=2,
         days=2,
+        samples=3,
         requests=3,
         fleet=20,
         progress=steps.append,
     )
     assert steps == [1, 1, 1, 1, 1]
-    i, c, t = d["ingest"], d["comparison"], d["fleet_tick"]
-    assert d["target"]["fleet_tick_s"] == t["target_s"]
-    summary_met = c["summary"]["large"]["p95_ms"] <= d["target"]["summary_p95_ms"]
-    assert d["target_met"] == (t["tick_s"] <= t["target_s"] and summary_met)
+    i, c, t = d["ingest"], d["fleet_scale"], d["fleet_tick"]
+    # the headline figures, as the JSON gives them
+    assert set(d["summary_ms"]) == {"6h", "24h", "7d", "30d"}
+    for name, v in d["summary_ms"].items():
+        for kind in ("refresh", "new"):
+            assert v[kind] == {
+                "median": c["summary"][name][kind]["median_ms"],
+                "p95": c["summary"][name][kind]["p95_ms"],
+            }
+            assert c["summary"][name][kind]["requests"] == 3
+    assert set(d["comparison_ms"]) == {"24h", "7d"}
+    assert d["comparison_ms"]["7d"]["p95"] == c["comparison"]["7d"]["p95_ms"]
+    assert d["ingest_rows_per_s"] == i["direct_rows_per_s"] and d["rows"] == 2 * 2 * 2 * 1440
+    assert d["target"] == {
+        "fleet_tick_s": t["target_s"],
+        "summary_p95_ms": 300.0,
+        "comparison_7d_p95_ms": 150.0,
+    }
+    summary_met = all(
+        v[k]["p95"] <= 300.0 for v in d["summary_ms"].values() for k in ("refresh", "new")
+    )
+    met = summary_met and d["comparison_ms"]["7d"]["p95"] <= 150.0
+    assert d["target_met"] == (t["tick_s"] <= t["target_s"] and met)
     assert i["rows"] == 4 * 2 * 60 and i["batches"] == 8
     assert min(i["http_rows_per_s"], i["direct_rows_per_s"], i["plain_insert_rows_per_s"]) > 0
+    assert i["rollups_cost"] == pytest.approx(
+        i["direct_without_rollups_rows_per_s"] / i["direct_rows_per_s"] - 1.0
+    )
     assert i["http_batch_latency"]["requests"] == 8
-    assert c["large"]["rows_stored"] == 2 * 2 * 2 * 1440 and c["large"]["requests"] == 3
-    assert c["large"]["windows_per_reply"] in (47, 48)
-    assert c["summary"]["large"]["trains_per_reply"] == 2 and c["summary"]["large"]["requests"] == 3
-    assert c["summary"]["small"]["trains_per_reply"] == 1
-    assert c["summary"]["new_range"]["large"]["requests"] == 3
-    assert d["target"]["summary_p95_ms"] == 150.0
-    assert c["copy"]["rows"] == c["large"]["rows_stored"] and c["copy"]["rows_per_s"] > 0
+    # the fleet's data and its rollups: 2 days of 48 windows for each of 4 coaches
+    assert c["trains_per_reply"] == 2 and c["rollups"]["rows"] == 4 * 2 * 48
+    assert c["copy"]["rows"] == d["rows"] and c["copy"]["rows_per_s"] > 0
+    assert set(c["floor"]) == set(d["summary_ms"]) and c["floor"]["7d"]["requests"] == 3
+    assert c["new_vs_floor_p95"]["24h"] == (
+        c["summary"]["24h"]["new"]["p95_ms"] / c["floor"]["24h"]["p95_ms"]
+    )
     # the timed tick reached every coach: the activated ones past their lead-in solve
     assert t["setpoints_written"] == [20] and t["reasons"] == {"ok": 10, "inactive": 10}
     assert t["baseline_reasons"] == t["reasons"]
@@ -53,9 +76,11 @@ def test_the_service_benchmark_runs_at_a_small_scale():
         assert r["median_ratio"] == r["with"]["median_ms"] / r["without"]["median_ms"]
     assert m["scrape"]["coaches"] == 20 and m["scrape"]["bytes"] > 1000
     lines = service.text(d).splitlines()
-    assert len(lines) == 5 and lines[2].startswith("24-h fleet summary of 2 trains")
-    assert lines[3].startswith("fleet tick of 20 coaches")
-    assert lines[4].startswith("metrics: ") and "a scrape at 20 coaches" in lines[4]
+    assert len(lines) == 6 and lines[1].startswith("2 pairs × 2 days (0.0 M rows")
+    assert lines[2].startswith("fleet summary median/p95 ms: 6h refresh")
+    assert lines[3].startswith("pair comparison median/p95 ms: 24h")
+    assert lines[4].startswith("fleet tick of 20 coaches")
+    assert lines[5].startswith("metrics: ") and "a scrape at 20 coaches" in lines[5]
 
 
 def test_the_service_benchmark_needs_postgresql(capsys):
@@ -63,3 +88,5 @@ def test_the_service_benchmark_needs_postgresql(capsys):
         service.run("sqlite:///never.db")
     assert main(["bench", "service", "--db", "sqlite:///never.db"]) == 2
     assert "needs PostgreSQL, not sqlite" in capsys.readouterr().err
+    assert main(["bench", "service", "--pairs", "0"]) == 2
+    assert "--pairs, --days and --samples must be ≥ 1" in capsys.readouterr().err

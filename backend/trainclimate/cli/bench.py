@@ -56,9 +56,17 @@ def cmd_bench(args: argparse.Namespace) -> None:
             data = predictor.run(scales, args.data, progress=bar.update)
         report(args, data, predictor.text)
     elif args.target == "service":
+        if args.pairs < 1 or (args.days is not None and args.days < 1) or args.samples < 1:
+            raise UsageError("--pairs, --days and --samples must be ≥ 1")
         with progress_bar(5, "service benchmark", "stage") as bar:
             try:
-                data = service.run(args.db, progress=bar.update)
+                data = service.run(
+                    args.db,
+                    pairs=args.pairs,
+                    days=30 if args.days is None else int(args.days),
+                    samples=args.samples,
+                    progress=bar.update,
+                )
             except service.ServiceBenchError as exc:
                 raise UsageError(str(exc)) from None
         report(args, data, service.text)
@@ -169,7 +177,16 @@ def register(sub) -> None:
         " study: coaches (default 128)",
     )
     p.add_argument(
-        "--days", type=float, default=None, help="simulator: days (default 1); study: days (2)"
+        "--days",
+        type=float,
+        default=None,
+        help="simulator: days (default 1); study: days (2); service: days of data stored (30)",
+    )
+    p.add_argument(
+        "--pairs", type=int, default=50, help="service: coach pairs of data stored (default 50)"
+    )
+    p.add_argument(
+        "--samples", type=int, default=30, help="service: requests per latency point (30)"
     )
     p.add_argument(
         "--loop-coaches", type=int, default=5, help="coaches simulated one by one for the baseline"

@@ -22,7 +22,7 @@ from trainclimate.service.store.models import (
     AuditLog,
     Base,
     Coach,
-    CoachComfort,
+    CoachFeed,
     FleetClock,
     Setpoint,
     Telemetry,
@@ -40,7 +40,7 @@ ALEMBIC = Path(sys.executable).with_name("alembic")
 HEAD = "0012"
 TABLES = {
     "window_rollups",
-    "coach_comfort",
+    "coach_feed",
     "coach_liveness",
     "pair_guards",
     "train_plans",
@@ -65,7 +65,7 @@ BEFORE_0008 = TABLES - {
     "pair_guards",
     "coach_liveness",
     "window_rollups",
-    "coach_comfort",
+    "coach_feed",
 }
 
 
@@ -318,9 +318,9 @@ def test_rollups_are_computed_for_the_telemetry_already_stored(db_url):
             assert (rollup.coach_id, rollup.window) == ("A", round(t0.timestamp()) // 1800)
             assert (rollup.present, rollup.connected, rollup.powered) == (0b111, 0b101, 0b111)
             assert rollup.energy_kwh == pytest.approx(3 * 6.0 / 60)
-            comfort = s.get(CoachComfort, "A")
+            comfort = s.get(CoachFeed, "A")
             assert comfort.newest == comfort.last_ok == t0 + timedelta(minutes=3)
     finally:
         db.dispose()
     downgrade(db_url, "0011")
-    assert schema(db_url) == (TABLES - {"window_rollups", "coach_comfort"}, "0011")
+    assert schema(db_url) == (TABLES - {"window_rollups", "coach_feed"}, "0011")

@@ -14,7 +14,7 @@ from sqlalchemy import select
 from service_support import T0, at, flat_row, sim_rows
 from trainclimate.service.store import fleet_summary, rollups
 from trainclimate.service.store.db import Database, migrate
-from trainclimate.service.store.models import Coach, CoachComfort, Override, Train, WindowRollup
+from trainclimate.service.store.models import Coach, CoachFeed, Override, Train, WindowRollup
 from trainclimate.service.store.pair_trial import SUMS
 from trainclimate.service.store.telemetry import insert_rows
 
@@ -140,7 +140,7 @@ def test_the_rollups_kept_at_ingest_equal_a_rebuild_from_the_raw_minutes(db):
                 )
                 for r in s.scalars(select(WindowRollup))
             }
-            comfort = {r.coach_id: (r.newest, r.last_ok) for r in s.scalars(select(CoachComfort))}
+            comfort = {r.coach_id: (r.newest, r.last_ok) for r in s.scalars(select(CoachFeed))}
         return windows, comfort
 
     kept_windows, kept_comfort = read()

@@ -16,16 +16,19 @@ from trainclimate.bench.service.fleet import pair_ids, register, synthetic, toke
 
 
 def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) -> dict:
-    """Telemetry ingest rows/s three ways on the same batches: the HTTP API, ``commands.ingest``
-    (one transaction per batch, no HTTP) and the baseline, a plain executemany INSERT per batch;
-    interleaved batch by batch (each way writes its own coaches into one table), so a machine
-    that slows down meanwhile slows all three alike. Then all rows once more in one executemany
+    """Telemetry ingest rows/s four ways on the same batches: the HTTP API, ``commands.ingest``
+    (one transaction per batch, no HTTP), the same without the window rollups kept (what they
+    cost) and the baseline, a plain executemany INSERT per batch; interleaved batch by batch
+    (each way writes its own coaches into one table), so a machine that slows down meanwhile
+    slows all four alike. Then all rows once more in one executemany
     and one transaction. ``coaches`` coaches × ``batches`` hourly batches of ``rows_per_batch``
     1-minute rows; the HTTP requests' latencies in ms. Empties the tables afterwards."""
+    from unittest import mock
+
     import pandas as pd
     from sqlalchemy import text
 
-    from trainclimate.service.store import commands
+    from trainclimate.service.store import commands, rollups
     from trainclimate.service.store.db import Database
     from trainclimate.service.store.models import Telemetry
     from trainclimate.service.store.telemetry import to_wire
@@ -55,7 +58,7 @@ def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) 
     n_rows = sum(len(r) for _, r in batch_rows)
     way_ids = {
         way: pair_ids(prefix, pairs)[0]
-        for way, prefix in zip(("http", "direct", "plain", "one"), "HDPO", strict=True)
+        for way, prefix in zip(("http", "direct", "bare", "plain", "one"), "HDBPO", strict=True)
     }
     for way in way_ids.values():
         register(url, way, "live")
@@ -72,7 +75,7 @@ def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) 
     headers = {**operator, "Content-Type": "application/json"}
     db = Database(url)
     table = Telemetry.__table__
-    plain_s = direct_s = http_s = 0.0
+    plain_s = direct_s = bare_s = http_s = 0.0
     latencies = []
     with fleet_client(url, model) as client:
         for (i, rows), body in zip(batch_rows, bodies, strict=True):
@@ -85,12 +88,16 @@ def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) 
                 commands.ingest(session, way_ids["direct"][i], rows)
             t2 = time.perf_counter()  # through the HTTP API
             reply = client.post("/api/v1/telemetry", content=body, headers=headers)
-            t3 = time.perf_counter()
+            t3 = time.perf_counter()  # the command without the rollups
+            with mock.patch.object(rollups, "add_rows"), db.transaction() as session:
+                commands.ingest(session, way_ids["bare"][i], rows)
+            t4 = time.perf_counter()
             if reply.status_code != 200 or reply.json()["stored"] != len(rows):
                 raise RuntimeError(f"ingest failed: {reply.status_code} {reply.text[:200]}")
             plain_s += t1 - t0
             direct_s += t2 - t1
             http_s += t3 - t2
+            bare_s += t4 - t3
             latencies.append(t3 - t2)
     every = [{**r, "coach_id": way_ids["one"][i]} for i, rows in batch_rows for r in rows]
     t0 = time.perf_counter()
@@ -98,8 +105,8 @@ def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) 
         conn.execute(table.insert(), every)
     one_s = time.perf_counter() - t0
     stored = sql(url, "SELECT count(*) FROM telemetry")[0][0]
-    if stored != 4 * n_rows:
-        raise RuntimeError(f"{stored} rows stored of {4 * n_rows}")
+    if stored != 5 * n_rows:
+        raise RuntimeError(f"{stored} rows stored of {5 * n_rows}")
     with db.engine.begin() as conn:
         conn.execute(text(RESET))
     db.dispose()
@@ -112,6 +119,8 @@ def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) 
         "http_rows_per_s": n_rows / http_s,
         "http_batch_latency": latency_ms(latencies),
         "direct_rows_per_s": n_rows / direct_s,
+        "direct_without_rollups_rows_per_s": n_rows / bare_s,
+        "rollups_cost": direct_s / bare_s - 1.0,
         "plain_insert_rows_per_s": plain,
         "plain_insert_one_transaction_rows_per_s": n_rows / one_s,
         "http_vs_plain": n_rows / http_s / plain,

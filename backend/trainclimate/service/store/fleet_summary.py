@@ -47,11 +47,10 @@ from trainclimate.service.store.attention import (
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.models import (
     Coach,
-    CoachComfort,
+    CoachFeed,
     FleetClock,
     Override,
     PairGuard,
-    Setpoint,
     Telemetry,
     Train,
     UTCDateTime,
@@ -270,41 +269,48 @@ def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
 
 
 def pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
-    """What each pair's :func:`window_sums` and setpoint counts over its range (lo, hi] are
-    computed from: each coach's number of telemetry rows and of setpoints in the range
-    (telemetry and setpoints are only ever inserted: a new one in the range changes its count;
-    those after it, the current window's, do not) and the overrides of either coach overlapping
-    it, as they are (a cancellation changes them). One statement of index-only counts."""
+    """What each pair's sums and setpoint counts over its range (lo, hi] are computed from, in
+    two look-ups of one row per coach: per coach its newest telemetry row up to ``hi`` and its
+    late rows (:class:`~.models.CoachFeed`), and its last tick up to ``hi``; and the overrides
+    of either coach overlapping the range, as they are (a cancellation changes them).
+
+    Telemetry is only ever inserted: a row arriving in order lands after the coach's newest,
+    which moves while it is before ``hi``; one arriving late counts in its late rows. Setpoints
+    are inserted at ticks after the coach's last tick, which the same transaction advances.
+    So a range whose state is unchanged has the same rows and setpoints (a late row elsewhere
+    in the coach's history changes the state too: a recomputation, never a stale answer)."""
     if not pairs:
         return []
-    p = _literal_table("pairs", {"c0": ID, "c1": ID, "lo": TIME, "hi": TIME}, pairs)
-
-    def rows_of(coach):
-        return (
-            select(func.count())
-            .select_from(Telemetry)
-            .where(Telemetry.coach_id == coach, Telemetry.time > p.c.lo, Telemetry.time <= p.c.hi)
-            .scalar_subquery()
+    coaches = sorted({c for pair in pairs for c in pair[:2]})
+    feeds = {
+        cid: (newest, late)
+        for cid, newest, late in session.execute(
+            select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.late_rows).where(
+                CoachFeed.coach_id.in_(coaches)
+            )
         )
-
-    def ticks_of(coach):
-        return (
-            select(func.count())
-            .select_from(Setpoint)
-            .where(Setpoint.coach_id == coach, Setpoint.tick >= p.c.lo, Setpoint.tick < p.c.hi)
-            .scalar_subquery()
-        )
-
-    counts = {
-        (c0, c1): tuple(n)
-        for c0, c1, *n in session.execute(
-            select(p.c.c0, p.c.c1, *(f(p.c[c]) for f in (rows_of, ticks_of) for c in ("c0", "c1")))
+    }
+    ticks = {
+        cid: tick
+        for cid, tick in session.execute(
+            select(Coach.id, Coach.last_tick).where(Coach.id.in_(coaches))
         )
     }
     states = []
     for c0, c1, lo, hi in pairs:
+        per_coach = []
+        for c in (c0, c1):
+            newest, late = feeds.get(c, (None, 0))
+            tick = ticks.get(c)
+            per_coach.append(
+                (
+                    None if newest is None else min(newest, hi),
+                    late,
+                    None if tick is None else min(tick, hi),
+                )
+            )
         mine = tuple(tuple(o) for o in overrides if o[1] in (c0, c1) and o[2] < hi and o[3] > lo)
-        states.append((*counts[c0, c1], mine))
+        states.append((*per_coach, mine))
     return states
 
 
@@ -504,7 +510,7 @@ def handed_back(session: Session) -> dict[str, dict]:
 def comfort_violations(session: Session, ends: dict[str, datetime]) -> dict[str, float]:
     """How long each coach's decks have been outside the comfort band without a break, up to
     its newest row, over the :data:`.attention.VIOLATION_LOOKBACK_MIN` before ``ends[coach]``,
-    from each coach's comfort state kept at ingest (:class:`~.models.CoachComfort`: two times
+    from each coach's comfort state kept at ingest (:class:`~.models.CoachFeed`: two times
     per coach, whatever the history kept).
 
     A row is within comfort when every deck is within T_rule ± T_max or the coach is not in
@@ -526,8 +532,8 @@ def comfort_violations(session: Session, ends: dict[str, datetime]) -> dict[str,
         return {}
     lookback = timedelta(minutes=VIOLATION_LOOKBACK_MIN)
     found = session.execute(
-        select(CoachComfort.coach_id, CoachComfort.newest, CoachComfort.last_ok).where(
-            CoachComfort.coach_id.in_(list(ends))
+        select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.last_ok).where(
+            CoachFeed.coach_id.in_(list(ends))
         )
     )
     out = {}

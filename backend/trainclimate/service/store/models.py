@@ -14,7 +14,7 @@
   the scheduler first applied it (``trial_days``);
 - each train's guard (``pair_guards``): whether its pair's own outcome handed the layer back;
 - per coach and 30-minute window, its telemetry summed as it arrives (``window_rollups``), and
-  each coach's newest row and newest row within comfort (``coach_comfort``).
+  each coach's newest row, newest row within comfort and late rows (``coach_feed``).
 
 Every timestamp is stored in UTC and read back timezone-aware (:class:`UTCDateTime`).
 """
@@ -189,15 +189,18 @@ class WindowRollup(Base):
     discomfort_low_kh: Mapped[float] = mapped_column(Float, default=0.0)
 
 
-class CoachComfort(Base):
-    """A coach's comfort as its telemetry arrives: the time of its newest row and of its newest
-    row within comfort (every deck within T_rule ± T_max, or not in regular mode), so the
-    attention list reads two times per coach instead of its last hours of rows."""
+class CoachFeed(Base):
+    """A coach's telemetry as it stands, kept as rows arrive (:mod:`.rollups`): the time of its
+    newest row, of its newest row within comfort (every deck within T_rule ± T_max, or not in
+    regular mode) — so the attention list reads two times per coach instead of its last hours
+    of rows — and ``late_rows``, the rows stored in batches that reached back to or before its
+    newest row (rows arriving late: what can change a range already summed)."""
 
-    __tablename__ = "coach_comfort"
+    __tablename__ = "coach_feed"
     coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"), primary_key=True)
     newest: Mapped[datetime] = mapped_column(UTCDateTime)
     last_ok: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    late_rows: Mapped[int] = mapped_column(BigInteger, default=0)
 
 
 class Setpoint(Base):

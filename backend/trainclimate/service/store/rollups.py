@@ -13,8 +13,9 @@ from the masks, the energies and the discomfort from each coach's own sums. Any 
 a minute one coach has and the other not, a link lost on one coach only, an override — is summed
 from the raw minutes (:func:`.fleet_summary.window_sums`); such windows are few.
 
-Each coach's comfort state (:class:`~.models.CoachComfort`: its newest row and its newest row
-within comfort) is kept the same way, for the attention list.
+Each coach's feed (:class:`~.models.CoachFeed`: its newest row and its newest row within
+comfort, for the attention list; the rows that arrived late, for the read cache) is kept the
+same way.
 
 After raw minutes are dropped (``trainclimate retention``), their windows' rollups stay: a window
 that needed its raw minutes and has none left has no sums, and is excluded as one without data.
@@ -28,7 +29,7 @@ import numpy as np
 from sqlalchemy import BigInteger, Integer, and_, case, cast, delete, func, literal, or_, select
 from sqlalchemy.orm import Session
 
-from trainclimate.service.store.models import CoachComfort, Telemetry, WindowRollup
+from trainclimate.service.store.models import CoachFeed, Telemetry, UTCDateTime, WindowRollup
 from trainclimate.service.store.pair_trial import SUMS, SUMS_INDEX
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 from trainclimate.service.store.upsert import accumulate, keep_latest
@@ -97,22 +98,33 @@ def comfort_state(rows: list[dict], t_max_k: float = COMFORT_BAND_K) -> dict:
 
 def add_rows(session: Session, rows_by_coach: dict[str, list[dict]]) -> None:
     """Add newly stored telemetry (coach id → its rows, each stored for the first time) to the
-    coaches' window rollups and comfort states, in the caller's transaction, coach by coach and
-    window by window (two writers take the rows' locks in one order)."""
-    windows, comfort = [], []
+    coaches' window rollups and feed states (:class:`~.models.CoachFeed`), in the caller's
+    transaction, coach by coach and window by window (two writers take the rows' locks in one
+    order). A coach's rows that reach back to or before its newest row stored count as late."""
+    windows = []
+    feed = CoachFeed.__table__
     for coach_id in sorted(rows_by_coach):
         rows = rows_by_coach[coach_id]
         if not rows:
             continue
         windows += [{"coach_id": coach_id, **inc} for inc in increments(rows)]
-        comfort.append({"coach_id": coach_id, **comfort_state(rows)})
+        first = min(r["time"] for r in rows)
+        late = case((feed.c.newest >= literal(first, UTCDateTime()), len(rows)), else_=0)
+        keep_latest(
+            session,
+            feed,
+            {"coach_id": coach_id, **comfort_state(rows), "late_rows": 0},
+            ["coach_id"],
+            ["newest", "last_ok"],
+            late_rows=feed.c.late_rows + late,
+        )
     accumulate(session, WindowRollup.__table__, windows, ["coach_id", "window"], [*MASKS, *TOTALS])
-    keep_latest(session, CoachComfort.__table__, comfort, ["coach_id"], ["newest", "last_ok"])
 
 
 def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
-    """Recompute every rollup and comfort state from the stored telemetry, in the database (for
-    data loaded around the ingest path, e.g. with COPY, and the migration that adds them).
+    """Recompute every rollup and feed state (no row late) from the stored telemetry, in the
+    database (for data loaded around the ingest path, e.g. with COPY, and the migration that
+    adds them).
     Returns how many window rollups there are."""
     t = Telemetry.__table__
     minute = (EpochSeconds(t.c.time) - 60) // 60
@@ -152,13 +164,13 @@ def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
         WindowRollup.__table__.insert().from_select(["coach_id", "window", *columns], summed)
     )
     within = or_(t.c.mode != "regular", and_(*(func.coalesce(e, 0.0) <= 0 for e in excess)))
-    session.execute(delete(CoachComfort))
+    session.execute(delete(CoachFeed))
     session.execute(
-        CoachComfort.__table__.insert().from_select(
-            ["coach_id", "newest", "last_ok"],
-            select(t.c.coach_id, func.max(t.c.time), func.max(case((within, t.c.time)))).group_by(
-                t.c.coach_id
-            ),
+        CoachFeed.__table__.insert().from_select(
+            ["coach_id", "newest", "last_ok", "late_rows"],
+            select(
+                t.c.coach_id, func.max(t.c.time), func.max(case((within, t.c.time))), literal(0)
+            ).group_by(t.c.coach_id),
         )
     )
     return session.scalar(select(func.count()).select_from(WindowRollup))

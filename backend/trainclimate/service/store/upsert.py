@@ -58,14 +58,12 @@ def accumulate(
 
 
 def keep_latest(
-    session: Session, table: Table, rows: list[dict], keys: list[str], columns: list[str]
+    session: Session, table: Table, row: dict, keys: list[str], columns: list[str], **also
 ) -> None:
-    """Insert the ``rows``, or move the ``columns`` of the row already stored under the same
-    ``keys`` forward to theirs where later (a NULL is earlier than any time), in one
-    statement."""
-    if not rows:
-        return
-    stmt = _insert(session, table)
+    """Insert ``row``, or move the ``columns`` of the row already stored under the same ``keys``
+    forward to its values where later (a NULL is earlier than any time) and set the columns
+    ``also`` names to their expressions, in one statement."""
+    stmt = _insert(session, table).values(**row)
     if session.get_bind().dialect.name == "postgresql":
         newest = {c: func.greatest(table.c[c], stmt.excluded[c]) for c in columns}  # skips NULL
     else:
@@ -76,4 +74,4 @@ def keep_latest(
             )
             for c in columns
         }
-    session.execute(stmt.on_conflict_do_update(index_elements=keys, set_=newest), rows)
+    session.execute(stmt.on_conflict_do_update(index_elements=keys, set_={**newest, **also}))
