@@ -15,6 +15,7 @@ from sqlalchemy import engine_from_config, pool
 
 from trainclimate.service.store.db import normalise_url
 from trainclimate.service.store.models import Base
+from trainclimate.service.store.partitions import include_name
 
 config = context.config
 if not config.get_main_option("sqlalchemy.url"):
@@ -30,6 +31,7 @@ def run_migrations_offline() -> None:
         target_metadata=target_metadata,
         literal_binds=True,
         render_as_batch=True,
+        include_name=include_name,
     )
     with context.begin_transaction():
         context.run_migrations()
@@ -46,6 +48,7 @@ def run_migrations_online() -> None:
             connection=connection,
             target_metadata=target_metadata,
             render_as_batch=connection.dialect.name == "sqlite",
+            include_name=include_name,  # telemetry's partitions are that one table's pieces
         )
         with context.begin_transaction():
             context.run_migrations()

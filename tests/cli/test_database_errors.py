@@ -11,7 +11,11 @@ import pytest
 from service_support import PG_SKIP, PG_URL
 from trainclimate.cli import main
 
-COMMANDS = [["token", "create", "--role", "viewer"], ["serve", "--port", "1"]]
+COMMANDS = [
+    ["token", "create", "--role", "viewer"],
+    ["serve", "--port", "1"],
+    ["retention", "--raw-days", "30"],
+]
 
 
 @pytest.mark.parametrize("command", COMMANDS, ids=lambda c: c[0])

@@ -16,6 +16,7 @@ JSON keys are listed in the README and in ``docs/``.
 - :mod:`.model` — ``model retrain``
 - :mod:`.service` — ``serve``, ``token create``, ``gateway``
 - :mod:`.train` — ``train plan``
+- :mod:`.retention` — ``retention``
 - :mod:`.bench` — ``bench …``
 """
 
@@ -32,6 +33,7 @@ from trainclimate.cli import (
     experiment,
     model,
     predictor,
+    retention,
     service,
     simulate,
     study,
@@ -49,7 +51,19 @@ from trainclimate.sim.weather import WeatherError
 
 DESCRIPTION = "Data-driven predictive HVAC energy management for SBB Regio-Dosto coaches."
 #: The command groups, in the order ``--help`` lists them.
-GROUPS = (simulate, bench, dataset, calibrate, predictor, experiment, study, model, service, train)
+GROUPS = (
+    simulate,
+    bench,
+    dataset,
+    calibrate,
+    predictor,
+    experiment,
+    study,
+    model,
+    service,
+    train,
+    retention,
+)
 #: Errors that are the user's input, not a bug: exit 2 with their first line.
 USER_ERRORS = (
     UsageError,

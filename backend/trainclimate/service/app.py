@@ -1,12 +1,14 @@
 """The FastAPI application: the API, the dashboard's static files, and the loops behind them.
 
-At start (the lifespan): the Alembic migrations are applied, the ``--predictor FILE`` model is
-registered if the database has none, the demo fleet is registered if asked for, and threads
-start: the live fleet's loop, with ``--fleet demo`` the demo fleet, with ``--mqtt URL`` the MQTT
-feed (:mod:`trainclimate.service.adapters.mqtt`) and with ``--mqtt-dynsec`` the sweep of the
-gateways' broker clients (:mod:`trainclimate.service.adapters.dynsec`), and, if the database
-still has no model, its preparation in the background (:mod:`trainclimate.service.preparation`;
-the coaches run under T_rule until it is ready). They stop with the server.
+At start (the lifespan): the Alembic migrations are applied, the telemetry partitions of this
+month and the next two are created where missing (PostgreSQL, :mod:`.store.partitions`), the
+``--predictor FILE`` model is registered if the database has none, the demo fleet is registered
+if asked for, and threads start: the live fleet's loop, with ``--fleet demo`` the demo fleet,
+with ``--mqtt URL`` the MQTT feed (:mod:`trainclimate.service.adapters.mqtt`) and with
+``--mqtt-dynsec`` the sweep of the gateways' broker clients
+(:mod:`trainclimate.service.adapters.dynsec`), and, if the database still has no model, its
+preparation in the background (:mod:`trainclimate.service.preparation`; the coaches run under
+T_rule until it is ready). They stop with the server.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.middleware.gzip import GZipMiddleware
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import OperationalError, SQLAlchemyError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
@@ -54,13 +56,30 @@ from trainclimate.service.preparation import ModelPreparation, has_model, regist
 from trainclimate.service.retrain import RetrainJob
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
+from trainclimate.service.store import partitions
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.commands import Backfill
 from trainclimate.service.store.db import Database, head_revision, migrate
+from trainclimate.service.store.models import utcnow
 from trainclimate.sim import twin
 from trainclimate.sim.params import load_params
 
 log = logging.getLogger(__name__)
+
+
+def ensure_partitions(db: Database) -> None:
+    """Create the telemetry partitions of this month and the next
+    :data:`~.store.partitions.AHEAD_MONTHS` where missing (PostgreSQL). A failure — another
+    replica creating them at the same moment, a lock not granted — is logged and the service
+    starts all the same: a row without its month's partition goes to the default partition."""
+    try:
+        with db.transaction() as session:
+            created = partitions.ensure_ahead(session, utcnow())
+    except SQLAlchemyError:
+        log.exception("creating the telemetry partitions failed; rows go to the default one")
+        return
+    if created:
+        log.info("telemetry partitions created: %s", ", ".join(created))
 
 
 def register_model_file(session, settings: Settings) -> None:
@@ -89,6 +108,7 @@ async def lifespan(app: FastAPI):
         settings.db_idle_in_transaction_s,
         application_name=f"trainclimate:{settings.replica_name}",
     )
+    ensure_partitions(db)
     with db.transaction() as session:
         register_model_file(session, settings)
         if settings.fleet == "demo":

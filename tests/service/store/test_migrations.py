@@ -16,7 +16,7 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect, select
 
-from trainclimate.service.store import commands, liveness, plans
+from trainclimate.service.store import commands, liveness, partitions, plans
 from trainclimate.service.store.db import MIGRATIONS, Database, downgrade, make_engine, migrate
 from trainclimate.service.store.models import (
     AuditLog,
@@ -37,7 +37,7 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 #: The newest revision.
-HEAD = "0012"
+HEAD = "0013"
 TABLES = {
     "window_rollups",
     "coach_feed",
@@ -70,7 +70,8 @@ BEFORE_0008 = TABLES - {
 
 
 def schema(url: str) -> tuple[set[str], str | None]:
-    """The tables of the database at ``url`` (alembic's own left out) and its revision."""
+    """The tables of the database at ``url`` (alembic's own and telemetry's partitions left
+    out) and its revision."""
     engine = make_engine(url)
     try:
         with engine.connect() as conn:
@@ -78,15 +79,20 @@ def schema(url: str) -> tuple[set[str], str | None]:
             revision = MigrationContext.configure(conn).get_current_revision()
     finally:
         engine.dispose()
-    return names - {"alembic_version"}, revision
+    return {n for n in names - {"alembic_version"} if not partitions.is_partition(n)}, revision
 
 
 def differences(url: str) -> list:
-    """What autogenerate would change to make the database match the models (types too)."""
+    """What autogenerate would change to make the database match the models (types too), with
+    the filter migrations/env.py gives it: telemetry's partitions on PostgreSQL are pieces of
+    that one table, not tables the models lack. The primary key of the partitioned table, (id,
+    time), differs from the models' (id) — the ORM's identity, kept on both databases — and
+    autogenerate does not compare primary keys, so the schemas compare equal."""
     engine = make_engine(url)
     try:
         with engine.connect() as conn:
-            context = MigrationContext.configure(conn, opts={"compare_type": True})
+            opts = {"compare_type": True, "include_name": partitions.include_name}
+            context = MigrationContext.configure(conn, opts=opts)
             return compare_metadata(context, Base.metadata)
     finally:
         engine.dispose()

@@ -141,7 +141,10 @@ class Telemetry(Base):
     applied T_ref and T_rule (°C), ambient temperature (°C), irradiance (W/m²), occupancy (%),
     speed (km/h), HVAC power (kW; the whole coach's, floor and wall heating included) and the
     floor and wall heating's share of it (kW, if the feed reports it), mode and whether the link
-    was up; unique (coach, time)."""
+    was up; unique (coach, time). On PostgreSQL the table is partitioned by calendar month
+    (:mod:`trainclimate.service.store.partitions`) and its primary key there is (id, time): the
+    partition key must be in it; ``id`` alone stays the ORM's identity, unique all the same (one
+    sequence gives it)."""
 
     __tablename__ = "telemetry"
     __table_args__ = (UniqueConstraint("coach_id", "time", name="uq_telemetry_coach_time"),)
