@@ -48,6 +48,7 @@ SMALL: dict[str, tuple[list[str], set[str]]] = {
     ),
     "report demo": (["--predictor", MODEL, "--coaches", "1", "--hours", "2"], set()),
     "token create": ([], {"token", "role"}),
+    "retention": ([], {"cutoff", "rows_deleted", "partitions_dropped", "database"}),
     "train plan D2": ([], {"plan", "pending", "activated_today", "next_switch", "history"}),
     "study fleet": (
         ["--coaches", "2", "--days", "1", "--chunk-coaches", "1", "--predictor", MODEL],

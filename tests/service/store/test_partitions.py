@@ -19,7 +19,7 @@ from service_support import flat_row
 from trainclimate.service.app import create_app
 from trainclimate.service.store import partitions
 from trainclimate.service.store.db import Database, downgrade, make_engine, migrate
-from trainclimate.service.store.models import Coach, CoachComfort, Telemetry, Train, WindowRollup
+from trainclimate.service.store.models import Coach, CoachFeed, Telemetry, Train, WindowRollup
 from trainclimate.service.store.telemetry import insert_rows
 
 SEP, OCT, NOV = (datetime(2024, m, 1, tzinfo=UTC) for m in (9, 10, 11))
@@ -44,7 +44,7 @@ def where(session) -> dict[str, int]:
 def rollups(session) -> tuple[list, list]:
     """Every window rollup and comfort state, as tuples."""
     windows = session.scalars(select(WindowRollup).order_by(WindowRollup.window)).all()
-    comfort = session.scalars(select(CoachComfort)).all()
+    comfort = session.scalars(select(CoachFeed)).all()
     return (
         [(w.coach_id, w.window, w.present, w.energy_kwh) for w in windows],
         [(c.coach_id, c.newest, c.last_ok) for c in comfort],
