@@ -93,8 +93,8 @@ class Settings(BaseSettings):
     many requests admitted at once, and the database pool
     sized to them (:mod:`trainclimate.service.store.db`); a request beyond them waits up to
     ``overload_wait_s`` seconds for its turn, else answers 503; ``read_cache_size`` the answers
-    kept, a view per coach, a comparison per train and range, the fleet summary's sums per train
-    and range (least recently used go first; :mod:`trainclimate.service.store.cache`; at least
+    kept, a view per coach, a comparison per train and range, the fleet summary's figures per
+    train and range (least recently used go first; :mod:`trainclimate.service.store.cache`; at least
     the fleet's coaches and trains; 0: none);
     ``mqtt_url`` (``--mqtt``) a broker to take
     telemetry from and publish setpoints to, with its ``mqtt_username``, ``mqtt_password``
@@ -143,7 +143,7 @@ class Settings(BaseSettings):
     forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(default_factory=list)
     worker_threads: int = Field(default=WORKER_THREADS, gt=0)
     overload_wait_s: float = Field(default=1.0, ge=0)
-    read_cache_size: int = Field(default=2048, ge=0)
+    read_cache_size: int = Field(default=8192, ge=0)
     mqtt_url: str | None = None
     mqtt_username: str | None = None
     mqtt_password: str | None = None

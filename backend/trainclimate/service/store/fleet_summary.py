@@ -6,12 +6,13 @@ the same 30-minute windows (aligned to the clock, the first one after the pair's
 starts), labelled and excluded the same way (:mod:`.pair_trial`: the coach that ran the layer,
 a minute missing, a link lost, an override, a tick that was not DDPC on the activated coach),
 violation and discomfort over the same minutes (both coaches in regular mode, nothing affected).
-Here the telemetry is summed in the database, per pair and window, in one statement over every
-train — the 24-h fleet view reads a few sums per window instead of 2 880 rows per train — and the
-setpoints counted per coach and window in another; the fleet's naive figures pool its trains'
-energies, its savings estimate their trial estimates (:func:`trainclimate.analysis.trial.pool`).
-Each pair's sums and counts are kept in the read cache while its rows and setpoints in the counted
-range and its overrides are unchanged (:func:`pair_states`).
+Here the telemetry's sums per pair and window come from the window rollups kept at ingest
+(:mod:`.rollups`; the raw minutes only for the windows they cannot give exactly, summed in the
+database in one statement over every train), and the setpoints are counted per coach and window
+in another statement; the fleet's naive figures pool its trains' energies, its savings estimate
+their trial estimates (:func:`trainclimate.analysis.trial.pool`). Each train's figures are kept
+in the read cache while its rows and setpoints in the counted range and its overrides are
+unchanged (:func:`pair_states`).
 """
 
 from __future__ import annotations
@@ -315,20 +316,28 @@ def pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
 
 
 def pair_data(
-    session: Session, pairs: list, window_min: float, cache: ReadCache | None = None
+    session: Session,
+    pairs: list,
+    window_min: float,
+    cache: ReadCache | None = None,
+    overrides: list | None = None,
+    states: list | None = None,
 ) -> dict[str, tuple[dict, dict]]:
     """Each pair's :func:`window_sums` and both coaches' setpoint counts
-    (:func:`.pair_trial.setpoint_counts`), those whose state (:func:`pair_states`) is unchanged
-    since they were computed taken from ``cache``, the others computed together (and kept).
+    (:func:`.pair_trial.setpoint_counts`), those whose state (:func:`pair_states`, or
+    ``states`` if given) is unchanged since they were computed taken from ``cache``, the others
+    computed together (and kept).
 
     Returns
     -------
     dict
         Coach 0's id → (window sums, coach id → setpoint counts).
     """
-    overrides = overrides_over(session, pairs)
+    if overrides is None:
+        overrides = overrides_over(session, pairs)
     keys = [("pair-data", *pair, window_min) for pair in pairs]
-    states = pair_states(session, pairs, overrides) if cache is not None else [None] * len(pairs)
+    if states is None:
+        states = pair_states(session, pairs, overrides) if cache else [None] * len(pairs)
     out, missing = {}, []
     for pair, key, state in zip(pairs, keys, states, strict=True):
         kept = cache.lookup(key, state) if cache is not None else None
@@ -351,6 +360,40 @@ def pair_data(
         out[pair[0]] = (sums.get(pair[0], {}), {c: counts.get(c, {}) for c in pair[:2]})
         if cache is not None:
             cache.put(key, state, out[pair[0]])
+    return out
+
+
+def pair_results(
+    session: Session,
+    pairs: list[tuple[str, str, datetime, datetime]],
+    switch_hours: list[int],
+    window_min: float,
+    cache: ReadCache | None = None,
+) -> dict[str, dict]:
+    """Each pair's :func:`.pair_trial.pair_result` over its range (lo, hi] with its train's
+    switch hour, those whose state (:func:`pair_states`) is unchanged since they were computed
+    taken from ``cache`` (a dashboard's refresh recomputes nothing), the others from their
+    :func:`pair_data`. Coach 0's id → result (shared with the cache: not to be changed)."""
+    overrides = overrides_over(session, pairs)
+    states = pair_states(session, pairs, overrides) if cache else [None] * len(pairs)
+    out, missing = {}, []
+    for pair, hour, state in zip(pairs, switch_hours, states, strict=True):
+        key = ("pair-result", *pair, window_min, hour)
+        kept = cache.lookup(key, state) if cache is not None else None
+        if kept is None:
+            missing.append((pair, hour, state, key))
+        else:
+            out[pair[0]] = kept
+    todo = [m[0] for m in missing]
+    # the figures are kept, not the sums they came from: one answer per train and range
+    data = pair_data(session, todo, window_min, None, overrides)
+    for (c0, c1, lo, hi), hour, state, key in missing:
+        sums, counts = data.get(c0, ({}, {}))
+        first = pd.Timestamp(lo)
+        n = round((hi - lo).total_seconds() / (60 * window_min))
+        out[c0] = pair_result((c0, c1), sums, counts, first, n, window_min, hour)
+        if cache is not None:
+            cache.put(key, state, out[c0])
     return out
 
 
@@ -412,19 +455,18 @@ def summary(
         ranges.append((t, c0, c1, first, n, stop))
         hi = first + pd.Timedelta(minutes=window_min * n)
         pairs.append((c0.id, c1.id, first.to_pydatetime(), hi.to_pydatetime()))
-    data = pair_data(session, pairs, window_min, cache)
     by_stop: dict[datetime, list[str]] = {}
     for t, _, _, _, _, stop in ranges:
         by_stop.setdefault(stop, []).append(t.id)
     in_force = {}
     for stop, ids in by_stop.items():
         in_force |= {tid: rows[0] for tid, rows in plans.plans_at(session, ids, stop).items()}
-    results = []
-    for t, c0, c1, first, n, stop in ranges:
-        sums, counts = data.get(c0.id, ({}, {}))
-        plan, switch_hour, _ = plans.terms(in_force.get(t.id))
-        result = pair_result((c0.id, c1.id), sums, counts, first, n, window_min, switch_hour)
-        results.append((t, c0, c1, first, stop, {**result, "plan": plan}))
+    terms = [plans.terms(in_force.get(t.id)) for t, *_ in ranges]
+    found = pair_results(session, pairs, [h for _, h, _ in terms], window_min, cache)
+    results = [
+        (t, c0, c1, first, stop, {**found[c0.id], "plan": plan})
+        for (t, c0, c1, first, _, stop), (plan, _, _) in zip(ranges, terms, strict=True)
+    ]
     # the fleet's headline is the HVAC units' meter when every train has it
     fleet_meters = [m for m in METERS if all(m in r[-1]["totals"] for r in results)]
     fleet_meter = HEADLINE_METER if HEADLINE_METER in fleet_meters else "hvac_and_floor"
