@@ -141,6 +141,30 @@ def test_replicas_racing_on_a_tick_issue_it_once(db, settings, monkeypatch):
         assert session.scalar(select(func.count()).select_from(Setpoint)) == 3 * len(ids)
 
 
+def test_each_replica_claims_the_coaches_it_holds_first(db, settings):
+    """Replica a ticks D, E, F and replica b A, B, C; at the next tick a batch of three takes
+    a's own D, E, F — not A, B, C first by id — and the coaches record who holds them. Once b
+    ticks A, B, C, a drops its controllers of them, which it built when it held them before."""
+    add_coaches(db, list("ABCDEF"))
+    for i, cid in enumerate("ABCDEF"):
+        ingest(db, cid, sim_rows(i % 3, 1, 65))
+    a = Scheduler(db, settings.model_copy(update={"replica_name": "a"}))
+    b = Scheduler(db, settings.model_copy(update={"replica_name": "b"}))
+    assert a.tick_fleet("live", at(55), coaches=list("ABCDEF")) == 6  # a holds every coach
+    assert set(a._controllers) == set("ABCDEF")
+    assert b.tick_fleet("live", at(60), coaches=list("ABC")) == 3
+    assert a.tick_fleet("live", at(60), coaches=list("DEF")) == 3
+    assert set(a._controllers) == set("DEF")  # A, B, C are b's now
+    with db.transaction() as session:
+        held = {c.id: c.held_by for c in session.scalars(select(Coach))}
+    assert held == {**dict.fromkeys("ABC", "b"), **dict.fromkeys("DEF", "a")}
+    assert a._tick_batch("live", at(65), 3, False) == 3
+    assert sorted(by_coach(db, at(65))) == list("DEF")
+    assert b._tick_batch("live", at(65), 3, False) == 3
+    assert {sp.replica for sp in by_coach(db, at(65)).values()} == {"a", "b"}
+    assert {c: sp.replica for c, sp in by_coach(db, at(65)).items()} == held
+
+
 def test_warm_up_then_ddpc_after_rho_samples(db, settings):
     """ρ = 12 samples: the tick at T0 + 55 min has 11 (T0 + 5 … 55; T0 has no row before it),
     the one at T0 + 60 min the twelve the controller needs."""

@@ -48,7 +48,7 @@ from collections.abc import Callable
 from datetime import datetime, timedelta
 
 import pandas as pd
-from sqlalchemy import func, or_, select
+from sqlalchemy import case, func, or_, select
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 
@@ -236,8 +236,26 @@ class Scheduler:
             if n == 0:
                 if issued:
                     self.metrics.tick(fleet, time.perf_counter() - started, tick.timestamp())
+                self._drop_others()
                 return issued
             issued += n
+
+    def _drop_others(self) -> None:
+        """Drop the controllers of coaches another replica holds now (their state estimate
+        and warm start are that replica's to keep)."""
+        with self._lock:
+            mine = list(self._controllers)
+        if not mine:
+            return
+        with self.db.transaction() as session:
+            others = session.scalars(
+                select(Coach.id).where(
+                    Coach.id.in_(mine), Coach.held_by.is_not(None), Coach.held_by != self.replica
+                )
+            ).all()
+        with self._lock:
+            for coach_id in others:
+                self._controllers.pop(coach_id, None)
 
     @staticmethod
     def _due(fleet: str, tick: datetime, reported_only: bool, coaches: list[str] | None) -> list:
@@ -276,7 +294,9 @@ class Scheduler:
             coaches = session.scalars(
                 select(Coach)
                 .where(*self._due(fleet, tick, reported_only, only))
-                .order_by(Coach.id)
+                # its own coaches first: each replica keeps its coaches (and their controllers)
+                # from tick to tick, and takes the others' only when it is done with its own
+                .order_by(case((Coach.held_by == self.replica, 0), else_=1), Coach.id)
                 .limit(batch)
                 # FOR NO KEY UPDATE: telemetry of a coach being ticked (its foreign key takes
                 # a KEY SHARE lock on the coach) is stored without waiting for the tick
@@ -324,7 +344,7 @@ class Scheduler:
                     else:
                         shadows += self.shadow_rows(coach.id, tick, samples, decision)
                     rows.append(_row(coach.id, tick, decision, self._model_id, self.replica))
-                    coach.last_tick = tick
+                    coach.last_tick, coach.held_by = tick, self.replica
             session.execute(Setpoint.__table__.insert(), rows)
             if shadows:
                 session.execute(ShadowPrediction.__table__.insert(), shadows)

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
-from sqlalchemy import inspect, select
+from sqlalchemy import inspect, select, text
 
 from trainclimate.service.store import commands, liveness, partitions, plans
 from trainclimate.service.store.db import MIGRATIONS, Database, downgrade, make_engine, migrate
@@ -37,7 +37,7 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 #: The newest revision.
-HEAD = "0013"
+HEAD = "0014"
 TABLES = {
     "window_rollups",
     "coach_feed",
@@ -220,10 +220,21 @@ def test_trial_plans_upgrade_a_database_in_use(db_url):
         with db.transaction() as s:
             s.add(Train(id="T1", name="t"))
             s.flush()
-            s.add_all([Coach(id="T1-A", train_id="T1", ddpc_active=True),
-                       Coach(id="T1-B", train_id="T1")])  # fmt: skip
-            s.flush()
-            s.add(Telemetry(coach_id="T1-A", time=now, t_room_mid_c=21.0))
+            # as the tables are at 0007 (the models have columns added since)
+            s.execute(
+                text(
+                    "INSERT INTO coaches (id, train_id, fleet, ddpc_active, created_at) "
+                    "VALUES (:id, 'T1', 'live', :on, :t)"
+                ),
+                [{"id": "T1-A", "on": True, "t": now}, {"id": "T1-B", "on": False, "t": now}],
+            )
+            s.execute(
+                text(
+                    "INSERT INTO telemetry (coach_id, time, t_room_mid_c, mode, connected) "
+                    "VALUES ('T1-A', :t, 21.0, 'regular', true)"
+                ),
+                {"t": now},
+            )
         assert schema(db_url) == (BEFORE_0008, "0007")
         migrate(db_url)
         assert schema(db_url) == (TABLES, HEAD)
@@ -237,7 +248,8 @@ def test_trial_plans_upgrade_a_database_in_use(db_url):
         downgrade(db_url, "0007")
         assert schema(db_url) == (BEFORE_0008, "0007")
         with db.transaction() as s:
-            assert [c.id for c in s.get(Train, "T1").coaches] == ["T1-A", "T1-B"]
+            coaches = s.scalars(text("SELECT id FROM coaches WHERE train_id = 'T1' ORDER BY id"))
+            assert list(coaches) == ["T1-A", "T1-B"]
     finally:
         db.dispose()
 

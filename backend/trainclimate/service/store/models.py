@@ -107,6 +107,9 @@ class Coach(Base):
     fleet: Mapped[str] = mapped_column(String(16), default="live")
     ddpc_active: Mapped[bool] = mapped_column(Boolean, default=False)
     last_tick: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    #: The replica that issued its last tick (``--replica-name``): replicas claim their own
+    #: coaches first.
+    held_by: Mapped[str | None] = mapped_column(String(64), nullable=True)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     train: Mapped[Train] = relationship(back_populates="coaches")
 
