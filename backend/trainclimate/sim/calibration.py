@@ -117,6 +117,9 @@ HOLD_CORRELATION = 0.9
 #: (Levenberg–Marquardt, relative to the diagonal) and the most parameter sets simulated as one
 #: fleet (bounds the memory: each set runs every training trajectory).
 BOOTSTRAP_REPLICATES, BOOTSTRAP_ITERATIONS, GAUSS_NEWTON_DAMPING, MAX_SETS = 20, 2, 1e-3, 24
+#: Fewest days a bootstrap over days resamples: of one day every replicate is that day, an
+#: interval of zero width whatever the day says.
+MIN_BOOTSTRAP_DAYS = 2
 #: A 95 % interval reaching beyond this share of its value on a side is wide; one this many
 #: times wider than 1.96 standard errors says the Jacobian understates the uncertainty.
 WIDE_INTERVAL, UNDERSTATED = 0.25, 3.0
@@ -761,14 +764,15 @@ def calibrate(
         on_holdout = {**errors(rep_h, y, p), "bands": band_errors(rep_h, y, p)}
         validated, warned = validated_range(t_amb_minutes(rep)[rep.scored], on_holdout["bands"])
         warnings += warned
-    training_days = len({local_day(t) for t in train})
-    if bootstrap > 0 and training_days < 2:
-        warnings.append("one training day: no bootstrap interval (it resamples whole days)")
-        bootstrap = 0
+    replicas = None
     if bootstrap > 0:
         replicas = _bootstrap(
             problem, best, train, replay(holdout) if holdout else None, bootstrap, seed
         )
+        if replicas is None:
+            warnings.append("one training day: no bootstrap interval (it resamples whole days)")
+            bootstrap = 0
+    if replicas is not None:
         for n, interval in zip(names, replicas["values"], strict=True):
             fitted[n]["ci95"] = interval
         if holdout:
@@ -788,6 +792,38 @@ def calibrate(
     )
 
 
+def day_bootstrap(
+    days: int, day_of: np.ndarray, refit, replicates: int, seed: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """95 % intervals (percentile) of the statistics ``refit`` returns, from ``replicates``
+    resamples of whole days drawn with replacement (``scipy.stats.bootstrap`` over the day
+    indices, its generator seeded by ``seed``).
+
+    ``day_of`` gives the day (0, 1, …, ``days`` − 1) of each residual. ``refit(w)`` takes the
+    residuals' weights, shape (resamples, residuals): the times each residual's day was drawn,
+    the same for every residual of a day; it returns the statistics, shape (statistics,
+    resamples). Returns the lower and upper ends, one per statistic, or None with fewer than
+    :data:`MIN_BOOTSTRAP_DAYS` days (``refit`` not called).
+    """
+    if days < MIN_BOOTSTRAP_DAYS:
+        return None
+
+    def statistic(drawn: np.ndarray, axis: int = -1) -> np.ndarray:
+        counts = np.stack([np.bincount(d, minlength=days) for d in np.atleast_2d(drawn)])
+        return refit(counts[:, day_of].astype(float))
+
+    result = stats.bootstrap(
+        (np.arange(days),),
+        statistic,
+        n_resamples=replicates,
+        vectorized=True,
+        method="percentile",
+        rng=np.random.default_rng(seed),
+    )
+    low, high = result.confidence_interval
+    return np.asarray(low), np.asarray(high)
+
+
 def _bootstrap(
     problem: _Problem,
     best,
@@ -795,9 +831,10 @@ def _bootstrap(
     rep_h: Replay | None,
     replicates: int,
     seed: int,
-) -> dict:
+) -> dict | None:
     """95 % intervals (percentile) of the fitted values and of the held-out energy error from
-    ``replicates`` re-fits on the training days resampled whole (``scipy.stats.bootstrap``).
+    ``replicates`` re-fits on the training days resampled whole (:func:`day_bootstrap`); None
+    with fewer than :data:`MIN_BOOTSTRAP_DAYS` training days.
 
     Each replicate weights the residuals of a day by the times it was drawn and re-fits from
     the optimum by :data:`BOOTSTRAP_ITERATIONS` damped Gauss–Newton steps: the first on the
@@ -809,9 +846,7 @@ def _bootstrap(
     residual_day = column_day[residual_columns(problem.rep)]
     r0, j0 = best.fun, best.jac
 
-    def refit(days: np.ndarray, axis: int = -1) -> np.ndarray:
-        counts = np.stack([np.bincount(d, minlength=len(day_index)) for d in np.atleast_2d(days)])
-        w = counts[:, residual_day].astype(float)
+    def refit(w: np.ndarray) -> np.ndarray:
         z = [problem.step(best.x, r0, j0, wb) for wb in w]
         for _ in range(BOOTSTRAP_ITERATIONS - 1):
             z = [
@@ -832,15 +867,10 @@ def _bootstrap(
                     )
         return np.vstack([values.T, energy])
 
-    result = stats.bootstrap(
-        (np.arange(len(day_index)),),
-        refit,
-        n_resamples=replicates,
-        vectorized=True,
-        method="percentile",
-        rng=np.random.default_rng(seed),
-    )
-    low, high = result.confidence_interval
+    interval = day_bootstrap(len(day_index), residual_day, refit, replicates, seed)
+    if interval is None:
+        return None
+    low, high = interval
     energy = [float(low[-1]), float(high[-1])] if np.isfinite([low[-1], high[-1]]).all() else None
     return {
         "values": [[float(a), float(b)] for a, b in zip(low[:-1], high[:-1], strict=True)],
