@@ -6,6 +6,7 @@ mean of the minutes — the least-squares fit of one constant."""
 import numpy as np
 import pytest
 
+from trainclimate.sim import calibration
 from trainclimate.sim.calibration import MIN_BOOTSTRAP_DAYS, day_bootstrap
 
 #: The value every day scatters around.
@@ -105,3 +106,14 @@ def test_one_day_gives_no_interval_and_two_span_both_days():
     own = sorted(values[day_of == d].mean() for d in range(2))
     assert own[1] - own[0] > 0.1
     assert (low[0], high[0]) == pytest.approx(own)
+
+
+def test_a_fit_outside_its_own_interval_is_warned_about():
+    """The second structure's case: the re-fits settle away from a fit that stalled at its
+    start — the value outside its own interval is a warning, not a tight number."""
+    fitted = {
+        "fan_supply_w": {"value": 1100.0, "std": 32.0, "ci95": [1150.0, 1365.0]},
+        "cop_level": {"value": 1.0, "std": 0.07, "ci95": [0.88, 1.12]},
+    }
+    (warning,) = calibration._interval_warnings(fitted)
+    assert warning.startswith("fan_supply_w: the fit 1100 lies outside its own 95 % interval")

@@ -882,11 +882,19 @@ def _interval_warnings(fitted: dict[str, dict]) -> list[str]:
     """Warnings of the fitted values whose 95 % interval is wide (beyond
     :data:`WIDE_INTERVAL` of the value on either side) or far wider than the Jacobian's
     standard error says (half-width above :data:`UNDERSTATED` × 1.96 σ: the days disagree,
-    which a model structure the knobs do not span does)."""
+    which a model structure the knobs do not span does), and those whose interval leaves out
+    the fitted value itself (the re-fits on resampled days settle elsewhere: the fit did not
+    reach the optimum those days have, or has several)."""
     out = []
     for n, f in fitted.items():
         low, high = f["ci95"]
-        if max(f["value"] - low, high - f["value"]) > WIDE_INTERVAL * abs(f["value"]):
+        if not low <= f["value"] <= high:
+            out.append(
+                f"{n}: the fit {f['value']:.4g} lies outside its own 95 % interval "
+                f"[{low:.4g}, {high:.4g}]: re-fits on resampled days settle elsewhere, so the "
+                "value is not to be trusted"
+            )
+        elif max(f["value"] - low, high - f["value"]) > WIDE_INTERVAL * abs(f["value"]):
             out.append(
                 f"{n}: 95 % interval [{low:.4g}, {high:.4g}] is wide (beyond ±"
                 f"{WIDE_INTERVAL:.0%} of {f['value']:.4g}): the data do not pin it down"
