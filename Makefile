@@ -31,6 +31,7 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check backend tests migrations
 	$(BIN)/ruff format --check backend tests migrations
+	$(BIN)/mypy
 
 clean:
 	rm -rf $(VENV) out build *.egg-info
