@@ -11,6 +11,7 @@ import sys
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect, select
@@ -150,6 +151,7 @@ def alembic(db_url: str, tmp_path: Path, *args: str) -> subprocess.CompletedProc
     return done
 
 
+@pytest.mark.slow  # four `alembic` processes
 def test_alembic_command_line(db_url, tmp_path):
     assert ALEMBIC.exists(), f"no alembic script next to {sys.executable}"
     alembic(db_url, tmp_path, "upgrade", "head")
