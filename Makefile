@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install test demo lint bench clean
+.PHONY: install test check demo lint bench clean
 
 $(STAMP): requirements.lock pyproject.toml npm/package-lock.json
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -22,6 +22,10 @@ test: $(STAMP)
 	$(BIN)/ruff check backend tests migrations
 	$(BIN)/python -m pytest -n 2 -q
 
+# lint and the fast tests (no browser, service processes or long simulations): a few minutes
+check: lint
+	$(BIN)/python -m pytest -n 2 -q -m "not slow"
+
 demo: $(STAMP)
 	$(BIN)/trainclimate serve --fleet demo --speedup 300 --new-token operator
 
@@ -31,6 +35,7 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check backend tests migrations
 	$(BIN)/ruff format --check backend tests migrations
+	$(BIN)/mypy
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

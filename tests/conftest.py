@@ -1,7 +1,12 @@
 """Suite-wide guard: no test may build the default or quick fleet dataset (≈ 2.5 min, ≈ 20 s) or
 touch the user's cache. Every test runs with ``$TRAINCLIMATE_HOME`` in a temporary directory and
 ``trainclimate.data.cache.default_dataset`` and ``quick_dataset`` replaced by a failure; tests that
-need data build a small dataset themselves."""
+need data build a small dataset themselves.
+
+And the ``slow`` marker of whole files and of the tests that start service processes: ``make
+check`` runs ``-m "not slow"``, ``make test`` everything."""
+
+from pathlib import Path
 
 import pytest
 
@@ -18,3 +23,57 @@ def _no_default_dataset(tmp_path_factory):
         mp.setattr(cache, "default_dataset", refuse)
         mp.setattr(cache, "quick_dataset", refuse)
         yield
+
+
+#: Test files marked ``slow`` whole (paths under tests/): those driving a real browser, service
+#: processes, brokers or Dask clusters, the README's commands, the wheel; and those whose
+#: simulations or data take seconds a test (closed-loop runs, the paper's experiments, a generated
+#: fleet, a dataset built for the CLI, calibration, the demo fleet, retraining, fuzzing the API,
+#: the load benchmark).
+SLOW_FILES = (
+    "analysis/test_experiment.py",
+    "analysis/test_experiment_report.py",
+    "analysis/test_paper_conditions.py",
+    "bench/test_load.py",
+    "control/test_cli_simulate.py",
+    "control/test_closed_loop.py",
+    "control/test_simulate.py",
+    "data/test_fleetlogs.py",
+    "predict/test_cli_predictor.py",
+    "predict/test_real_data.py",
+    "service/api/test_schemathesis.py",
+    "service/test_compose.py",
+    "service/test_concurrent_writes.py",
+    "service/test_dashboard.py",
+    "service/test_dashboard_access.py",
+    "service/test_dashboard_status.py",
+    "service/test_dashboard_storage.py",
+    "service/test_dashboard_tokens.py",
+    "service/test_demo.py",
+    "service/test_docs_pages.py",
+    "service/test_feed_liveness.py",
+    "service/test_model_lifecycle.py",
+    "service/test_processes.py",
+    "service/test_replica_failover.py",
+    "service/test_replica_pause.py",
+    "service/test_wheel.py",
+    "sim/test_calibration.py",
+    "sim/test_plausibility.py",
+    "study/test_study.py",
+    "test_readme.py",
+)
+#: Fixtures that make a test ``slow`` wherever it is: ``trainclimate serve`` processes
+#: (``servers``), a simulated and processed coach-day (``clean_day``).
+SLOW_FIXTURES = frozenset({"servers", "clean_day"})
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark ``slow`` the tests of :data:`SLOW_FILES` and those using :data:`SLOW_FIXTURES`."""
+    here = Path(__file__).parent
+    missing = [name for name in SLOW_FILES if not (here / name).is_file()]
+    if missing:
+        raise pytest.UsageError(f"tests/conftest.py SLOW_FILES names no file: {missing}")
+    slow_files = {here / name for name in SLOW_FILES}
+    for item in items:
+        if item.path in slow_files or SLOW_FIXTURES.intersection(item.fixturenames):
+            item.add_marker(pytest.mark.slow)

@@ -98,6 +98,7 @@ def test_a_home_that_is_a_file_is_a_one_line_error_with_the_remedy(capsys, monke
     assert str(blocker) in line and "set TRAINCLIMATE_HOME or TRAINCLIMATE_DATABASE_URL" in line
 
 
+@pytest.mark.slow  # a `serve` process
 def test_serve_with_a_home_in_the_way_exits_2_before_serving(tmp_path):
     blocker = tmp_path / "home"
     blocker.write_text("not a directory")

@@ -8,6 +8,7 @@ from cli_support import call, call_json
 from trainclimate.data.trajectory import read_trajectories
 
 
+@pytest.mark.slow  # generates raw logs and builds the dataset twice: ≈ 30 s
 def test_dataset_build_prints_the_contract_keys_and_rebuilds_the_same_from_raw(capsys, tmp_path):
     # two coaches: on the first day coach 124B stands in the depot, 44B is in service
     out = tmp_path / "fleet"

@@ -169,6 +169,7 @@ def test_bad_parameter_file_exits_2(capsys, tmp_path, change, needle):
     assert code == 2 and needle in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow  # two processes of the installed command: ≈ 15 s
 def test_console_script_is_installed_and_answers():
     exe = shutil.which("trainclimate", path=str(Path(sys.executable).parent))
     if exe is None:

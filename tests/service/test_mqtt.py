@@ -774,6 +774,7 @@ class GatewayClient:
         self.client.loop_stop()
 
 
+@pytest.mark.slow  # a `serve` process
 def test_serve_refuses_a_bad_broker_url(proc_env, model_file):
     done = subprocess.run(
         [*CLI, "serve", "--mqtt", "http://broker", "--predictor", str(model_file)],

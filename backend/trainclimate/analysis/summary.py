@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from trainclimate.analysis.kpi import avg_hourly_violation_k, discomfort_kh, energy_kwh
@@ -64,7 +66,7 @@ def fleet_kpis(result: SimulationResult, t_max_k: float = COMFORT_BAND_K) -> dic
         length) and ``coaches`` (the list of per-coach dicts).
     """
     per_coach = [coach_kpis(result, c, t_max_k) for c in range(result.t_ref_c.shape[1])]
-    out = {key: float(np.mean([c[key] for c in per_coach])) for key in per_coach[0]}
+    out: dict[str, Any] = {key: float(np.mean([c[key] for c in per_coach])) for key in per_coach[0]}
     out["hours"] = len(result.time) * result.dt_s / 3600.0
     out["coaches"] = per_coach
     return out

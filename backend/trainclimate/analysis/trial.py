@@ -212,7 +212,8 @@ def daily(
     energy = np.asarray(energy_kwh, float).reshape(len(day), 2)
     act = np.asarray(activated, np.int64)
     keep = np.asarray(counted, bool)
-    days, e, a, w, dropped = [], [], [], [], {}
+    days, e, a, w = [], [], [], []
+    dropped: dict[str, int] = {}
     for d in np.unique(day[keep]):
         sel = keep & (day == d)
         labels = np.unique(act[sel])

@@ -308,7 +308,7 @@ def _wait_for_fleet(base: str, headers: dict) -> dict:
 def _plan(n: int, seed: int, trains: list[str], coaches: list[str]) -> list[tuple]:
     """``n`` requests of the mix: (kind, path, override's coach and offset from T_rule in K)."""
     rng = random.Random(seed)
-    plan = []
+    plan: list[tuple[str, str, str | None, float]] = []
     for _ in range(n):
         draw = rng.random()
         if draw < OVERRIDE_SHARE:

@@ -375,7 +375,7 @@ class _Parts:
     (``database``; those within a timed function also as ``database_in_{part}``) and the commits
     (``database_commit``)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.s: dict[str, float] = {}
         self.calls: dict[str, int] = {}
         self.within: str | None = None

@@ -12,6 +12,7 @@ import sys
 from collections.abc import Callable
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -28,7 +29,7 @@ class UsageError(Exception):
 class Parser(argparse.ArgumentParser):
     """An argparse parser whose errors are a :class:`UsageError` (one line, exit 2)."""
 
-    def error(self, message: str) -> None:
+    def error(self, message: str) -> NoReturn:
         """Raise :class:`UsageError` with argparse's message."""
         raise UsageError(message)
 
@@ -220,7 +221,7 @@ def given_dataset(value: str, flag: str) -> Path:
 def stage_bars(label: str):
     """A ``progress(stage, done, total)`` callback drawing one progress bar per stage (on stderr
     when it is a terminal), for the builds of the generated datasets and models."""
-    bars: dict[str, object] = {}
+    bars: dict[str, Any] = {}  # tqdm bars
 
     def progress(stage: str, done: int, total: int) -> None:
         if stage not in bars:

@@ -362,8 +362,7 @@ class DDPCProblem:
             o, inf_m = m.margin_offset(c, y0), np.full(len(m.R), np.inf)
             lower += [np.full(len(m.R), -np.inf), o - s.margin_k, np.zeros(len(m.R))]
             upper += [o + s.margin_k, inf_m, inf_m]
-        lower, upper = np.concatenate(lower), np.concatenate(upper)
-        self._solver.update(q=q, l=lower, u=upper)
+        self._solver.update(q=q, l=np.concatenate(lower), u=np.concatenate(upper))
         res = self._solver.solve(raise_error=False)
         status = "solved" if res.info.status == "solved" else str(res.info.status)
         x = np.asarray(res.x, dtype=float)

@@ -5,6 +5,7 @@ all with ``fit(trajectories)``, ``predict(...)`` and ``H``; ``evaluate`` (MAE pe
 held-out coaches), ``artifact`` (saved models) and ``study`` (the sensitivity studies).
 """
 
+from collections.abc import Callable
 from functools import partial
 
 from trainclimate.predict.arx import ARXPredictor
@@ -14,7 +15,7 @@ from trainclimate.predict.transient import TransientPredictor
 
 #: The predictors by name; ``subspace-causal`` is the ablation that explains the difference
 #: between the transient and subspace predictors (see :mod:`~trainclimate.predict.subspace`).
-METHODS = {
+METHODS: dict[str, Callable[..., MultistepPredictor]] = {
     "transient": TransientPredictor,
     "subspace": SubspacePredictor,
     "arx": ARXPredictor,

@@ -18,7 +18,7 @@ from pathlib import Path
 from trainclimate.data import cache
 from trainclimate.data.trajectory import iter_trajectories
 from trainclimate.paths import home, writable_dir
-from trainclimate.predict import TransientPredictor
+from trainclimate.predict import MultistepPredictor, TransientPredictor
 from trainclimate.predict.artifact import load_predictor, save_predictor
 from trainclimate.predict.setting import HORIZON, RHO, SAMPLING_MIN
 
@@ -42,7 +42,7 @@ def quick_model_path() -> Path:
 
 def default_predictor(
     sampling_min: int = SAMPLING_MIN, rho: int = RHO, horizon: int = HORIZON, progress=None
-) -> TransientPredictor:
+) -> MultistepPredictor:
     """The cached default Transient Predictor, fitted first if missing (the dataset too).
 
     ``progress(stage, done, total)`` is called while the dataset is built.
@@ -56,7 +56,7 @@ def default_predictor(
     return load_predictor(path)
 
 
-def quick_predictor(progress=None) -> TransientPredictor:
+def quick_predictor(progress=None) -> MultistepPredictor:
     """The cached quick Transient Predictor (the paper's controller setting, fitted on the quick
     dataset), fitted first if missing (the dataset too); ``progress`` as for
     :func:`default_predictor`."""
@@ -69,7 +69,7 @@ def quick_predictor(progress=None) -> TransientPredictor:
     return load_predictor(path)
 
 
-def startup_predictor(progress=None) -> tuple[TransientPredictor, str]:
+def startup_predictor(progress=None) -> tuple[MultistepPredictor, str]:
     """The model a service without one starts with: the default model if it is cached, else the
     quick model (built if missing). Returns ``(predictor, "default" | "quick")``."""
     if default_model_path().exists():

@@ -37,9 +37,15 @@ class TrajectoryLike(Protocol):
         Disturbances [T_amb °C, Q_Gt W/m², Q_Gs W/m², P % of seats, V km/h].
     """
 
-    y: np.ndarray
-    u: np.ndarray
-    d: np.ndarray
+    # read-only (properties), so frozen dataclasses such as ``Trajectory`` match it
+    @property
+    def y(self) -> np.ndarray: ...
+
+    @property
+    def u(self) -> np.ndarray: ...
+
+    @property
+    def d(self) -> np.ndarray: ...
 
 
 def stacked(traj: TrajectoryLike) -> np.ndarray:

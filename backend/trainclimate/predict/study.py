@@ -171,7 +171,7 @@ def summary_rows(results: dict[str, list[dict]]) -> list[dict]:
     """
     rows = []
     for study, res in results.items():
-        settings = {}
+        settings: dict[tuple[int, int, int], dict[str, dict]] = {}
         for r in res:
             key = (r["sampling_min"], r["rho"], r["horizon"])
             settings.setdefault(key, {})[r["method"]] = r

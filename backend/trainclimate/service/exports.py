@@ -15,6 +15,7 @@ import re
 from collections.abc import Iterable, Sequence
 from datetime import UTC, datetime, timedelta
 from enum import Enum
+from typing import Any
 
 from starlette.responses import Response
 
@@ -163,8 +164,8 @@ def telemetry_csv(ts: dict) -> str:
     :data:`TELEMETRY_COLUMNS`: the minute's end (UTC, fleet clock), the decks' temperatures
     (°C), setpoints (°C), ambient (°C), irradiance (W/m²), power (kW), occupancy (%), speed
     (km/h), HVAC mode, link and the setpoint's source."""
-    flat = ("t_ref_c", "t_rule_c", "t_amb_c", "ghi_w_m2", "power_kw", "floor_power_kw")
-    flat += ("occupancy_pct", "speed_kmh", "mode", "connected", "source")
+    flat: tuple[str, ...] = ("t_ref_c", "t_rule_c", "t_amb_c", "ghi_w_m2", "power_kw")
+    flat += ("floor_power_kw", "occupancy_pct", "speed_kmh", "mode", "connected", "source")
 
     def row(i: int) -> list:
         decks = list(ts["t_room_c"][i] or [None, None, None])
@@ -180,7 +181,9 @@ def response(text: str, *name: str) -> Response:
 
 
 #: How a CSV route documents its answer in the OpenAPI spec.
-CSV_RESPONSE = {200: {"content": {"text/csv": {}}, "description": "CSV, a header row first"}}
+CSV_RESPONSE: dict[int | str, dict[str, Any]] = {
+    200: {"content": {"text/csv": {}}, "description": "CSV, a header row first"}
+}
 
 
 def filename(*parts: str) -> str:

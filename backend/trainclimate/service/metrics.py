@@ -52,7 +52,7 @@ import shutil
 import threading
 import time
 from collections import Counter as Tally
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 from prometheus_client import (
     CollectorRegistry,
@@ -268,10 +268,10 @@ class StateCollector:
         self.metrics, self.state, self.refresher = metrics, state, refresher
         self.started_at = started_at
 
-    def _gauge(self, name: str, doc: str, labels: list[str] = ()) -> GaugeMetricFamily:
+    def _gauge(self, name: str, doc: str, labels: Sequence[str] = ()) -> GaugeMetricFamily:
         return GaugeMetricFamily(name, doc, labels=["replica", *labels])
 
-    def _counter(self, name: str, doc: str, labels: list[str] = ()) -> CounterMetricFamily:
+    def _counter(self, name: str, doc: str, labels: Sequence[str] = ()) -> CounterMetricFamily:
         return CounterMetricFamily(name, doc, labels=["replica", *labels])
 
     def collect(self):

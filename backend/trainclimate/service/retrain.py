@@ -274,7 +274,8 @@ def retrain(
         )
     held = held_out_coaches([SimpleNamespace(campaign="service", coach=c) for c in wanted])
     training = [c for c in wanted if c not in held]
-    counts, reasons = Counts(), {}
+    counts = Counts()
+    reasons: dict[str, int] = {}
 
     def read(coach_id: str) -> list[Trajectory]:
         with db.transaction() as s:

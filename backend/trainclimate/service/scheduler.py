@@ -44,7 +44,7 @@ import functools
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from datetime import datetime, timedelta
 
 import pandas as pd
@@ -55,6 +55,7 @@ from sqlalchemy.orm import Session
 from trainclimate.control import DDPCController, OCPSettings
 from trainclimate.control.coach_model import CoachModel
 from trainclimate.predict.artifact import load_predictor_bytes
+from trainclimate.predict.base import MultistepPredictor
 from trainclimate.predict.setting import RHO
 from trainclimate.service import logs, policy
 from trainclimate.service.metrics import Metrics
@@ -95,10 +96,10 @@ class Scheduler:
         self.coach_model = CoachModel(dt_s=self.period_s)
         self.ocp = OCPSettings()
         self._controllers: dict[str, DDPCController] = {}
-        self._predictor = None
+        self._predictor: MultistepPredictor | None = None
         self._model_id: int | None = None
         #: the candidate models predicting in the shadow, by id
-        self._candidates: dict[int, object] = {}
+        self._candidates: dict[int, MultistepPredictor | None] = {}
         self._lock = threading.Lock()
         #: called as ``listener(fleet, rows)`` with the setpoint rows of each batch of ticks once
         #: they are committed (the MQTT feed publishes them); a listener's failure is logged
@@ -358,7 +359,7 @@ class Scheduler:
                 log.exception("a setpoint listener failed (the setpoints are stored)")
         return len(rows)
 
-    def _apply_plans(self, session: Session, coaches: list[Coach], tick: datetime) -> tuple:
+    def _apply_plans(self, session: Session, coaches: Sequence[Coach], tick: datetime) -> tuple:
         """Set the layer of the (locked) ``coaches`` as their trains' plans in force at ``tick``
         have it, recording each train's service day unless it is stored already; returns the
         stored days (train → :class:`~.plans.PlanDay`) for :attr:`_days` once committed, the

@@ -170,6 +170,7 @@ def alembic(db_url: str, tmp_path: Path, *args: str) -> subprocess.CompletedProc
     return done
 
 
+@pytest.mark.slow  # four `alembic` processes
 def test_alembic_command_line(db_url, tmp_path):
     assert ALEMBIC.exists(), f"no alembic script next to {sys.executable}"
     alembic(db_url, tmp_path, "upgrade", "head")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from datetime import timedelta
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, Request
 from fastapi.dependencies.models import Dependant
@@ -18,17 +18,22 @@ from trainclimate.service.settings import Settings
 from trainclimate.service.store.queries import RequestError
 from trainclimate.service.store.tokens import Principal
 
-UNAUTHORIZED = {401: {"model": schemas.Message, "description": "no valid token"}}
-FORBIDDEN = {
+#: A route's documented answers besides its success, as FastAPI's ``responses=`` takes them.
+Responses = dict[int | str, dict[str, Any]]
+
+UNAUTHORIZED: Responses = {401: {"model": schemas.Message, "description": "no valid token"}}
+FORBIDDEN: Responses = {
     403: {
         "model": schemas.Message,
         "description": "the token's role is too low, or a gateway token is not for the coach "
         "or its train",
     }
 }
-NOT_FOUND = {404: {"model": schemas.Message, "description": "no such coach or train"}}
-AUTH = {**UNAUTHORIZED, **FORBIDDEN}
-CONFLICT = {409: {"model": schemas.Message, "description": "a conflict with the stored state"}}
+NOT_FOUND: Responses = {404: {"model": schemas.Message, "description": "no such coach or train"}}
+AUTH: Responses = {**UNAUTHORIZED, **FORBIDDEN}
+CONFLICT: Responses = {
+    409: {"model": schemas.Message, "description": "a conflict with the stored state"}
+}
 #: The largest id, version or offset taken: the columns are 32-bit integers (a larger value
 #: cannot exist, and PostgreSQL refuses to compare with it).
 INT32_MAX = 2**31 - 1

@@ -54,7 +54,8 @@ class ReadCache:
             pending = self._computing.get((key, state))
             if pending is None:
                 self.misses += 1
-                self._computing[key, state] = mine = Future()
+                mine: Future[Any] = Future()
+                self._computing[key, state] = mine
             else:
                 self.hits += 1
         if pending is not None:

@@ -20,6 +20,7 @@ date is the new plan's first: that *partial* day is applied but not recorded.
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta
 
@@ -107,8 +108,8 @@ def plan_day(
     day = day_of(tick, hour)
     partial = upcoming is not None and day >= first_day(upcoming)
     if plan == FIXED:
-        on = [cid for cid, active in coaches if active]
-        return PlanDay(train_id, day, plan, hour, on[0] if len(on) == 1 else None, partial)
+        active = [cid for cid, is_on in coaches if is_on]
+        return PlanDay(train_id, day, plan, hour, active[0] if len(active) == 1 else None, partial)
     if len(coaches) != 2:
         return None
     k = trial.activated(plan, day, seed)
@@ -224,14 +225,14 @@ def plans_at(
     return out
 
 
-def names_in_force(session: Session, trains: list[Train]) -> dict[str, str]:
+def names_in_force(session: Session, trains: Sequence[Train]) -> dict[str, str]:
     """The name of the plan in force at each train's fleet clock (a query per clock: one per
     fleet)."""
     by_clock: dict[datetime, list[str]] = {}
     now = utcnow()
     for train in trains:
         by_clock.setdefault(clock(session, train) or now, []).append(train.id)
-    rows = {}
+    rows: dict[str, tuple[TrainPlan | None, TrainPlan | None]] = {}
     for at, ids in by_clock.items():
         rows |= plans_at(session, ids, at)
     return {t.id: terms(rows.get(t.id, (None, None))[0])[0] for t in trains}
