@@ -56,7 +56,7 @@ def get_fleet_summary_csv(
     request: Request,
     s: DB,
     who: Viewer,
-    hours: Annotated[float, Query(gt=0, le=31 * 24, description="the window, h")] = 24.0,
+    hours: Hours = 24,
     end: Annotated[
         AwareDatetime | None, Query(description="default: each train's fleet clock")
     ] = None,
@@ -65,4 +65,4 @@ def get_fleet_summary_csv(
     ``GET /fleet/summary``: each train's pair, range (UTC, fleet clock), savings with their
     95 % interval, energies, violations, excluded minutes and counted windows."""
     summary = get_fleet_summary(request, s, who, hours, end)
-    return exports.response(exports.fleet_csv(summary), "fleet-summary", f"{hours:g}h")
+    return exports.response(exports.fleet_csv(summary), "fleet-summary", f"{hours}h")

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import re
 from datetime import UTC, datetime, timedelta
+from typing import Any, cast
 
-from sqlalchemy import delete, text
+from sqlalchemy import CursorResult, Result, delete, text
 from sqlalchemy.orm import Session
 
 from trainclimate.service.store.models import Telemetry
@@ -65,7 +66,7 @@ def is_partition(name: str) -> bool:
     return name == DEFAULT or _MONTHLY.fullmatch(name) is not None
 
 
-def include_name(name: str | None, type_: str, _parents: dict) -> bool:
+def include_name(name: str | None, type_: str, _parents: Any) -> bool:
     """Alembic's ``include_name``: compare every table but the partitions of ``telemetry``
     (autogenerate would otherwise see them as tables the models lack)."""
     return type_ != "table" or name is None or not is_partition(name)
@@ -160,12 +161,12 @@ def raw_retention(session: Session, raw_days: float, now: datetime) -> dict:
         straddling = [n for n, month in monthly.items() if month < cutoff < next_month(month)]
         for name in [*straddling, DEFAULT]:
             older = text(f'DELETE FROM "{name}" WHERE time < :cutoff')
-            deleted += session.execute(older, {"cutoff": cutoff}).rowcount
+            deleted += _rowcount(session.execute(older, {"cutoff": cutoff}))
         counts = [session.scalar(text(f'SELECT count(*) FROM "{name}"')) for name in whole]
         for name in whole:
             session.execute(text(f'DROP TABLE "{name}"'))
     else:
-        deleted = session.execute(delete(Telemetry).where(Telemetry.time < cutoff)).rowcount
+        deleted = _rowcount(session.execute(delete(Telemetry).where(Telemetry.time < cutoff)))
     return {
         "cutoff": cutoff,
         "partitions_dropped": whole,
@@ -173,3 +174,8 @@ def raw_retention(session: Session, raw_days: float, now: datetime) -> dict:
         "rows_deleted": deleted,
         "database": session.get_bind().dialect.name,
     }
+
+
+def _rowcount(result: Result) -> int:
+    """The rows a DELETE's ``result`` deleted."""
+    return cast(CursorResult, result).rowcount

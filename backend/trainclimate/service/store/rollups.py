@@ -24,9 +24,22 @@ that needed its raw minutes and has none left has no sums, and is excluded as on
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from typing import cast
 
 import numpy as np
-from sqlalchemy import BigInteger, Integer, and_, case, cast, delete, func, literal, or_, select
+from sqlalchemy import (
+    BigInteger,
+    Integer,
+    Table,
+    and_,
+    case,
+    delete,
+    func,
+    literal,
+    or_,
+    select,
+)
+from sqlalchemy import cast as sql_cast
 from sqlalchemy.orm import Session
 
 from trainclimate.service.store.models import CoachFeed, Telemetry, UTCDateTime, WindowRollup
@@ -44,6 +57,11 @@ MASKS = ("present", "connected", "powered", "regular", "split")
 DECKS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
 DISCOMFORT = ("discomfort_up_kh", "discomfort_mid_kh", "discomfort_low_kh")
 TOTALS = ("energy_kwh", "hvac_kwh", *DISCOMFORT)
+
+
+def _table(model) -> Table:
+    """A model's table (declared as a table: its type says only "a FROM clause")."""
+    return cast(Table, model.__table__)
 
 
 def _excess(deck, rule, t_max_k: float) -> float:
@@ -102,7 +120,7 @@ def add_rows(session: Session, rows_by_coach: dict[str, list[dict]]) -> None:
     transaction, coach by coach and window by window (two writers take the rows' locks in one
     order). A coach's rows that reach back to or before its newest row stored count as late."""
     windows = []
-    feed = CoachFeed.__table__
+    feed = _table(CoachFeed)
     for coach_id in sorted(rows_by_coach):
         rows = rows_by_coach[coach_id]
         if not rows:
@@ -118,7 +136,7 @@ def add_rows(session: Session, rows_by_coach: dict[str, list[dict]]) -> None:
             ["newest", "last_ok"],
             late_rows=feed.c.late_rows + late,
         )
-    accumulate(session, WindowRollup.__table__, windows, ["coach_id", "window"], [*MASKS, *TOTALS])
+    accumulate(session, _table(WindowRollup), windows, ["coach_id", "window"], [*MASKS, *TOTALS])
 
 
 def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
@@ -129,7 +147,7 @@ def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
     t = Telemetry.__table__
     minute = (EpochSeconds(t.c.time) - 60) // 60
     window = (minute // WINDOW_MIN).label("window")
-    one = cast(literal(1), BigInteger).op("<<")(cast(minute % WINDOW_MIN, Integer))
+    one = sql_cast(literal(1), BigInteger).op("<<")(sql_cast(minute % WINDOW_MIN, Integer))
 
     def bits(condition):
         return func.sum(case((condition, one), else_=0))
@@ -161,19 +179,21 @@ def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
     )
     session.execute(delete(WindowRollup))
     session.execute(
-        WindowRollup.__table__.insert().from_select(["coach_id", "window", *columns], summed)
+        _table(WindowRollup).insert().from_select(["coach_id", "window", *columns], summed)
     )
     within = or_(t.c.mode != "regular", and_(*(func.coalesce(e, 0.0) <= 0 for e in excess)))
     session.execute(delete(CoachFeed))
     session.execute(
-        CoachFeed.__table__.insert().from_select(
+        _table(CoachFeed)
+        .insert()
+        .from_select(
             ["coach_id", "newest", "last_ok", "late_rows"],
             select(
                 t.c.coach_id, func.max(t.c.time), func.max(case((within, t.c.time))), literal(0)
             ).group_by(t.c.coach_id),
         )
     )
-    return session.scalar(select(func.count()).select_from(WindowRollup))
+    return session.scalar(select(func.count()).select_from(WindowRollup)) or 0
 
 
 def _index(when: datetime) -> int:
