@@ -129,11 +129,12 @@ def postgres(url: str) -> dict:
 
 
 def table_size(url: str) -> dict:
-    """The telemetry table's size in MB (MiB): in all, its heap and its indexes."""
+    """The telemetry table's size in MB (MiB), its partitions' summed: in all, its heap and its
+    indexes."""
     total, heap, index = sql(
         url,
-        "SELECT pg_total_relation_size('telemetry'), pg_relation_size('telemetry'), "
-        "pg_indexes_size('telemetry')",
+        "SELECT sum(pg_total_relation_size(relid)), sum(pg_relation_size(relid)), "
+        "sum(pg_indexes_size(relid)) FROM pg_partition_tree('telemetry')",
     )[0]
     return {"total_mb": total / 2**20, "heap_mb": heap / 2**20, "indexes_mb": index / 2**20}
 
