@@ -76,3 +76,36 @@ def test_stale_or_no_telemetry_gives_no_samples():
     s = controller_samples(empty, T0, PERIOD_S)
     assert s.last_time_s is None and np.isnan(s.u_prev) and np.isnan(s.t_rule_now)
     assert not s.regular and len(s.times_s) == 0
+
+
+def test_load_rows_reads_arrays_from_either_database(db_url):
+    """``load_rows``: each coach's rows in the range as arrays — exact times (also off the
+    minute grid), NaN for a value not reported, regular mode — and empty arrays for a coach
+    without rows."""
+    from service_support import at, flat_row
+    from trainclimate.service.store.db import Database, migrate
+    from trainclimate.service.store.models import Coach, Train
+    from trainclimate.service.store.telemetry import insert_rows, load_rows
+
+    migrate(db_url)
+    db = Database(db_url)
+    try:
+        with db.transaction() as s:
+            s.add(Train(id="T", name="T"))
+            s.flush()
+            s.add_all([Coach(id=c, train_id="T") for c in ("T-A", "T-B", "T-C")])
+            s.flush()
+            rows = [flat_row(at(m)) for m in (1, 2, 3)]
+            rows[1].update(power_kw=None, mode="slumber")
+            insert_rows(s, "T-A", [*rows, flat_row(at(3.5))])
+            insert_rows(s, "T-B", [flat_row(at(2), t_room_up_c=23.25)])
+        with db.transaction() as s:
+            got = load_rows(s, ["T-A", "T-B", "T-C"], at(1), at(3.5))
+    finally:
+        db.dispose()
+    a, b, c = got["T-A"], got["T-B"], got["T-C"]
+    assert a.time_s.tolist() == [at(m).timestamp() for m in (2, 3, 3.5)]
+    assert np.isnan(a.column("power_kw")[0]) and a.column("power_kw")[1] == 10.0
+    assert a.regular.tolist() == [False, True, True]
+    assert b.column("t_room_up_c").tolist() == [23.25] and b.values.shape == (1, len(VALUE_COLS))
+    assert c.time_s.shape == (0,) and c.values.shape == (0, len(VALUE_COLS))

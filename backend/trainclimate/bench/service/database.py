@@ -136,7 +136,11 @@ def table_size(url: str) -> dict:
         "SELECT sum(pg_total_relation_size(relid)), sum(pg_relation_size(relid)), "
         "sum(pg_indexes_size(relid)) FROM pg_partition_tree('telemetry')",
     )[0]
-    return {"total_mb": total / 2**20, "heap_mb": heap / 2**20, "indexes_mb": index / 2**20}
+    return {
+        "total_mb": float(total) / 2**20,
+        "heap_mb": float(heap) / 2**20,
+        "indexes_mb": float(index) / 2**20,
+    }
 
 
 def copy_block(coach_ids: np.ndarray, time_s: np.ndarray, values: dict) -> bytes:

@@ -16,7 +16,7 @@ from datetime import datetime
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from trainclimate.service.store import rollups
@@ -87,16 +87,30 @@ def load_rows(
     session: Session, coach_ids: list[str], start: datetime, end: datetime
 ) -> dict[str, CoachRows]:
     """Every coach's rows with start < time ≤ end (empty arrays for a coach without any), from
-    one query, without a DataFrame per coach (the tick reads 1 000 coaches at a time)."""
-    rows = _select(session, coach_ids, start, end)
-    n = len(rows)
-    time_s = np.fromiter((r[1].timestamp() for r in rows), float, n)
-    values = np.array(
-        [[np.nan if v is None else v for v in r[2 : 2 + len(VALUE_COLS)]] for r in rows], float
-    ).reshape(n, len(VALUE_COLS))
-    regular = np.fromiter((r[-2] == "regular" for r in rows), bool, n)
+    one query, without a DataFrame or an object per row (the tick reads 1 000 coaches at a
+    time): on PostgreSQL the database gives each row's time as epoch seconds and its regular
+    mode as a boolean, and the columns become arrays at once."""
+    t = Telemetry.__table__
+    if session.get_bind().dialect.name == "postgresql":
+        when = func.date_part("epoch", t.c.time)
+    else:  # SQLite's own epoch has whole seconds only: the stored time, converted here
+        when = t.c.time
+    query = (
+        select(t.c.coach_id, when, *(t.c[c] for c in VALUE_COLS), t.c.mode == "regular")
+        .where(t.c.coach_id.in_(coach_ids), t.c.time > start, t.c.time <= end)
+        .order_by(t.c.coach_id, t.c.time)
+    )
+    columns = list(zip(*session.connection().execute(query), strict=True)) or [()] * (
+        3 + len(VALUE_COLS)
+    )
+    ids, times = columns[0], columns[1]
+    if times and isinstance(times[0], datetime):
+        times = [x.timestamp() for x in times]
+    time_s = np.array(times, float)
+    values = np.array(columns[2 : 2 + len(VALUE_COLS)], float).T.reshape(len(ids), len(VALUE_COLS))
+    regular = np.array(columns[-1], bool)
     spans, first = {}, 0  # each coach's rows are contiguous (whatever the collation's order)
-    for cid, group in itertools.groupby(r[0] for r in rows):
+    for cid, group in itertools.groupby(ids):
         spans[cid] = (first, first + sum(1 for _ in group))
         first = spans[cid][1]
     out = {}
