@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
+from sqlalchemy.sql.expression import ColumnElement
 
 from trainclimate.service.store import rollups
 from trainclimate.service.store.models import Telemetry
@@ -91,6 +92,7 @@ def load_rows(
     time): on PostgreSQL the database gives each row's time as epoch seconds and its regular
     mode as a boolean, and the columns become arrays at once."""
     t = Telemetry.__table__
+    when: ColumnElement
     if session.get_bind().dialect.name == "postgresql":
         when = func.date_part("epoch", t.c.time)
     else:  # SQLite's own epoch has whole seconds only: the stored time, converted here
@@ -105,7 +107,7 @@ def load_rows(
     )
     ids, times = columns[0], columns[1]
     if times and isinstance(times[0], datetime):
-        times = [x.timestamp() for x in times]
+        times = tuple(x.timestamp() for x in times)
     time_s = np.array(times, float)
     values = np.array(columns[2 : 2 + len(VALUE_COLS)], float).T.reshape(len(ids), len(VALUE_COLS))
     regular = np.array(columns[-1], bool)
