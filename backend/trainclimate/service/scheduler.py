@@ -237,7 +237,7 @@ class Scheduler:
             if n == 0:
                 if issued:
                     self.metrics.tick(fleet, time.perf_counter() - started, tick.timestamp())
-                self._drop_others()
+                    self._drop_others()
                 return issued
             issued += n
 
