@@ -474,17 +474,18 @@ def test_gateway_over_mqtt_end_to_end(db_url, servers, proc_env, broker):
     """``serve --mqtt`` and ``gateway --mqtt`` (a gateway token for its two coaches): every
     row arrives through the broker, setpoints come back on the retained topics and are applied,
     the DDPC layer on for the activated coach."""
-    hours, minutes = 1.5, 90
+    hours, minutes = 2.0, 120
     env = {**proc_env, "TRAINCLIMATE_SCHEDULER_INTERVAL_S": "0.01"}
     mqtt = ["--mqtt", MQTT_URL, "--mqtt-prefix", broker.prefix]
     client_id = f"test-serve-{uuid.uuid4().hex[:10]}"
     server = servers(db_url, *mqtt, "--mqtt-client-id", client_id, env=env).start()
     wait_for(lambda: _health(server)["mqtt"]["connected"], 10, "the server's MQTT connection")
     token = token_cli(db_url, "gateway", proc_env, "--coaches", "8-A,8-B")
-    # 600×: a setpoint is valid for two ticks of the gateway's clock (1 s here); at 1200× a
-    # loaded machine (CI, two test workers) once published every DDPC setpoint after its
-    # validity had run out on its coach's clock, and none was applied
-    run = ["--hours", str(hours), "--speedup", "600", "--json", *mqtt]
+    # 300×: a setpoint is valid for two ticks of the gateway's clock (2 s here); at 1200× and
+    # at 600× a loaded machine (CI, two test workers) published every DDPC setpoint after its
+    # validity had run out on its coach's clock, and none was applied; two hours leave an hour
+    # of DDPC ticks after the twelve samples of the lead-in
+    run = ["--hours", str(hours), "--speedup", "300", "--json", *mqtt]
     done = subprocess.run(
         [*CLI, "gateway", "--server", server.url, "--coaches", "8-A,8-B", "--token", token, *run],
         env=proc_env,
@@ -494,7 +495,7 @@ def test_gateway_over_mqtt_end_to_end(db_url, servers, proc_env, broker):
     )
     assert done.returncode == 0, done.stderr
     stats = json.loads(done.stdout)
-    assert (stats["minutes"], stats["rows_sent"], stats["failed_posts"]) == (90, 180, 0)
+    assert (stats["minutes"], stats["rows_sent"], stats["failed_posts"]) == (120, 240, 0)
     assert stats["rows_unsent"] == 0
     assert stats["sources"].get("ddpc", 0) > 0 and stats["sources"].get("rule", 0) > 0
     assert stats["setpoints_applied"] > minutes  # both coaches, most minutes
@@ -511,7 +512,7 @@ def test_gateway_over_mqtt_end_to_end(db_url, servers, proc_env, broker):
             issued = s.scalar(select(func.count()).select_from(Setpoint).where(live))
     finally:
         db.dispose()
-    # how many ticks the server ran in the gateway's nine seconds depends on the machine's load;
+    # how many ticks the server ran in the gateway's 24 seconds depends on the machine's load;
     # that every setpoint it issued went out (or was counted as expired on its coach's clock)
     # does not
     assert issued >= 2 and feed["setpoints_published"] >= 2
