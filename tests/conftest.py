@@ -57,10 +57,10 @@ SLOW_FILES = (
     "service/test_replica_failover.py",
     "service/test_replica_pause.py",
     "service/test_wheel.py",
-    "sim/test_calibration.py",
     "sim/test_plausibility.py",
     "study/test_study.py",
     "test_readme.py",
+    "twin/test_calibration.py",
 )
 #: Fixtures that make a test ``slow`` wherever it is: ``trainclimate serve`` processes
 #: (``servers``), a simulated and processed coach-day (``clean_day``).

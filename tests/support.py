@@ -27,7 +27,7 @@ from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator
-from trainclimate.sim.twin import params_file
+from trainclimate.twin.validity import params_file
 
 RHO, HORIZON, SAMPLING_MIN = 12, 6, 5
 TICK_S = 300.0

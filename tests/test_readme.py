@@ -63,7 +63,7 @@ ELSEWHERE = {
     "bench controller": "fits the default model; tests/bench/test_controller.py runs it small",
     "experiment summary": "five paired experiments (minutes); tests/analysis/ run them small",
     "bench service": "PostgreSQL, minutes; tests/bench/test_service.py runs it small",
-    "calibrate": "a fit (a minute); tests/sim/test_calibration.py runs the same command",
+    "calibrate": "a fit (a minute); tests/twin/test_calibration.py runs the same command",
     "bench study": "the default model and two clusters; tests/bench/test_study.py runs it small",
     "model retrain": "needs a service database with days of telemetry; "
     "tests/service/test_model_lifecycle.py runs the same command on one",

@@ -372,6 +372,13 @@ def test_experiment_run_prints_the_contract_keys(capsys, predictor_file, heating
     assert data["savings_30min_pct"] == pytest.approx(expected["savings_30min_pct"], rel=1e-9)
     assert data["excluded_minutes"] == 0.0 and data["scenario"] == "parked-heating-nov"
     assert "html" not in data
+    # the layer's default objective, and the paper's on request
+    assert data["controller_settings"]["objective"] == "states"
+    code, out, err = run_cli(
+        capsys, predictor_file, "--hours", "3", "--objective", "paper", "--json"
+    )
+    assert code == 0, err
+    assert json.loads(out)["controller_settings"]["objective"] == "paper"
 
 
 def test_experiment_run_writes_the_report(capsys, predictor_file, tmp_path):

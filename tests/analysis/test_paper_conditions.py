@@ -34,8 +34,8 @@ from trainclimate.sim.rule import MODE_REGULAR
 @pytest.fixture(scope="module")
 def october(record_pair):
     """parked-cooling-oct as the paper ran it: 11:00–20:00, the layer on at 13:15, counted from
-    14:00; both connection losses and the cooling's switching limit."""
-    return record_pair("parked-cooling-oct")
+    14:00; both connection losses and the cooling's switching limit; the paper's objective."""
+    return record_pair("parked-cooling-oct", objective="paper")
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +45,7 @@ def october_ambient_only(record_pair):
     return record_pair(
         "parked-cooling-oct",
         setup=dataclasses.replace(setup, hvac_options={"climate_from_room": 0.0}),
+        objective="paper",
     )
 
 

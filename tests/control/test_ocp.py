@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from trainclimate.control import DDPCProblem, OCPSettings, ReferenceProblem
+from trainclimate.control.ocp import DEFAULT_OBJECTIVE
 from trainclimate.sim.rule import RuleCurve
 
 RHO, T = 12, 6
@@ -288,6 +289,12 @@ def test_settings_are_validated():
     for bad in ({"sigma": 0.0}, {"tau": -1.0}, {"gamma": np.nan}, {"t_max": 0.0}, {"du_max": -1}):
         with pytest.raises(ValueError, match="must be positive and finite"):
             OCPSettings(**bad)
+    with pytest.raises(ValueError, match="must be positive and finite"):
+        OCPSettings(state_margin_k=0.0)
+    with pytest.raises(ValueError, match="thresholds must be finite"):
+        OCPSettings(cool_above_k=np.inf)
+    with pytest.raises(ValueError, match="heat_below_k must exceed cool_above_k"):
+        OCPSettings(heat_below_k=2.0, cool_above_k=2.0)
 
 
 def margin_gap(inst: dict, sol) -> float:
@@ -319,6 +326,89 @@ def test_the_margin_objective_agrees_with_its_reference_and_keeps_t_ref_near_the
     assert closer >= 10  # the margin binds in a good share of them (19 of 80 measured)
 
 
+def test_the_settings_alone_are_the_papers_problem_and_the_product_runs_the_state_rule():
+    assert OCPSettings().objective == "paper"
+    assert DEFAULT_OBJECTIVE == "states"
+
+
 def test_an_unknown_objective_is_refused():
     with pytest.raises(ValueError, match="unknown objective"):
         OCPSettings(objective="cheapest")
+
+
+def state_cap(s: OCPSettings, inst: dict) -> np.ndarray:
+    """The ``states`` objective's top of u(0…T), written out from its rule: a raise above
+    T_rule only up to the coldest deck less δ, or while T_amb keeps the unit cooling whatever
+    the decks ask, free where T_amb keeps it heating; never below what the rate limit can reach
+    from u(t−1); within the band (6)."""
+    t_rule, y0, u_prev = inst["t_rule"], inst["y_past"][-1], inst["u_prev"]
+    t_amb = np.concatenate([[inst["d_past"][-1, 0]], inst["d_future"][:, 0]])
+    cap = []
+    for k in range(len(t_rule)):
+        top = max(t_rule[k], min(y0) - s.state_margin_k, t_amb[k] + s.cool_above_k)
+        if t_amb[k] < t_rule[k] - s.heat_below_k:  # heating whatever the decks ask
+            top = np.inf
+        cap.append(min(t_rule[k] + s.u_band, max(top, u_prev - (k + 1) * s.du_max)))
+    return np.array(cap)
+
+
+def test_the_states_objective_agrees_with_its_reference_and_keeps_the_units_state(
+    predictor, trajectories
+):
+    """The states objective: OSQP and the cvxpy reference agree on 80 instances, its optimum
+    keeps u(0…T) under the state rule's top, and the rule binds where the paper's optimum
+    would have raised T_ref past the coldest deck between the ambient thresholds."""
+    rng = np.random.default_rng(11)
+    s = OCPSettings(objective="states", time_limit_s=10.0)
+    fast, ref = DDPCProblem(predictor, s), ReferenceProblem(predictor, s)
+    paper = DDPCProblem(predictor, OCPSettings(time_limit_s=10.0))
+    bound = 0
+    for i in range(80):
+        inst = random_instance(rng, trajectories, s)
+        if i % 2:  # half of them between the ambient thresholds, where the decks pick the state
+            t_amb = inst["t_rule"][0] - rng.uniform(s.cool_above_k + 0.5, s.heat_below_k - 0.5)
+            inst["d_future"][:, 0] += t_amb - inst["d_past"][-1, 0]
+            inst["d_past"][:, 0] += t_amb - inst["d_past"][-1, 0]
+        a, b, p = fast.solve(**inst), ref.solve(**inst), paper.solve(**inst)
+        assert a.solved and b.solved and p.solved
+        assert a.objective == pytest.approx(b.objective, rel=1e-4, abs=1e-8)
+        np.testing.assert_allclose(a.u, b.u, atol=1e-3, rtol=0)
+        cap = state_cap(s, inst)
+        assert np.all(a.u <= cap + 1e-4) and np.all(a.u >= inst["t_rule"] - s.u_band - 1e-4)
+        bound += bool(np.any(p.u > cap + 0.05))
+    assert bound >= 12  # the rule cuts the paper's optimum in a good share (measured: 26 of 80)
+
+
+def october_instance(trajectories, t_amb: float) -> dict:
+    """A coach in the October trap's conditions: T_rule 22 °C, the decks 21.6–22.6 °C (the lower
+    deck coldest), the free-floating coach warm, so T_opt sits at the band's top."""
+    inst = random_instance(np.random.default_rng(3), trajectories, OCPSettings())
+    inst["y_past"] = inst["y_past"] - inst["y_past"][-1] + np.array([22.6, 22.2, 21.6])
+    inst["d_past"][:, 0] = t_amb
+    inst["d_future"][:, 0] = t_amb
+    inst["t_rule"] = np.full(T + 1, 22.0)
+    inst["t_opt"] = np.full(T + 1, 23.0)
+    inst["u_past"] = np.full((RHO - 1, 1), 22.0)
+    inst["u_prev"] = 22.0
+    return inst
+
+
+def test_the_states_objective_raises_t_ref_only_where_the_unit_keeps_cooling(
+    predictor, trajectories
+):
+    """Between the ambient thresholds (T_amb 19 °C) the paper's optimum raises T_ref above the
+    coldest deck, where the unit would go mixed and heat it; the states objective holds T_ref at
+    T_rule (the coldest deck less δ lies below it). At 30 °C outside the unit cools whatever the
+    decks ask, and the states objective raises T_ref as the paper's does."""
+    s = OCPSettings(objective="states", time_limit_s=10.0)
+    states, paper = (
+        DDPCProblem(predictor, s),
+        DDPCProblem(predictor, OCPSettings(time_limit_s=10.0)),
+    )
+    october = october_instance(trajectories, 19.0)
+    assert paper.solve(**october).u[0] > 21.6 + 0.1
+    assert states.solve(**october).u[0] == pytest.approx(22.0, abs=1e-3)
+    august = october_instance(trajectories, 30.0)
+    raised = states.solve(**august).u[0]
+    assert raised > 22.2
+    assert raised == pytest.approx(paper.solve(**august).u[0], abs=1e-3)

@@ -204,8 +204,8 @@ def test_a_state_stored_by_a_fleet_of_another_size_starts_the_coaches_afresh(
 def test_the_demo_fleet_takes_a_calibrated_coachs_parameters(tmp_path, model_file):
     """Every demo coach simulated with the parameters given (e.g. ``calibrate --out``), not its
     scenario's: a coach with twice the envelope loses more heat on the same day."""
-    from trainclimate.sim.calibration import apply
     from trainclimate.sim.params import CoachParams
+    from trainclimate.twin.knobs import apply
 
     fleet = demo_fleet(tmp_path, model_file)
     day = pd.Timestamp(demo.START_LOCAL.split()[0], tz=demo.LOCAL_TZ)

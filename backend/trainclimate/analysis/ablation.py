@@ -95,7 +95,7 @@ def ablate(
     """
     setup = EXPERIMENTS[name]
     earlier = dataclasses.replace(setup, events=EARLIER_EVENTS.get(name, ()), hvac_options={})
-    kw = {"forecast": forecast, "base_params": base_params}
+    kw = {"forecast": forecast, "base_params": base_params, "objective": "paper"}
     ambient_only = dataclasses.replace(earlier, hvac_options={"climate_from_room": 0.0})
     first = run_pair(name, predictor, setup=ambient_only, **kw)
     october = run_pair(name, predictor, setup=earlier, **kw)

@@ -33,7 +33,7 @@ import pandas as pd
 from trainclimate.analysis.savings import CoachSeries, Comparison, compare
 from trainclimate.control import OCPSettings
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick_summary
-from trainclimate.control.ocp import OFFLINE_TIME_LIMIT_S
+from trainclimate.control.ocp import DEFAULT_OBJECTIVE, OFFLINE_TIME_LIMIT_S
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
@@ -359,7 +359,7 @@ def run_pair(
     setup: ExperimentSetup | None = None,
     window_min: float = 30.0,
     base_params: CoachParams | None = None,
-    objective: str = "paper",
+    objective: str = DEFAULT_OBJECTIVE,
 ) -> PairResult:
     """Run a scenario as a paired experiment (see the module docstring).
 
@@ -383,7 +383,7 @@ def run_pair(
         Savings window. [min]
     base_params : CoachParams, optional
         The coaches' parameters (e.g. a calibrated twin's); default the scenario's.
-    objective : str, default "paper"
+    objective : str, default "states"
         The DDPC layer's objective (:data:`~trainclimate.control.ocp.OBJECTIVES`), with the
         scenario's weights and bounds.
 

@@ -67,10 +67,10 @@ from trainclimate.sim.params import CoachParams, diversify
 from trainclimate.sim.power import HEADLINE_METER
 from trainclimate.sim.routes import LINES, OperationSeries, service_day, stationary
 from trainclimate.sim.rule import MODE_REGULAR, mode_from_operation
+from trainclimate.sim.seeding import seed_of
 from trainclimate.sim.simulator import FleetSimulator
 from trainclimate.sim.solar import solar_position
 from trainclimate.sim.weather import SITES, generate_weather
-from trainclimate.study.plan import seed_of
 
 #: The plans a simulated trial runs (``reference`` alone measures no saving).
 TRIAL_PLANS = ("fixed", "alternate", "randomized")

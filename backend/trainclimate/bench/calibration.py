@@ -27,10 +27,13 @@ def run(days: int = 7, fits: tuple[tuple[str, ...], ...] = FITS) -> dict:
     from trainclimate.data import fleetlogs
     from trainclimate.data.dataset import build_dataset
     from trainclimate.data.trajectory import read_trajectories
-    from trainclimate.sim import calibration as cal
     from trainclimate.sim.params import CoachParams
+    from trainclimate.twin.calibration import calibrate
+    from trainclimate.twin.knobs import CalibrationError, apply
+    from trainclimate.twin.replay import replay, simulate
+    from trainclimate.twin.validation import split_days
 
-    truth = cal.apply(CoachParams(), {"envelope_scale": 1.2})
+    truth = apply(CoachParams(), {"envelope_scale": 1.2})
     with tempfile.TemporaryDirectory(prefix="tc-bench-") as tmp:
         root = Path(tmp)
         fleetlogs.generate(
@@ -44,25 +47,25 @@ def run(days: int = 7, fits: tuple[tuple[str, ...], ...] = FITS) -> dict:
             if t.coach == COACH
         ]
     logged_days = len({t.time[0].date() for t in mine})
-    train, _ = cal.split_days(mine)
-    rep = cal.replay(train)
-    sets = [cal.apply(CoachParams(), {"envelope_scale": 1.0 + 0.01 * i}) for i in range(7)]
+    train, _ = split_days(mine)
+    rep = replay(train)
+    sets = [apply(CoachParams(), {"envelope_scale": 1.0 + 0.01 * i}) for i in range(7)]
 
     def timed(f) -> float:
         t0 = time.perf_counter()
         f()
         return time.perf_counter() - t0
 
-    one = timed(lambda: cal.simulate(rep, sets[:1]))
-    batched = timed(lambda: cal.simulate(rep, sets))
-    separate = timed(lambda: [cal.simulate(rep, [s]) for s in sets])
+    one = timed(lambda: simulate(rep, sets[:1]))
+    batched = timed(lambda: simulate(rep, sets))
+    separate = timed(lambda: [simulate(rep, [s]) for s in sets])
     timings = {}
     for names in fits:
         t0 = time.perf_counter()
         try:
-            fit = cal.calibrate(COACH, mine, names, starts=1, bootstrap=0)
+            fit = calibrate(COACH, mine, names, starts=1, bootstrap=0)
             outcome = {n: v["value"] for n, v in fit.fitted.items()}
-        except cal.CalibrationError as exc:
+        except CalibrationError as exc:
             outcome = {"refused": str(exc)}
         seconds = time.perf_counter() - t0
         timings[",".join(names)] = {

@@ -19,16 +19,17 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
     """``calibrate``: one twin per ``--coach`` (``A+B``: the trajectories of A and B as one
     coach's), fitted on its training days and judged on its held-out days."""
     from trainclimate.data.trajectory import read_trajectories
-    from trainclimate.sim import calibration, twin
     from trainclimate.sim.params import CoachParams, load_params
+    from trainclimate.twin import calibration, validity
+    from trainclimate.twin.knobs import CALIBRATED, CalibrationError
 
     names = None
     if args.params is not None:
         names = tuple(n.strip() for n in args.params.split(",") if n.strip())
-        unknown = [n for n in names if n not in calibration.CALIBRATED]
+        unknown = [n for n in names if n not in CALIBRATED]
         if not names or unknown:
             what = f"unknown {unknown[0]!r}" if unknown else "none given"
-            raise UsageError(f"--params: {what}; choose from {', '.join(calibration.CALIBRATED)}")
+            raise UsageError(f"--params: {what}; choose from {', '.join(CALIBRATED)}")
     if args.starts < 1:
         raise UsageError("--starts must be at least 1")
     if args.bootstrap < 0:
@@ -56,12 +57,12 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
                 fit = calibration.calibrate(
                     group, mine, names, base, starts=args.starts, bootstrap=args.bootstrap
                 )
-            except calibration.CalibrationError as exc:
+            except CalibrationError as exc:
                 raise UsageError(str(exc)) from None
             results.append(fit.to_dict())
             bar.update(1)
     if out is not None:
-        out.write_text(json.dumps(twin.params_file(results[0]), indent=2) + "\n")
+        out.write_text(json.dumps(validity.params_file(results[0]), indent=2) + "\n")
     data = {
         "coaches": results,
         "params_fitted": sorted({n for c in results for n in c["fitted"]}),
@@ -95,7 +96,8 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
 
 def register(sub) -> None:
     """Add ``calibrate`` to ``sub``."""
-    from trainclimate.sim.calibration import BOOTSTRAP_REPLICATES, CALIBRATED
+    from trainclimate.twin.bootstrap import BOOTSTRAP_REPLICATES
+    from trainclimate.twin.knobs import CALIBRATED
 
     p = add_command(sub, "calibrate", cmd_calibrate, "fit the simulator to coaches from their logs")
     p.add_argument("--data", default=None, help="dataset directory (default: built once)")

@@ -44,10 +44,11 @@ def add_model_options(
     p: argparse.ArgumentParser,
     prefix: str = "",
     forecast: str = "perfect",
-    objective: str | None = "paper",
+    objective: bool = True,
 ) -> None:
-    """``--predictor FILE``, ``--forecast`` (default ``forecast``) and ``--objective`` (default
-    ``objective``; None: no such option) for commands that run the DDPC layer."""
+    """``--predictor FILE``, ``--forecast`` (default ``forecast``) and, with ``objective``,
+    ``--objective`` (unset: :func:`objective_of` gives the default) for commands that run the
+    DDPC layer."""
     p.add_argument("--predictor", default=None, help=f"{prefix}model file (default: cached model)")
     p.add_argument(
         "--forecast",
@@ -55,16 +56,25 @@ def add_model_options(
         default=forecast,
         help=f"{prefix}disturbance forecast (default {forecast})",
     )
-    if objective is not None:
-        from trainclimate.control.ocp import OBJECTIVES
+    if objective:
+        from trainclimate.control.ocp import DEFAULT_OBJECTIVE, OBJECTIVES
 
         p.add_argument(
             "--objective",
             choices=OBJECTIVES,
-            default=objective,
-            help=f"{prefix}the optimisation's objective: paper (the paper's Eq. (10)) or margin "
-            f"(T_ref kept within a margin of the predicted room; default {objective})",
+            default=None,
+            help=f"{prefix}the optimisation's objective: paper (the paper's Eq. (10)), margin "
+            "(T_ref kept within a margin of the predicted room) or states (Eq. (10), T_ref "
+            "raised only where the HVAC's state rules keep a cooling unit cooling; default "
+            f"{DEFAULT_OBJECTIVE})",
         )
+
+
+def objective_of(args: argparse.Namespace) -> str:
+    """The ``--objective`` asked for, else the layer's default."""
+    from trainclimate.control.ocp import DEFAULT_OBJECTIVE
+
+    return getattr(args, "objective", None) or DEFAULT_OBJECTIVE
 
 
 def add_command(sub, name: str, func, help_: str) -> argparse.ArgumentParser:

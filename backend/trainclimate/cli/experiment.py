@@ -13,6 +13,7 @@ from trainclimate.cli.common import (
     add_group,
     add_model_options,
     emit,
+    objective_of,
     out_dir,
     out_file,
     predictor_from,
@@ -46,13 +47,14 @@ def _coach_params(args: argparse.Namespace):
 def _range_warnings(args: argparse.Namespace, names: list[str], hours: float | None = None):
     """The warnings of the scenarios ``names`` (their first ``hours``) whose weather leaves the
     validated ambient range of the twin in ``--coach-params`` (none without one)."""
-    from trainclimate.sim import twin
+    from trainclimate.twin import validity
 
-    validated = twin.validated_range_of_file(args.coach_params)
+    validated = validity.validated_range_of_file(args.coach_params)
     if validated is None:
         return []
     found = (
-        twin.range_warning(validated, twin.scenario_t_amb(n, hours), f"scenario {n}") for n in names
+        validity.range_warning(validated, validity.scenario_t_amb(n, hours), f"scenario {n}")
+        for n in names
     )
     return [w for w in found if w]
 
@@ -61,14 +63,15 @@ def _trial_range_warnings(args: argparse.Namespace, seeds: range) -> list[str]:
     """The warnings of the trials of ``seeds`` whose weather leaves the validated ambient range
     of the twin in ``--coach-params`` (none without one)."""
     from trainclimate.analysis.trial_sim import trial_environment
-    from trainclimate.sim import scenarios, twin
+    from trainclimate.sim import scenarios
+    from trainclimate.twin import validity
 
-    validated = twin.validated_range_of_file(args.coach_params)
+    validated = validity.validated_range_of_file(args.coach_params)
     if validated is None:
         return []
     scenario = scenarios.get(args.scenario)
     found = (
-        twin.range_warning(
+        validity.range_warning(
             validated,
             trial_environment(scenario, args.days, seed, args.switch_hour).t_amb_c,
             f"the trial of {args.scenario}, seed {seed}",
@@ -98,7 +101,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
         forecast=args.forecast,
         coach_spread=args.coach_spread,
         base_params=_coach_params(args),
-        objective=args.objective,
+        objective=objective_of(args),
     )
     data = pair.to_dict()
     if args.html:
@@ -248,7 +251,7 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
     from trainclimate.analysis.report import write_experiment_report, write_summary
 
     if args.ablation:
-        if args.objective != "paper":
+        if args.objective not in (None, "paper"):
             raise UsageError("--ablation reproduces the paper's formulation: --objective paper")
         return cmd_experiment_ablation(args)
     out = out_dir(args.out, "the experiment reports")
@@ -259,7 +262,11 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
     with progress_bar(len(EXPERIMENTS), "paired experiments", "experiment") as bar:
         for name in EXPERIMENTS:
             pair = run_pair(
-                name, predictor, forecast=args.forecast, base_params=base, objective=args.objective
+                name,
+                predictor,
+                forecast=args.forecast,
+                base_params=base,
+                objective=objective_of(args),
             )
             row = pair.to_dict()
             row["html"] = str(write_experiment_report(pair, out / f"{name}.html"))
@@ -337,7 +344,7 @@ def register(sub) -> None:
         ("summary", cmd_experiment_summary, "run every paired experiment and write the table"),
     ):
         p = add_command(esub, name, func, help_)
-        add_model_options(p, objective=None if name == "trial" else "paper")
+        add_model_options(p, objective=name != "trial")
         p.add_argument(
             "--coach-params",
             default=None,

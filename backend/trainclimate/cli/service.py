@@ -53,12 +53,12 @@ def cmd_serve(args: argparse.Namespace) -> None:
     if args.coach_params is not None:
         if args.fleet != "demo":
             raise UsageError("--coach-params sets the demo fleet's coaches: give --fleet demo")
-        from trainclimate.sim import twin
         from trainclimate.sim.params import load_params
+        from trainclimate.twin import validity
 
         # a bad file is a one-line error before anything starts
         load_params(args.coach_params)
-        twin.validated_range_of_file(args.coach_params)
+        validity.validated_range_of_file(args.coach_params)
     if args.max_ahead_min is not None and not 0 < args.max_ahead_min <= MAX_AHEAD_LIMIT_MIN:
         raise UsageError(f"--max-ahead-min takes minutes in (0, {MAX_AHEAD_LIMIT_MIN:g}]")
     if args.guard_days is not None and args.guard_days < MIN_GUARD_DAYS:

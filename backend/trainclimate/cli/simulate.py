@@ -15,6 +15,7 @@ from trainclimate.cli.common import (
     add_model_options,
     emit,
     json_default,
+    objective_of,
     out_dir,
     out_file,
     predictor_from,
@@ -76,7 +77,7 @@ def _run(args: argparse.Namespace, scenario: str, controller: str, record_flows:
                 base_params=load_params(params) if params else None,
                 predictor=predictor_from(args) if controller == "ddpc" else None,
                 forecast=getattr(args, "forecast", "perfect"),
-                objective=getattr(args, "objective", "paper"),
+                objective=objective_of(args),
                 record_flows=record_flows,
                 progress=progress,
             )

@@ -14,6 +14,7 @@ from trainclimate.cli.common import (
     add_group,
     add_model_options,
     emit,
+    objective_of,
     out_dir,
     out_file,
     predictor_from,
@@ -65,9 +66,9 @@ def fleet_from_file(path: str) -> tuple[tuple[str, ...], tuple[dict, ...]]:
 
 def _range_warnings(args: argparse.Namespace, weather, spec) -> list[str]:
     """The warnings of the twins (``--coach-params``, or each coach of ``--fleet``) whose
-    validated ambient range (:mod:`trainclimate.sim.twin`) the study's weather leaves."""
-    from trainclimate.sim import twin
+    validated ambient range (:mod:`trainclimate.twin.validity`) the study's weather leaves."""
     from trainclimate.sim.params import TWIN_KEY, ParamsError
+    from trainclimate.twin import validity
 
     during = (weather.time >= spec.first_utc()) & (weather.time < spec.end_utc())
     t_amb = weather.t_amb_c[during]
@@ -75,16 +76,16 @@ def _range_warnings(args: argparse.Namespace, weather, spec) -> list[str]:
         if args.fleet:
             coaches = json.loads(Path(args.fleet).read_text())["coaches"]
             ranges = [
-                (c["coach"], twin.validated_range(c, f"--fleet: coach {c['coach']}"))
+                (c["coach"], validity.validated_range(c, f"--fleet: coach {c['coach']}"))
                 for c in coaches
             ]
         else:
             file = args.coach_params
             record = json.loads(Path(file).read_text()).get(TWIN_KEY) if file else None
-            ranges = [("the --coaches", twin.validated_range(record, f"--coach-params {file}"))]
+            ranges = [("the --coaches", validity.validated_range(record, f"--coach-params {file}"))]
     except ParamsError as exc:
         raise UsageError(str(exc)) from None
-    found = (twin.range_warning(r, t_amb, f"the study's weather, {who}") for who, r in ranges)
+    found = (validity.range_warning(r, t_amb, f"the study's weather, {who}") for who, r in ranges)
     return [w for w in found if w]
 
 
@@ -109,20 +110,22 @@ def _twin_ends(args, spec, record: dict, weather, predictor, savings_pct: float)
     95 % interval, the others as calibrated (one at a time, the same seed and weather), under
     ``<out>/twin-ends/<knob>-<low|high>`` (resumable as the study is). Returns the savings'
     range over those runs and the twin's own, and each run's figures."""
-    from trainclimate.sim import twin
     from trainclimate.sim.params import CoachParams, ParamsError, load_params
     from trainclimate.study.runner import read_chunks, run_study
     from trainclimate.study.summary import summarise
+    from trainclimate.twin import validity
 
     try:
-        ends, without = twin.interval_ends(record)
+        ends, without = validity.interval_ends(record)
     except ParamsError as exc:
         raise UsageError(f"--twin-ends: {exc}") from None
     base = load_params(args.coach_params)
     runs = []
     for knob, value, side, end in ends:
         try:  # the end must still be a plausible coach
-            varied = CoachParams.from_dict(twin.at_end(base, knob, value, end).to_dict()).to_dict()
+            varied = CoachParams.from_dict(
+                validity.at_end(base, knob, value, end).to_dict()
+            ).to_dict()
         except ParamsError as exc:
             raise UsageError(f"--twin-ends: {knob} at {end:g}: {exc}") from None
         variant = dataclasses.replace(spec, coach_params=(varied,) * spec.n_coaches)
@@ -173,7 +176,7 @@ def spec_from_args(args: argparse.Namespace):
         chunk_coaches=args.chunk_coaches,
         chunk_days=args.chunk_days,
         forecast=args.forecast,
-        objective=args.objective,
+        objective=objective_of(args),
     )
 
 

@@ -26,6 +26,25 @@ temperature, softly, with one slack ξ per row:
 with ȳ the mean over the decks (ȳ(0|t) measured) and m = ``margin_k``; ``paper`` is Eq. (10)
 alone.
 
+The ``states`` objective is Eq. (10) with T_ref kept where the unit's state stays as the
+rule-based coach would have it. Between its ambient thresholds (heating below T_amb = T_ref −
+``heat_below_k``, cooling above T_ref − ``cool_above_k``) the unit takes the state the decks ask
+for, and a deck colder than T_ref asks for heat: a T_ref raised above the coldest deck turns a
+cooling unit mixed, heating that deck while the others are cooled, and keeps it there (October's
+trap). So u(k) may rise above T_rule(k) only as far as the coldest measured deck less a margin
+δ, or as far as the ambient temperature keeps the unit cooling whatever the decks ask:
+
+    u(k) ≤ max(T_rule(k), min_i y_i(t) − δ, T_amb(k) + cool_above_k),   k = 0 … T
+
+except where T_amb(k) < T_rule(k) − heat_below_k: there the unit heats whatever the decks ask for
+every T_ref ≥ T_rule, and a raise cannot change its state.
+
+(T_amb(0) measured, T_amb(k ≥ 1) forecast; relaxed to what the rate limit (7) can reach from
+u(t−1), u(t−1) − (k+1) ΔT_max, so the problem stays feasible). The bound tightens the box (6)
+and adds no row: the QP is the paper's, with another bound. Lowering T_ref is left free: the
+mirror rule for a heating unit (T_ref no lower than the warmest deck plus δ) was measured and
+costs more in service than it saves (docs/experiments.md).
+
 Two implementations that must agree (tested on hundreds of random instances):
 
 - :class:`DDPCProblem` (the production path): y eliminated through the model, y_f = c + G u with
@@ -48,11 +67,17 @@ import scipy.sparse as sp
 
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.predict.hankel import NU, NY, NZ
+from trainclimate.sim.params import CoachParams
 from trainclimate.sim.setpoint import COMFORT_BAND_K, U_BAND_K
 
-#: The objectives: the paper's Eq. (10), and Eq. (10) with T_ref kept within a margin of the
-#: predicted room temperature (the module docstring).
-OBJECTIVES = ("paper", "margin")
+#: The objectives: the paper's Eq. (10), Eq. (10) with T_ref kept within a margin of the
+#: predicted room temperature, and Eq. (10) with T_ref raised only where the HVAC's state rules
+#: keep a cooling unit cooling (the module docstring).
+OBJECTIVES = ("paper", "margin", "states")
+#: The objective the product's layer runs unless told otherwise — the commands, the studies and
+#: the service: ``states`` does not fall into the October trap and saves as much as the paper's
+#: elsewhere (docs/experiments.md). :class:`OCPSettings` on its own is the paper's problem.
+DEFAULT_OBJECTIVE = "states"
 
 
 #: The solver's time budget per step on a live coach (the tick's real-time bound). [s]
@@ -83,12 +108,21 @@ class OCPSettings:
     time_limit_s : float
         The solver's time budget per step. [s]
     objective : str
-        ``"paper"`` (Eq. (10)) or ``"margin"`` (plus T_ref within ``margin_k`` of the predicted
-        mean room temperature; see the module docstring).
+        ``"paper"`` (Eq. (10)), ``"margin"`` (plus T_ref within ``margin_k`` of the predicted
+        mean room temperature) or ``"states"`` (plus T_ref raised only where a cooling unit
+        keeps cooling; see the module docstring).
     margin_k : float
         The margin m of the ``margin`` objective. [K]
     margin_weight : float
         Its slacks' weight τ_m. [–]
+    state_margin_k : float
+        The margin δ of the ``states`` objective: how far below the coldest deck a raised
+        T_ref stays. [K]
+    cool_above_k, heat_below_k : float
+        The HVAC's ambient thresholds below T_ref (Section II.B): the unit cools whatever the
+        decks ask for T_amb > T_ref − ``cool_above_k`` and heats for T_amb < T_ref −
+        ``heat_below_k`` (default: the coach's, :class:`~trainclimate.sim.params.CoachParams`).
+        [K]
 
     Raises
     ------
@@ -111,6 +145,9 @@ class OCPSettings:
     objective: str = "paper"
     margin_k: float = 0.25
     margin_weight: float = 100.0
+    state_margin_k: float = 0.3
+    cool_above_k: float = CoachParams.cool_above_k
+    heat_below_k: float = CoachParams.heat_below_k
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -118,9 +155,13 @@ class OCPSettings:
         for name in ("sigma", "tau", "gamma", "margin_weight"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"OCP weight {name} must be positive and finite")
-        for name in ("t_max", "du_max", "u_band", "time_limit_s", "margin_k"):
+        for name in ("t_max", "du_max", "u_band", "time_limit_s", "margin_k", "state_margin_k"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"OCP bound {name} must be positive and finite")
+        if not (np.isfinite(self.cool_above_k) and np.isfinite(self.heat_below_k)):
+            raise ValueError("the HVAC's ambient thresholds must be finite")
+        if self.heat_below_k <= self.cool_above_k:
+            raise ValueError("heat_below_k must exceed cool_above_k (heating below cooling)")
 
 
 @dataclass
@@ -211,6 +252,42 @@ class _Condensed:
         y0 = np.asarray(y_past, dtype=float)[-1]
         return c, y0, t_rule, t_opt, u_prev
 
+    def setpoint_bounds(
+        self, y0, d_past, d_future, t_rule, u_prev
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds on u(0|t) … u(T|t): the box (6), its top lowered by the state rule for
+        ``states`` (the module docstring).
+
+        Parameters
+        ----------
+        y0 : numpy.ndarray of shape (3,)
+            The measured decks y(t). [°C]
+        d_past, d_future : array-like of shapes (ρ, 5) and (T, 5)
+            Measured and forecast disturbances; column 0 is T_amb. [°C, …]
+        t_rule : numpy.ndarray of shape (T+1,)
+            T_rule(k|t). [°C]
+        u_prev : float
+            u(t−1). [°C]
+
+        Returns
+        -------
+        lower, upper : numpy.ndarray of shape (T+1,)
+            [°C]
+        """
+        s = self.settings
+        lower, upper = t_rule - s.u_band, t_rule + s.u_band
+        if s.objective != "states":
+            return lower, upper
+        t_amb = np.concatenate(
+            [np.asarray(d_past, dtype=float)[-1:, 0], np.asarray(d_future, dtype=float)[:, 0]]
+        )
+        coldest = np.full_like(t_rule, np.min(y0) - s.state_margin_k)
+        cap = np.maximum.reduce([t_rule, coldest, t_amb + s.cool_above_k])
+        cap[t_amb < t_rule - s.heat_below_k] = np.inf  # heating whatever the decks ask
+        # no lower than the rate limit (7) can reach from u(t−1): the problem stays feasible
+        cap = np.maximum(cap, u_prev - s.du_max * np.arange(1, len(t_rule) + 1))
+        return lower, np.minimum(upper, cap)
+
     def constant(self, c, y0, t_opt, u_prev) -> float:
         """The constant terms of J: ‖c − r‖² + ‖y(t) − T_opt(0) 1‖² + σ‖T_opt‖² + γ u(t−1)²."""
         s = self.settings
@@ -272,7 +349,7 @@ class DDPCProblem:
             sp.hstack([G, -I_e, Z_em]),  # comfort, upper: y − ε ≤ T_rule + T_max
             sp.hstack([G, I_e, Z_em]),  # comfort, lower: y + ε ≥ T_rule − T_max
             sp.hstack([sp.csc_matrix((n_e, n_u)), I_e, Z_em]),  # ε ≥ 0
-            sp.hstack([sp.eye(n_u), Z_ue, Z_um]),  # |u − T_rule| ≤ u_band
+            sp.hstack([sp.eye(n_u), Z_ue, Z_um]),  # |u − T_rule| ≤ u_band, the state rule
             sp.hstack([sp.csc_matrix(D), Z_ue, Z_um]),  # rate limits
         ]
         if n_m:
@@ -355,9 +432,10 @@ class DDPCProblem:
         n_u = T + 1
         q = np.zeros(self._n)
         q[:n_u] = 2.0 * (m.G.T @ (c - r) - s.sigma * t_opt - s.gamma * self._D.T @ b)
+        u_lower, u_upper = m.setpoint_bounds(y0, d_past, d_future, t_rule, u_prev)
         inf = np.full(NY * T, np.inf)
-        lower = [-inf, rule3 - s.t_max - c, np.zeros(NY * T), t_rule - s.u_band, b - s.du_max]
-        upper = [rule3 + s.t_max - c, inf, inf, t_rule + s.u_band, b + s.du_max]
+        lower = [-inf, rule3 - s.t_max - c, np.zeros(NY * T), u_lower, b - s.du_max]
+        upper = [rule3 + s.t_max - c, inf, inf, u_upper, b + s.du_max]
         if m.R is not None:
             o, inf_m = m.margin_offset(c, y0), np.full(len(m.R), np.inf)
             lower += [np.full(len(m.R), -np.inf), o - s.margin_k, np.zeros(len(m.R))]
@@ -437,7 +515,8 @@ class ReferenceProblem:
             "r": cp.Parameter(NY * T),
             "t_opt": cp.Parameter(T + 1),
             "rule3": cp.Parameter(NY * T),
-            "t_rule": cp.Parameter(T + 1),
+            "u_lower": cp.Parameter(T + 1),
+            "u_upper": cp.Parameter(T + 1),
             "u_prev": cp.Parameter(),
         }
         du = cp.hstack([u[0] - p["u_prev"], cp.diff(u)])
@@ -452,7 +531,8 @@ class ReferenceProblem:
             y - p["rule3"] <= s.t_max + eps,  # (4)
             p["rule3"] - y <= s.t_max + eps,
             eps >= 0,  # (5)
-            cp.abs(u - p["t_rule"]) <= s.u_band,  # (6)
+            u >= p["u_lower"],  # (6), and the state rule for ``states``
+            u <= p["u_upper"],
             cp.abs(du) <= s.du_max,  # (7)
         ]
         if s.objective == "margin":
@@ -486,7 +566,9 @@ class ReferenceProblem:
         p["r"].value = np.repeat(t_opt[1:], NY)
         p["t_opt"].value = t_opt
         p["rule3"].value = np.repeat(t_rule[1:], NY)
-        p["t_rule"].value = t_rule
+        p["u_lower"].value, p["u_upper"].value = m.setpoint_bounds(
+            y0, d_past, d_future, t_rule, u_prev
+        )
         p["u_prev"].value = u_prev
         if "y0_mean" in p:
             p["y0_mean"].value = float(np.mean(y0))

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick_summary
-from trainclimate.control.ocp import OFFLINE_TIME_LIMIT_S, OCPSettings
+from trainclimate.control.ocp import DEFAULT_OBJECTIVE, OFFLINE_TIME_LIMIT_S, OCPSettings
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.params import CoachParams
@@ -50,7 +50,7 @@ def run_simulation(
     base_params: CoachParams | None = None,
     predictor: MultistepPredictor | None = None,
     forecast: str = "perfect",
-    objective: str = "paper",
+    objective: str = DEFAULT_OBJECTIVE,
     record_flows: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> SimulationRun:
@@ -75,7 +75,7 @@ def run_simulation(
         The DDPC layer's prediction model.
     forecast : {"perfect", "persistence", "noisy"}
         The DDPC layer's disturbance forecast (the band edge always has a perfect one).
-    objective : {"paper", "margin"}
+    objective : {"states", "paper", "margin"}
         The DDPC layer's objective (:data:`~trainclimate.control.ocp.OBJECTIVES`).
     record_flows : bool
         Keep every heat flow of the thermal model in the result.

@@ -61,8 +61,8 @@ from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.commands import Backfill
 from trainclimate.service.store.db import Database, head_revision, migrate
 from trainclimate.service.store.models import utcnow
-from trainclimate.sim import twin
 from trainclimate.sim.params import load_params
+from trainclimate.twin import validity
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +131,7 @@ async def lifespan(app: FastAPI):
     scheduler.beat("live", scheduler.period_s)  # counted as running from its start
     if settings.fleet == "demo":
         coach = load_params(settings.demo_coach_params) if settings.demo_coach_params else None
-        validated = twin.validated_range_of_file(settings.demo_coach_params)
+        validated = validity.validated_range_of_file(settings.demo_coach_params)
         fleet = demo.DemoFleet(
             db, scheduler, settings.speedup, coach_params=coach, validated_t_amb_c=validated
         )

@@ -54,6 +54,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.control import DDPCController, OCPSettings
 from trainclimate.control.coach_model import CoachModel
+from trainclimate.control.ocp import DEFAULT_OBJECTIVE
 from trainclimate.predict.artifact import load_predictor_bytes
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.predict.setting import RHO
@@ -94,7 +95,7 @@ class Scheduler:
         self.period = timedelta(minutes=settings.sampling_min)
         self.period_s = self.period.total_seconds()
         self.coach_model = CoachModel(dt_s=self.period_s)
-        self.ocp = OCPSettings()
+        self.ocp = OCPSettings(objective=DEFAULT_OBJECTIVE)
         self._controllers: dict[str, DDPCController] = {}
         self._predictor: MultistepPredictor | None = None
         self._model_id: int | None = None

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from trainclimate.sim.plausible import ENTRY_NAMES, PLAUSIBLE, Plausible
+
 DECKS = ("up", "mid", "low")
 
 #: Specific heat capacity of air at constant pressure, J/(kg K).
@@ -28,7 +30,7 @@ AIR_DENSITY_KG_M3 = 1.2
 #: Stefan–Boltzmann constant, W/(m² K⁴).
 STEFAN_BOLTZMANN = 5.670374419e-8
 #: The key of a calibrated twin's record in a coach-params file (``calibrate --out``,
-#: :mod:`trainclimate.sim.twin`): not a parameter, skipped by :func:`load_params`.
+#: :mod:`trainclimate.twin.validity`): not a parameter, skipped by :func:`load_params`.
 TWIN_KEY = "twin"
 
 
@@ -430,9 +432,36 @@ class CoachParams:
             raise ParamsError("state machine exit thresholds must be below the entry thresholds")
         if self.cop_min > self.cop_max:
             raise ParamsError("coach parameter 'cop_min' must not exceed 'cop_max'")
-        from trainclimate.sim.plausible import check_plausible  # (it imports this module)
-
         check_plausible(self)
+
+
+def _implausible(name: str, value: np.ndarray, index: tuple[int, ...], plausible: Plausible) -> str:
+    """The one-line message for entry ``index`` of field ``name`` (one coach's ``value``) lying
+    outside ``plausible``, e.g. ``c_room_j_k[up] = 90 J/K is outside 10000 … 1e+06 J/K (…; kJ/K
+    given?)``; the question is asked when the entry is too small and 1000 × it would fit."""
+    low, high, unit, reason = plausible
+    labels = [
+        ENTRY_NAMES[name][i] if name in ENTRY_NAMES else DECKS[i] if n == 3 else str(i)
+        for i, n in zip(index, value.shape, strict=True)
+    ]
+    entry = f"[{', '.join(labels)}]" if labels else ""
+    x = float(value[index])
+    unit_ = f" {unit}" if unit else ""
+    kilo = unit[:1] in ("J", "W") and x < low and low <= 1e3 * x <= high
+    hint = f"; k{unit} given?" if kilo else ""
+    return f"{name}{entry} = {x:g}{unit_} is outside {low:g} … {high:g}{unit_} ({reason}{hint})"
+
+
+def check_plausible(params: CoachParams) -> None:
+    """Raise :class:`ParamsError` with a one-line message for the first field of ``params`` (one
+    coach) with an entry outside its plausible range
+    (:data:`~trainclimate.sim.plausible.PLAUSIBLE`)."""
+    for name, plausible in PLAUSIBLE.items():
+        value = np.asarray(getattr(params, name), dtype=float)
+        outside = (value < plausible.low) | (value > plausible.high)
+        if np.any(outside):
+            index = tuple(int(i) for i in np.argwhere(outside)[0])
+            raise ParamsError(_implausible(name, value, index, plausible))
 
 
 #: Parameters that differ between real coaches (manufacturing, ageing, fit-out) and are varied
@@ -564,6 +593,6 @@ def load_params(path: str | Path) -> CoachParams:
         raise ParamsError(f"coach parameter file not found: {path}") from exc
     except json.JSONDecodeError as exc:
         raise ParamsError(f"coach parameter file {path} is not valid JSON: {exc.msg}") from exc
-    if isinstance(data, dict):  # a twin's calibration record (trainclimate.sim.twin)
+    if isinstance(data, dict):  # a twin's calibration record (trainclimate.twin.validity)
         data = {k: v for k, v in data.items() if k != TWIN_KEY}
     return CoachParams.from_dict(data)

@@ -1,20 +1,15 @@
-"""The plausible range of every coach parameter, and the check that a parameter set lies in them.
+"""The plausible range of every coach parameter.
 
 The ranges span orders of magnitude around the defaults derived in ``docs/model.md`` (section
 "Plausible ranges"): a value outside is a unit slip (kJ/K for J/K, kW for W) or not a Regio-Dosto
-half coach. :meth:`~trainclimate.sim.params.CoachParams.validate` calls :func:`check_plausible`.
+half coach. :meth:`~trainclimate.sim.params.CoachParams.validate` checks a parameter set against
+them (:func:`~trainclimate.sim.params.check_plausible`); this module imports nothing of the
+package, so that :mod:`~trainclimate.sim.params` can import it.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
-
-import numpy as np
-
-from trainclimate.sim.params import DECKS, ParamsError
-
-if TYPE_CHECKING:
-    from trainclimate.sim.params import CoachParams
+from typing import NamedTuple
 
 
 class Plausible(NamedTuple):
@@ -113,31 +108,3 @@ ENTRY_NAMES = {
     "area_ext_m2": ("upper", "lower"),
     "side_area_m2": ("upper", "lower"),
 }
-
-
-def _implausible(name: str, value: np.ndarray, index: tuple[int, ...], plausible: Plausible) -> str:
-    """The one-line message for entry ``index`` of field ``name`` (one coach's ``value``) lying
-    outside ``plausible``, e.g. ``c_room_j_k[up] = 90 J/K is outside 10000 … 1e+06 J/K (…; kJ/K
-    given?)``; the question is asked when the entry is too small and 1000 × it would fit."""
-    low, high, unit, reason = plausible
-    labels = [
-        ENTRY_NAMES[name][i] if name in ENTRY_NAMES else DECKS[i] if n == 3 else str(i)
-        for i, n in zip(index, value.shape, strict=True)
-    ]
-    entry = f"[{', '.join(labels)}]" if labels else ""
-    x = float(value[index])
-    unit_ = f" {unit}" if unit else ""
-    kilo = unit[:1] in ("J", "W") and x < low and low <= 1e3 * x <= high
-    hint = f"; k{unit} given?" if kilo else ""
-    return f"{name}{entry} = {x:g}{unit_} is outside {low:g} … {high:g}{unit_} ({reason}{hint})"
-
-
-def check_plausible(params: CoachParams) -> None:
-    """Raise :class:`~trainclimate.sim.params.ParamsError` with a one-line message for the first
-    field of ``params`` (one coach) with an entry outside its :data:`PLAUSIBLE` range."""
-    for name, plausible in PLAUSIBLE.items():
-        value = np.asarray(getattr(params, name), dtype=float)
-        outside = (value < plausible.low) | (value > plausible.high)
-        if np.any(outside):
-            index = tuple(int(i) for i in np.argwhere(outside)[0])
-            raise ParamsError(_implausible(name, value, index, plausible))

@@ -35,9 +35,10 @@ from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import hvac
 from trainclimate.sim.power import HEADLINE_METER, METERS
 from trainclimate.sim.rule import MODE_REGULAR
+from trainclimate.sim.seeding import seed_of
 from trainclimate.sim.simulator import FleetSimulator, SimulationResult
 from trainclimate.sim.weather import Weather
-from trainclimate.study.plan import Chunk, StudySpec, day_environment, seed_of
+from trainclimate.study.plan import Chunk, StudySpec, day_environment
 
 SITUATIONS = ("parked heating", "parked cooling", "in service", "mixed mode", "off or slumber")
 _PARKED_HEATING, _PARKED_COOLING, _IN_SERVICE, _MIXED, _OFF = range(len(SITUATIONS))

@@ -21,12 +21,13 @@ import numpy as np
 import pandas as pd
 
 from trainclimate.control.forecast import FORECASTS
-from trainclimate.control.ocp import OBJECTIVES
+from trainclimate.control.ocp import DEFAULT_OBJECTIVE, OBJECTIVES
 from trainclimate.data.fleetlogs import draw_service_day, local_hours
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
 from trainclimate.sim.routes import LINES, service_day, stationary
 from trainclimate.sim.rule import MODE_REGULAR, mode_from_operation
+from trainclimate.sim.seeding import seed_of
 from trainclimate.sim.solar import solar_position
 from trainclimate.sim.weather import SITES, Weather, generate_weather
 
@@ -117,7 +118,7 @@ class StudySpec:
     chunk_coaches: int = 64
     chunk_days: int = 7
     forecast: str = "persistence"
-    objective: str = "paper"
+    objective: str = DEFAULT_OBJECTIVE
     model: str = ""
 
     def __post_init__(self) -> None:
@@ -199,10 +200,6 @@ class StudySpec:
     def end_utc(self) -> pd.Timestamp:
         """03:00 local after the last day, in UTC."""
         return local_hours(self.dates[-1], 27.0)
-
-
-def seed_of(*parts: int) -> int:
-    return int(np.random.SeedSequence(list(parts)).generate_state(1)[0])
 
 
 def study_weather(spec: StudySpec) -> Weather:

@@ -18,9 +18,10 @@ import numpy as np
 import pandas as pd
 
 from trainclimate.sim.power import HEADLINE_METER
+from trainclimate.sim.seeding import seed_of
 from trainclimate.study.bootstrap import CONFIDENCE, RESAMPLES, coach_day_table, savings_interval
 from trainclimate.study.chunk import OTHER_METER, SITUATIONS
-from trainclimate.study.plan import StudySpec, seed_of
+from trainclimate.study.plan import StudySpec
 
 #: Default electricity price: an assumption of the order of the Swiss tariffs for large
 #: consumers published by ElCom (20 Rp./kWh); give your own with ``--price-chf-kwh``. [CHF/kWh]

@@ -59,13 +59,14 @@ from trainclimate.service.store.models import (
 )
 from trainclimate.service.store.telemetry import rows_from_simulation
 from trainclimate.service.store.tokens import Principal
-from trainclimate.sim import scenarios, twin
+from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
 from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.scenarios import Scenario, Service
 from trainclimate.sim.setpoint import apply_setpoint
 from trainclimate.sim.simulator import FleetSimulator
+from trainclimate.twin import validity
 
 log = logging.getLogger(__name__)
 
@@ -245,7 +246,7 @@ class DemoFleet:
     ):
         self.db = db
         self.coach_params = coach_params  # every coach's, instead of its scenario's
-        #: the ambient range a calibrated ``coach_params`` was validated for (sim.twin)
+        #: the ambient range a calibrated ``coach_params`` was validated for (twin.validity)
         self.validated_t_amb_c = validated_t_amb_c
         self.scheduler = scheduler
         self.speedup = float(speedup)
@@ -279,7 +280,7 @@ class DemoFleet:
             env, p = scenarios.build(sc, n_coaches=1)
             coach = self.coach_params or p[0]
             where = f"demo train {train.id} on {day:%Y-%m-%d}"
-            warning = twin.range_warning(self.validated_t_amb_c, env.t_amb_c, where)
+            warning = validity.range_warning(self.validated_t_amb_c, env.t_amb_c, where)
             if warning:
                 log.warning("%s", warning)
             envs += [env, env]  # coaches A and B: twins in one train

@@ -1,5 +1,6 @@
-"""A calibrated twin's validity: the ambient range its calibration validated it for, carried in
-its coach-params file, and the warning a scenario gets when its weather leaves that range.
+"""A calibrated twin's file and validity: the ambient range its calibration validated it for,
+carried in its coach-params file, the warning a scenario gets when its weather leaves that range,
+and the twin with a fitted knob moved to an end of its 95 % interval.
 
 The file ``calibrate --out`` writes is a coach-params file with one more key, :data:`TWIN_KEY`
 (``"twin"``), which :func:`~trainclimate.sim.params.load_params` skips::
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from trainclimate.sim.params import TWIN_KEY, CoachParams, ParamsError
+from trainclimate.twin.knobs import QUANTITIES, apply
 
 #: The calibration's record kept beside the parameters in a twin's coach-params file.
 RECORD = ("coach", "validated_t_amb_c", "fitted", "not_identified", "warnings")
@@ -121,11 +123,9 @@ def at_end(params: CoachParams, knob: str, value: float, end: float) -> CoachPar
     ``end`` of its interval, every other parameter as calibrated: a scale (envelope, COP level,
     …) multiplies by ``end / value``, a quantity (the fans' power, the fresh-air fraction) is
     set to ``end``."""
-    from trainclimate.sim import calibration
-
-    if knob in calibration.QUANTITIES:
-        return calibration.apply(params, {knob: end})
-    return calibration.apply(params, {knob: end / value})
+    if knob in QUANTITIES:
+        return apply(params, {knob: end})
+    return apply(params, {knob: end / value})
 
 
 def scenario_t_amb(name: str, hours: float | None = None) -> np.ndarray:

@@ -6,8 +6,7 @@ mean of the minutes — the least-squares fit of one constant."""
 import numpy as np
 import pytest
 
-from trainclimate.sim import calibration
-from trainclimate.sim.calibration import MIN_BOOTSTRAP_DAYS, day_bootstrap
+from trainclimate.twin.bootstrap import MIN_BOOTSTRAP_DAYS, day_bootstrap, interval_warnings
 
 #: The value every day scatters around.
 TRUE = 3.0
@@ -115,5 +114,5 @@ def test_a_fit_outside_its_own_interval_is_warned_about():
         "fan_supply_w": {"value": 1100.0, "std": 32.0, "ci95": [1150.0, 1365.0]},
         "cop_level": {"value": 1.0, "std": 0.07, "ci95": [0.88, 1.12]},
     }
-    (warning,) = calibration._interval_warnings(fitted)
+    (warning,) = interval_warnings(fitted)
     assert warning.startswith("fan_supply_w: the fit 1100 lies outside its own 95 % interval")

@@ -12,8 +12,10 @@ from cli_support import call, call_json
 from trainclimate.data import fleetlogs
 from trainclimate.data.dataset import build_dataset
 from trainclimate.data.trajectory import Trajectory, read_trajectories
-from trainclimate.sim import calibration as cal
 from trainclimate.sim.params import CoachParams, load_params
+from trainclimate.twin import replay, validation
+from trainclimate.twin.calibration import calibrate
+from trainclimate.twin.knobs import CalibrationError, apply
 
 #: The coach whose logs are generated: its envelope and supply fans 20 % and 25 % off the default.
 TRUTH = {"envelope_scale": 1.2, "fan_supply_w": 1.25 * CoachParams().fan_supply_w}
@@ -24,7 +26,7 @@ def winter_dataset(tmp_path_factory):
     """1-min trajectories of coaches 124A (in the depot the first day) and 44A, 6 winter days,
     generated with :data:`TRUTH`."""
     root = tmp_path_factory.mktemp("calibration")
-    truth = cal.apply(CoachParams(), TRUTH)
+    truth = apply(CoachParams(), TRUTH)
     fleetlogs.generate(
         root / "raw", campaigns=(fleetlogs.WINTER_SPRING,), max_days=6, max_coaches=2,
         coach_params=truth,
@@ -40,7 +42,7 @@ def winter(winter_dataset):
 
 def test_apply_scales_the_envelope_capacities_aperture_and_cop():
     base = CoachParams()
-    p = cal.apply(
+    p = apply(
         base,
         {"envelope_scale": 2.0, "capacity_scale": 0.5, "solar_scale": 1.5, "cop_level": 0.8},
     )
@@ -52,20 +54,20 @@ def test_apply_scales_the_envelope_capacities_aperture_and_cop():
     np.testing.assert_allclose(p.c_chassis_j_k, 0.5 * base.c_chassis_j_k)
     assert (p.window_g, p.roof_absorptance) == pytest.approx((0.6, 0.9))
     assert (p.cop_a, p.cop_b, p.cop_max) == pytest.approx((3.52, 0.048, 3.6))
-    with pytest.raises(cal.CalibrationError, match="unknown calibration parameter 'u_value'"):
-        cal.apply(base, {"u_value": 1.0})
+    with pytest.raises(CalibrationError, match="unknown calibration parameter 'u_value'"):
+        apply(base, {"u_value": 1.0})
 
 
 def test_the_doors_open_at_stops_and_at_the_ends_of_a_turnaround():
     speed = np.array([80, 0, 0, 80, 0, 0, 0, 0, 0, 0, 80, 0], dtype=float)[:, None]
     occ = np.array([30, 30, 30, 30, 0, 0, 0, 0, 0, 0, 20, 0], dtype=float)[:, None]
-    doors = cal._doors(speed, occ)[:, 0]
+    doors = replay._doors(speed, occ)[:, 0]
     # a stop (standing on a trip); a 6-min turnaround: its first and last 2 min; the
     # standstill at the end is not known to be a turnaround
     np.testing.assert_array_equal(doors, [0, 1, 1, 0, 1, 1, 0, 0, 1, 1, 0, 0])
     # a 2-s log knows a 40-s stop inside a minute whose mean speed is 30 km/h
     share = np.array([0, 1, 1, 2 / 3, 1, 1, 1, 1, 1, 1, 0.25, 1])[:, None]
-    doors = cal._doors(np.where(share > 0.5, 30.0, speed), occ, share)[:, 0]
+    doors = replay._doors(np.where(share > 0.5, 30.0, speed), occ, share)[:, 0]
     np.testing.assert_allclose(doors, [0, 1, 1, 2 / 3, 0, 0, 0, 0, 0, 0, 0.25, 0])
 
 
@@ -78,13 +80,13 @@ def test_the_replay_reproduces_the_logged_disturbances():
     )  # fmt: skip
     y = np.full((n, 3), 21.0)
     traj = Trajectory(time, y, np.full((n, 1), 22.0), d, "c", "1", "1A", 1, p_kw=np.full(n, 5.0))
-    rep = cal.replay([traj])
+    rep = replay.replay([traj])
     per = rep.per_minute
     np.testing.assert_allclose(rep.env.q_roof_w_m2[::per, 0], d[:, 1], atol=0.05)
     np.testing.assert_allclose(rep.env.q_side_w_m2[::per, 0], d[:, 2], atol=1e-9)
     np.testing.assert_allclose(rep.env.t_amb_c[::per, 0], 3.0)
     np.testing.assert_allclose(rep.t_ref_c[::per, 0], 22.0)
-    assert rep.scored[: cal.WARMUP_MIN].sum() == 0 and rep.scored[cal.WARMUP_MIN :].all()
+    assert rep.scored[: replay.WARMUP_MIN].sum() == 0 and rep.scored[replay.WARMUP_MIN :].all()
 
 
 @pytest.mark.slow  # 12 simulated coach-days, then a fit
@@ -92,7 +94,7 @@ def test_a_known_envelope_is_recovered_from_generated_logs(winter):
     """The envelope 20 % above the default, the fans' power known (from the nameplate)."""
     mine = [t for t in winter if t.coach == "44A"]
     known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
-    fit = cal.calibrate("44A", mine, ("envelope_scale",), base=known, starts=1, bootstrap=0)
+    fit = calibrate("44A", mine, ("envelope_scale",), base=known, starts=1, bootstrap=0)
     envelope = fit.fitted["envelope_scale"]
     assert envelope["value"] == pytest.approx(TRUTH["envelope_scale"], rel=0.05)
     assert 0 < envelope["std"] < 0.05
@@ -100,7 +102,7 @@ def test_a_known_envelope_is_recovered_from_generated_logs(winter):
     assert abs(fit.holdout["energy_error_pct"]) < 5.0
     assert fit.holdout["t_room_mae_c"] < 0.3 and fit.holdout["minutes"] > 300
     # the parameters are a whole coach-params set, the fitted fields replaced
-    expected = cal.apply(known, {"envelope_scale": envelope["value"]})
+    expected = apply(known, {"envelope_scale": envelope["value"]})
     assert fit.params.to_dict() == expected.to_dict()
 
 
@@ -112,7 +114,7 @@ def test_by_default_what_winter_days_do_not_identify_is_held_at_its_base(winter)
     held-out days get their errors per ambient band."""
     mine = [t for t in winter if t.coach == "44A"]
     known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
-    fit = cal.calibrate(
+    fit = calibrate(
         "44A", mine, base=known, starts=1, bootstrap=3, among=("envelope_scale", "cop_level")
     )
     assert fit.not_identified == [
@@ -127,27 +129,27 @@ def test_by_default_what_winter_days_do_not_identify_is_held_at_its_base(winter)
 
 def test_winter_days_cannot_calibrate_the_compressor_a_refusal(winter):
     mine = [t for t in winter if t.coach == "44A"]
-    with pytest.raises(cal.CalibrationError, match="depends on cop_level"):
-        cal.calibrate("44A", mine, ("cop_level", "fan_supply_w"), starts=1)
+    with pytest.raises(CalibrationError, match="depends on cop_level"):
+        calibrate("44A", mine, ("cop_level", "fan_supply_w"), starts=1)
 
 
 def test_too_little_data_is_a_refusal(winter):
     mine = [t for t in winter if t.coach == "44A"]
     one_day = [t for t in mine if t.time[0].date() == mine[0].time[0].date()]
-    with pytest.raises(cal.CalibrationError, match="at least 2 days"):
-        cal.calibrate("44A", one_day)
+    with pytest.raises(CalibrationError, match="at least 2 days"):
+        calibrate("44A", one_day)
     short = [
         Trajectory(t.time[:90], t.y[:90], t.u[:90], t.d[:90], t.campaign, t.train, t.coach, 1,
                    p_kw=t.p_kw[:90])
         for t in mine
     ]  # fmt: skip
-    with pytest.raises(cal.CalibrationError, match="scored training minutes"):
-        cal.calibrate("44A", short)
+    with pytest.raises(CalibrationError, match="scored training minutes"):
+        calibrate("44A", short)
     unmetered = [dataclasses.replace(t, p_kw=None) for t in mine]
-    with pytest.raises(cal.CalibrationError, match="no metered HVAC power"):
-        cal.calibrate("44A", unmetered)
-    with pytest.raises(cal.CalibrationError, match="unknown calibration parameter 'ua'"):
-        cal.calibrate("44A", mine, ("ua",))
+    with pytest.raises(CalibrationError, match="no metered HVAC power"):
+        calibrate("44A", unmetered)
+    with pytest.raises(CalibrationError, match="unknown calibration parameter 'ua'"):
+        calibrate("44A", mine, ("ua",))
 
 
 def test_calibrate_command_errors_are_one_line_exit_2(capsys, winter_dataset, tmp_path):
@@ -202,11 +204,11 @@ def test_envelope_cop_and_fans_differing_by_20_to_25_percent_come_back_within_20
     cannot know from the logs (docs/model.md); the held-out energy is still within 1 %."""
     truth = {"envelope_scale": 1.2, "cop_level": 0.8, "fan_supply_w": 1.25 * 1100.0}
     fleetlogs.generate(
-        tmp_path / "raw", max_days=8, max_coaches=1, coach_params=cal.apply(CoachParams(), truth)
+        tmp_path / "raw", max_days=8, max_coaches=1, coach_params=apply(CoachParams(), truth)
     )
     build_dataset(tmp_path / "raw", tmp_path / "out")
     trajectories = read_trajectories(tmp_path / "out" / "trajectories_1min.parquet")
-    fit = cal.calibrate("124A+124B", trajectories, tuple(truth), starts=1, bootstrap=0)
+    fit = calibrate("124A+124B", trajectories, tuple(truth), starts=1, bootstrap=0)
     assert fit.fitted["envelope_scale"]["value"] == pytest.approx(1.2, rel=0.05)
     for name, value in truth.items():
         assert fit.fitted[name]["value"] == pytest.approx(value, rel=0.20), name
@@ -227,33 +229,33 @@ def test_the_coldest_and_the_warmest_days_are_held_out():
     winter = {"2022-02-01": 2.0, "2022-02-02": -6.0, "2022-02-03": 5.0, "2022-02-04": 0.0}
     summer = {"2023-07-04": 31.0, "2023-07-05": 24.0, "2023-07-06": 27.0, "2023-07-07": 22.0}
     temps = {**winter, **summer}
-    train, held = cal.split_days([_day(d, t) for d, t in temps.items()])
+    train, held = validation.split_days([_day(d, t) for d, t in temps.items()])
     assert sorted(t.d[0, 0] for t in held) == [-6.0, 31.0]
     assert len(train) == 6
     # from 12 days on a third day is held out: the next coldest
     temps.update({"2023-07-08": 25.0, "2023-07-09": 26.0, "2022-02-05": 1.0, "2022-02-06": 3.0})
-    _, held = cal.split_days([_day(d, t) for d, t in temps.items()])
+    _, held = validation.split_days([_day(d, t) for d, t in temps.items()])
     assert sorted(t.d[0, 0] for t in held) == [-6.0, 0.0, 31.0]
 
 
 def _band(low: float, energy_error_pct: float | None) -> dict:
-    return {"t_amb_c": [low, low + cal.BAND_K], "energy_error_pct": energy_error_pct}
+    return {"t_amb_c": [low, low + validation.BAND_K], "energy_error_pct": energy_error_pct}
 
 
 def test_the_validated_range_grows_by_good_held_out_bands_and_stops_at_a_bad_one():
     train = np.linspace(0.0, 12.0, 1000)  # the training minutes' T_amb
-    validated, warnings = cal.validated_range(train, [])
+    validated, warnings = validation.validated_range(train, [])
     assert validated == pytest.approx([0.2, 11.8], abs=0.05) and warnings == []
     # a good band below, a bad one beyond it; a good band above
     bands = [_band(-5.0, 2.0), _band(-10.0, -12.0), _band(10.0, 1.0), _band(15.0, 4.9)]
-    validated, warnings = cal.validated_range(train, bands)
+    validated, warnings = validation.validated_range(train, bands)
     assert validated == [-5.0, 20.0]
     assert warnings == [
         "held out at -10 to -5 °C the twin's energy is -12.0 % off (beyond ±5 %): not "
         "validated there"
     ]
     # a bad band inside the training range cuts it on its side
-    validated, _ = cal.validated_range(train, [_band(10.0, 8.0)])
+    validated, _ = validation.validated_range(train, [_band(10.0, 8.0)])
     assert validated == pytest.approx([0.2, 10.0], abs=0.05)
-    validated, warnings = cal.validated_range(train, [_band(0.0, 8.0), _band(5.0, 9.0)])
+    validated, warnings = validation.validated_range(train, [_band(0.0, 8.0), _band(5.0, 9.0)])
     assert validated is None and warnings[-1] == "the twin is validated at no ambient temperature"
