@@ -28,6 +28,7 @@ def test_the_controller_benchmark_reports_solve_step_and_tick_times(small_defaul
     for path in ("fast", "cvxpy_dpp", "cvxpy_naive", "controller_step"):
         assert 0 < d[f"{path}_median_ms"] <= d[f"{path}_p99_ms"] < 10_000
     assert d["naive_over_fast"] == d["cvxpy_naive_median_ms"] / d["fast_median_ms"]
+    assert d["objective"] == "states" and 0 < d["paper_fast_median_ms"] < 10_000
     assert sum(d["fleet_tick_reasons"].values()) == 4 and d["fleet_1000_tick_s"] > 0
     lines = controller.text(d).splitlines()
-    assert len(lines) == 2 and lines[0].startswith("OCP solve (ρ = 12, T = 6)")
+    assert len(lines) == 2 and lines[0].startswith("OCP solve (ρ = 12, T = 6, states)")

@@ -18,20 +18,24 @@ TARGET = {"fast_median_ms": 1.0, "naive_over_fast": 20.0, "fleet_1000_tick_s": 2
 def run(n_steps: int = 1000, n_naive: int = 60, fleet: int = 1000) -> dict:
     """Controller speed at ρ = 12, T = 6 (the default model) on realistic inputs.
 
-    One OCP solve three ways — the fast path (OSQP, matrices built once, warm-started), the
-    cached cvxpy path (DPP, compiled once) and the naive cvxpy path (rebuilt every step) — each
-    timed around ``solve`` on the same instances (``n_steps``, the first 200 for the cached cvxpy
-    path, the first ``n_naive`` for the naive one); the whole controller step (checks, state
-    estimate, T_opt, solve) on the fast path; and one fleet tick: ``fleet`` coaches, each with its
-    own controller, one step each after a first tick has warmed them (setup not timed).
+    All of it under the layer's default objective (:data:`~trainclimate.control.ocp.
+    DEFAULT_OBJECTIVE`, what the service runs). One OCP solve three ways — the fast path (OSQP,
+    matrices built once, warm-started), the cached cvxpy path (DPP, compiled once) and the naive
+    cvxpy path (rebuilt every step) — each timed around ``solve`` on the same instances
+    (``n_steps``, the first 200 for the cached cvxpy path, the first ``n_naive`` for the naive
+    one), and the fast path of the paper's objective beside them as the baseline
+    (``paper_fast_median_ms``); the whole controller step (checks, state estimate, T_opt, solve)
+    on the fast path; and one fleet tick: ``fleet`` coaches, each with its own controller, one
+    step each after a first tick has warmed them (setup not timed).
 
     Medians and 99th percentiles in ms; the fleet tick in s, scaled to 1000 coaches
     (``fleet_1000_tick_s``).
     """
-    from trainclimate.control import DDPCController, DDPCProblem, ReferenceProblem
+    from trainclimate.control import DDPCController, DDPCProblem, OCPSettings, ReferenceProblem
     from trainclimate.control.coach_model import CoachModel
     from trainclimate.control.controller import t_opt
     from trainclimate.control.estimator import StateEstimator
+    from trainclimate.control.ocp import DEFAULT_OBJECTIVE
     from trainclimate.predict.default import default_predictor
 
     predictor = default_predictor()
@@ -46,17 +50,19 @@ def run(n_steps: int = 1000, n_naive: int = 60, fleet: int = 1000) -> dict:
         opt = t_opt(model, x0, c["d"][-1], c["d_future"], c["t_rule"], 1.0)
         args.append((c["y"], c["u"], c["d"], c["d_future"], c["t_rule"], opt, c["u_prev"]))
 
-    fast = _timed(DDPCProblem(predictor).solve, args)
-    dpp = _timed(ReferenceProblem(predictor).solve, args[:200])
-    naive = _timed(ReferenceProblem(predictor, rebuild=True).solve, args[:n_naive])
-    ctl = DDPCController(predictor, model=model)
+    settings = OCPSettings(objective=DEFAULT_OBJECTIVE)
+    fast = _timed(DDPCProblem(predictor, settings).solve, args)
+    paper = _timed(DDPCProblem(predictor, OCPSettings(objective="paper")).solve, args)
+    dpp = _timed(ReferenceProblem(predictor, settings).solve, args[:200])
+    naive = _timed(ReferenceProblem(predictor, settings, rebuild=True).solve, args[:n_naive])
+    ctl = DDPCController(predictor, settings, model=model)
     step = []
     for c in cases:
         t0 = time.perf_counter()
         ctl.step(**c)
         step.append(time.perf_counter() - t0)
 
-    controllers = [DDPCController(predictor, model=model) for _ in range(fleet)]
+    controllers = [DDPCController(predictor, settings, model=model) for _ in range(fleet)]
     fleet_cases = [cases[i % len(cases)] for i in range(fleet)]
     for ctl, c in zip(controllers, fleet_cases, strict=True):
         ctl.step(**c)  # first tick: warm-up of the estimate and the solver
@@ -68,12 +74,15 @@ def run(n_steps: int = 1000, n_naive: int = 60, fleet: int = 1000) -> dict:
     fleet_s = time.perf_counter() - t0
 
     fast_med, fast_p99 = percentiles_ms(fast)
+    paper_med, _ = percentiles_ms(paper)
     dpp_med, dpp_p99 = percentiles_ms(dpp)
     naive_med, naive_p99 = percentiles_ms(naive)
     step_med, step_p99 = percentiles_ms(step)
     return {
         "fast_median_ms": fast_med,
         "fast_p99_ms": fast_p99,
+        "objective": DEFAULT_OBJECTIVE,
+        "paper_fast_median_ms": paper_med,
         "cvxpy_dpp_median_ms": dpp_med,
         "cvxpy_dpp_p99_ms": dpp_p99,
         "cvxpy_naive_median_ms": naive_med,
@@ -99,8 +108,9 @@ def run(n_steps: int = 1000, n_naive: int = 60, fleet: int = 1000) -> dict:
 def text(d: dict) -> str:
     """Two lines: the three solves' medians in ms, the step's median in ms, the tick in s."""
     return (
-        f"OCP solve (ρ = {d['rho']}, T = {d['horizon']}), median: fast "
-        f"{d['fast_median_ms']:.3f} ms (p99 {d['fast_p99_ms']:.3f}), cvxpy DPP "
+        f"OCP solve (ρ = {d['rho']}, T = {d['horizon']}, {d['objective']}), median: fast "
+        f"{d['fast_median_ms']:.3f} ms (p99 {d['fast_p99_ms']:.3f}; the paper's objective "
+        f"{d['paper_fast_median_ms']:.3f} ms), cvxpy DPP "
         f"{d['cvxpy_dpp_median_ms']:.1f} ms, cvxpy rebuilt {d['cvxpy_naive_median_ms']:.1f} ms "
         f"({d['naive_over_fast']:.0f}× the fast path)\n"
         f"whole controller step {d['controller_step_median_ms']:.3f} ms median; "
