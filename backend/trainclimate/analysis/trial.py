@@ -210,35 +210,74 @@ def daily(
     """
     day = np.asarray(day, np.int64)
     energy = np.asarray(energy_kwh, float).reshape(len(day), 2)
-    act = np.asarray(activated, np.int64)
+    return daily_many(
+        day, energy[None], np.asarray(activated)[None], np.asarray(counted)[None], min_windows
+    )[0]
+
+
+def daily_many(
+    day: np.ndarray,
+    energy_kwh: np.ndarray,
+    activated: np.ndarray,
+    counted: np.ndarray,
+    min_windows: int = 4,
+) -> list[TrialDays]:
+    """:func:`daily` of several pairs over the same windows at once.
+
+    Parameters
+    ----------
+    day : numpy.ndarray of int, shape (W,)
+        Each window's service day.
+    energy_kwh : numpy.ndarray of shape (P, W, 2)
+        Each pair's coaches' energy per window. [kWh]
+    activated : numpy.ndarray of int, shape (P, W)
+        The coach running the layer (0, 1, :data:`NEITHER`; any value where not counted).
+    counted : numpy.ndarray of bool, shape (P, W)
+
+    Returns
+    -------
+    list of TrialDays
+        One per pair, as :func:`daily` gives it.
+
+    Raises
+    ------
+    ValueError
+        If a counted window's ``activated`` is not 0, 1 or :data:`NEITHER`.
+    """
+    day = np.asarray(day, np.int64)
     keep = np.asarray(counted, bool)
-    days, e, a, w = [], [], [], []
-    dropped: dict[str, int] = {}
-    for d in np.unique(day[keep]):
-        sel = keep & (day == d)
-        labels = np.unique(act[sel])
-        total = energy[sel].sum(axis=0)
-        reason = None
-        if sel.sum() < min_windows:
-            reason = "too_few_windows"
-        elif len(labels) > 1:
-            reason = "mixed_activation"
-        elif not np.all(total > 0):
-            reason = "no_energy"
-        if reason:
-            dropped[reason] = dropped.get(reason, 0) + 1
-            continue
-        days.append(d)
-        e.append(total)
-        a.append(labels[0])
-        w.append(int(sel.sum()))
-    return TrialDays(
-        day=np.asarray(days, np.int64),
-        energy_kwh=np.asarray(e, float).reshape(len(days), 2),
-        activated=np.asarray(a, np.int64),
-        windows=np.asarray(w, np.int64),
-        dropped=dropped,
+    act = np.asarray(activated, np.int64)
+    energy = np.asarray(energy_kwh, float).reshape(*keep.shape, 2)
+    if np.any(keep & (act != 0) & (act != 1) & (act != NEITHER)):
+        raise ValueError("a counted window's activated coach must be 0, 1 or NEITHER")
+    days, which = np.unique(day, return_inverse=True)
+    one_hot = np.zeros((len(day), len(days)))
+    one_hot[np.arange(len(day)), which] = 1.0
+    n = keep.astype(float) @ one_hot  # (P, D) counted windows per day
+    total = np.swapaxes(np.where(keep[..., None], energy, 0.0), -1, -2) @ one_hot  # (P, 2, D)
+    present = [((keep & (act == g)).astype(float) @ one_hot) > 0 for g in (0, 1, NEITHER)]
+    label = np.select(present, [0, 1, NEITHER], default=NEITHER)
+    reason = np.select(
+        [n < min_windows, sum(p.astype(int) for p in present) > 1, ~np.all(total > 0, axis=-2)],
+        [1, 2, 3],
+        default=0,
     )
+    names = {1: "too_few_windows", 2: "mixed_activation", 3: "no_energy"}
+    out = []
+    for p in range(len(keep)):
+        some = n[p] > 0
+        good = some & (reason[p] == 0)
+        codes, k = np.unique(reason[p][some & ~good], return_counts=True)
+        out.append(
+            TrialDays(
+                day=days[good],
+                energy_kwh=total[p][:, good].T.reshape(-1, 2),
+                activated=label[p][good].astype(np.int64),
+                windows=n[p][good].astype(np.int64),
+                dropped={names[int(c)]: int(m) for c, m in zip(codes, k, strict=True)},
+            )
+        )
+    return out
 
 
 @dataclass
@@ -474,3 +513,8 @@ def pool(estimates: list[TrialEstimate]) -> dict:
         tau2=tau2,
     )
     return out
+
+
+def estimate_many(days_list: list[TrialDays]) -> list[TrialEstimate]:
+    """TEMPORARY until the batched bootstrap lands."""
+    return [estimate(d) for d in days_list]

@@ -85,30 +85,33 @@ def _fill(db: Database) -> None:
         )
 
 
-def _both_ways(db: Database) -> tuple[dict, dict]:
+def _both_ways(db: Database) -> tuple[dict, dict, dict, list]:
     pairs = [("T-A", "T-B", T0, at(120)), ("U-A", "U-B", T0, at(120))]
     with db.transaction() as s:
         overrides = fleet_summary.overrides_over(s, pairs)
         raw = fleet_summary.window_sums(s, pairs, 30.0, overrides=overrides)
-        kept = fleet_summary.pair_sums(s, pairs, 30.0, overrides)
-        exact, dirty = rollups.pair_sums(s, pairs, overrides)
+        kept = fleet_summary.pair_grids(s, pairs, 30.0, overrides)
+        exact, dirty = rollups.pair_grids(s, pairs, overrides)
     return raw, kept, exact, dirty
 
 
 def test_the_rollups_give_the_raw_minutes_sums(db):
     _fill(db)
     raw, kept, exact, dirty = _both_ways(db)
+    w0 = round(T0.timestamp()) // 1800
     assert set(raw) == set(kept) == {"T-A", "U-A"}
     for pair in raw:
-        assert sorted(raw[pair]) == sorted(kept[pair])
+        assert kept[pair].shape == (4, len(SUMS))
+        # every window the raw minutes give, and zeros where they give none (no paired minute)
+        expected = np.zeros((4, len(SUMS)))
         for w, sums in raw[pair].items():
-            np.testing.assert_allclose(kept[pair][w], sums, rtol=1e-9, atol=1e-12, err_msg=f"{w}")
+            expected[w - w0] = sums
+        np.testing.assert_allclose(kept[pair], expected, rtol=1e-9, atol=1e-12, err_msg=pair)
     # the rollups give the windows where both coaches have the same minutes counting for the
     # same things; the raw minutes the others: T's gap (35–37) and B's lost link (50–52) in the
     # second window, B's power missing at 101 in the fourth, U's override (10–40: the first
     # two windows) and U-B silent after 100 (the fourth); the slumber, the floor split and the
     # row off the grid stay exact
-    w0 = round(T0.timestamp()) // 1800
     assert {(p[0], round(p[2].timestamp()) // 1800 - w0) for p in dirty} == {
         ("T-A", 1),
         ("T-A", 3),
@@ -116,16 +119,17 @@ def test_the_rollups_give_the_raw_minutes_sums(db):
         ("U-A", 1),
         ("U-A", 3),
     }
-    assert sorted(w - w0 for w in exact["T-A"]) == [0, 2]
-    assert sorted(w - w0 for w in exact["U-A"]) == [2]
+    minutes = SUMS.index("minutes")
+    assert list(np.flatnonzero(exact["T-A"][:, minutes])) == [0, 2]
+    assert list(np.flatnonzero(exact["U-A"][:, minutes])) == [2]
     # in numbers: T's third window (60–90 min) with ten slumber minutes, the fourth with B's
     # power missing at 101 (affected) and A's floor heating not split off after 90; U's fourth
     # has 10 paired minutes
-    third = dict(zip(SUMS, exact["T-A"][w0 + 2], strict=True))
+    third = dict(zip(SUMS, exact["T-A"][2], strict=True))
     assert (third["minutes"], third["counted_minutes"], third["affected_minutes"]) == (30, 20, 0)
-    fourth = dict(zip(SUMS, kept["T-A"][w0 + 3], strict=True))
+    fourth = dict(zip(SUMS, kept["T-A"][3], strict=True))
     assert (fourth["affected_minutes"], fourth["unsplit_minutes"]) == (1, 30)
-    assert dict(zip(SUMS, kept["U-A"][w0 + 3], strict=True))["minutes"] == 10
+    assert dict(zip(SUMS, kept["U-A"][3], strict=True))["minutes"] == 10
     assert third["discomfort_0_up_kh"] > 0.05 and third["discomfort_1_up_kh"] < 0.01
 
 

@@ -42,17 +42,19 @@ def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) ->
     that fills the read cache) and over new ranges (random ends), the pair comparison over each
     of :data:`COMPARISON_H` (random trains and ends), and the rollup floor over each summary
     window. ``progress(1)`` after the load and after the requests."""
-    from trainclimate.service.store import rollups
+    from trainclimate.service.store import rollups, setpoint_rollups
     from trainclimate.service.store.db import Database
 
     ids = pair_ids("C", pairs)[0]
     register(url, ids, "archive")  # not the live fleet: the tick later leaves them alone
     n_rows = len(ids) * days * 1440
     sent, copy_s = copy_telemetry(url, _rows(pairs, days, seed=2))
+    n_setpoints = copy_setpoints(url, ids, days)
     db = Database(url)
     t0 = time.perf_counter()
     with db.transaction() as session:
         n_rollups = rollups.rebuild(session)
+        setpoint_rollups.rebuild(session)
     rollup_s = time.perf_counter() - t0
     db.dispose()
     t0 = time.perf_counter()
@@ -106,6 +108,7 @@ def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) ->
         "pairs": pairs,
         "days": days,
         "rows": n_rows,
+        "setpoints": n_setpoints,
         "trains_per_reply": trains_per_reply,
         "samples": samples,
         "summary": summary,
@@ -139,6 +142,43 @@ def met(part: dict) -> bool:
         for kind in ("refresh", "new")
     )
     return summary and part["comparison"]["7d"]["p95_ms"] <= COMPARISON_TARGET_P95_MS
+
+
+def copy_setpoints(url: str, ids: list[str], days: int) -> int:
+    """A setpoint per coach and 5-minute tick over the data's days, as the layer's trial
+    issues them: on each service day (switch hour 3 local) one coach of each train under the
+    layer (``ddpc``), the other on T_rule with the layer off (``rule``/``inactive``), the roles
+    swapped day by day (a crossover); loaded with COPY, ``last_tick`` set to the last tick.
+    Returns how many."""
+    import psycopg
+
+    from trainclimate.analysis import trial
+
+    ticks = pd.date_range(
+        DATA_START, DATA_START + pd.Timedelta(days=days), freq="5min", inclusive="left"
+    )
+    even = trial.service_days(ticks) % 2 == 0
+    stamps = [t.isoformat() for t in ticks]
+    on = "\t22.0\t21.4\tddpc\toptimal\t\t{t}\n"
+    off = "\t22.0\t22.0\trule\tinactive\t\t{t}\n"
+    statement = (
+        "COPY setpoints (coach_id, tick, t_rule_c, t_ref_c, source, reason, detail, created_at)"
+        " FROM STDIN"
+    )
+    with psycopg.connect(url) as conn, conn.cursor() as cur:
+        with cur.copy(statement) as copy:
+            for cid in ids:
+                a = cid.endswith("-A")
+                copy.write(
+                    "".join(
+                        f"{cid}\t{t}" + (on if day == a else off).format(t=t)
+                        for t, day in zip(stamps, even, strict=True)
+                    )
+                )
+        cur.execute(
+            "UPDATE coaches SET last_tick = %s WHERE id = ANY(%s)", (ticks[-1].to_pydatetime(), ids)
+        )
+    return len(ids) * len(ticks)
 
 
 def _random_end(rng, days: int) -> pd.Timestamp:

@@ -87,12 +87,12 @@ def comparison(
         ``naive_savings_pct`` the energies' over the counted windows) and, for the old field
         names, ``avg_hourly_violation_k`` and ``baseline_violation_k``.
     """
-    c0, c1, first, n, pairs = _range(session, train, start, end, window_min)
+    c0, c1, first, _, pairs = _range(session, train, start, end, window_min)
     if pd.Timestamp(end) - first < pd.Timedelta(minutes=2):
         raise queries.RequestError("the range is shorter than two minutes")
-    sums, counts = fleet_summary.pair_data(session, pairs, window_min)[c0.id]
+    grid, counts = fleet_summary.pair_data(session, pairs, window_min)[c0.id]
     plan, switch_hour, _ = _plan(session, train, end)
-    r = pair_trial.pair_result((c0.id, c1.id), sums, counts, first, n, window_min, switch_hour)
+    r = pair_trial.pair_result(grid, counts, first, window_min, switch_hour)
     e0, e1 = r["grid"][:, list(pair_trial.energy_columns(r["meter"]))].T
     ids = (c0.id, c1.id)
     out_windows = []

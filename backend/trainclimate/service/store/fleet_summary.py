@@ -56,7 +56,7 @@ from trainclimate.service.store.models import (
     Train,
     UTCDateTime,
 )
-from trainclimate.service.store.pair_trial import energy_columns, figures, pair_result
+from trainclimate.service.store.pair_trial import COUNTS, SUMS, energy_columns, figures
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 from trainclimate.sim.power import HEADLINE_METER, METERS
 from trainclimate.sim.setpoint import COMFORT_BAND_K
@@ -238,21 +238,68 @@ def window_sums(
     return out
 
 
-def pair_sums(
+def _grid(by_window: dict[int, np.ndarray], w_lo: int, n: int, into: np.ndarray) -> np.ndarray:
+    """``into`` (n, len(SUMS)) with the windows of ``by_window`` (index → sums) in
+    [w_lo, w_lo + n) set."""
+    for w, values in by_window.items():
+        if w_lo <= w < w_lo + n:
+            into[w - w_lo] = values
+    return into
+
+
+def _range_windows(lo: datetime, hi: datetime, window_min: float) -> tuple[int, int]:
+    """(first window index, number of windows) of (lo, hi] on window boundaries."""
+    step = round(window_min * 60)
+    w_lo = round(lo.timestamp()) // step
+    return w_lo, round(hi.timestamp()) // step - w_lo
+
+
+def pair_grids(
     session: Session,
     pairs: list[tuple[str, str, datetime, datetime]],
     window_min: float,
     overrides: list,
-) -> dict[str, dict[int, np.ndarray]]:
-    """:func:`window_sums` of the pairs: from the window rollups (:mod:`.rollups`) where they
-    give them exactly, from the raw minutes for the other windows (and for any window length but
-    the rollups')."""
+) -> dict[str, np.ndarray]:
+    """:func:`window_sums` of each pair as an array over its range's windows, (W, len(SUMS)),
+    zeros where it has no row: from the window rollups (:mod:`.rollups`) where they give them
+    exactly, from the raw minutes for the other windows (and for any window length but the
+    rollups')."""
     if window_min != rollups.WINDOW_MIN:
-        return window_sums(session, pairs, window_min, overrides=overrides)
-    sums, raw = rollups.pair_sums(session, pairs, overrides)
+        n = {p[0]: _range_windows(p[2], p[3], window_min)[1] for p in pairs}
+        grids = {c0: np.zeros((k, len(SUMS))) for c0, k in n.items()}
+        raw = pairs
+    else:
+        grids, raw = rollups.pair_grids(session, pairs, overrides)
+    los = {p[0]: _range_windows(p[2], p[3], window_min)[0] for p in pairs}
     for c0, by_window in window_sums(session, raw, window_min, overrides=overrides).items():
-        sums.setdefault(c0, {}).update(by_window)
-    return sums
+        _grid(by_window, los[c0], len(grids[c0]), grids[c0])
+    return grids
+
+
+def pair_counts(
+    session: Session, pairs: list[tuple[str, str, datetime, datetime]], window_min: float
+) -> dict[str, np.ndarray]:
+    """Both coaches' setpoint counts (:func:`.pair_trial.setpoint_counts`) of each pair per
+    window of its range, (W, 2, len(COUNTS))."""
+    if not pairs:
+        return {}
+    counts = pair_trial.setpoint_counts(
+        session,
+        sorted({c for pair in pairs for c in pair[:2]}),
+        min(pair[2] for pair in pairs),
+        max(pair[3] for pair in pairs),
+        window_min,
+    )
+    out = {}
+    for c0, c1, lo, hi in pairs:
+        w_lo, n = _range_windows(lo, hi, window_min)
+        dense = np.zeros((n, 2, len(COUNTS)))
+        for side, c in enumerate((c0, c1)):
+            for w, values in counts.get(c, {}).items():
+                if w_lo <= w < w_lo + n:
+                    dense[w - w_lo, side] = values
+        out[c0] = dense
+    return out
 
 
 def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
@@ -348,19 +395,17 @@ def pair_data(
     if not missing:
         return out
     todo = [m[0] for m in missing]
-    sums = pair_sums(session, todo, window_min, overrides)
-    counts = pair_trial.setpoint_counts(
-        session,
-        sorted({c for pair in todo for c in pair[:2]}),
-        min(pair[2] for pair in todo),
-        max(pair[3] for pair in todo),
-        window_min,
-    )
+    grids = pair_grids(session, todo, window_min, overrides)
+    counts = pair_counts(session, todo, window_min)
     for pair, key, state in missing:
-        out[pair[0]] = (sums.get(pair[0], {}), {c: counts.get(c, {}) for c in pair[:2]})
+        out[pair[0]] = (grids[pair[0]], counts[pair[0]])
         if cache is not None:
             cache.put(key, state, out[pair[0]])
     return out
+
+
+#: Pairs analysed together (bounds the arrays: 128 pairs × 30 days ≈ 45 MB).
+_CHUNK = 128
 
 
 def pair_results(
@@ -387,13 +432,29 @@ def pair_results(
     todo = [m[0] for m in missing]
     # the figures are kept, not the sums they came from: one answer per train and range
     data = pair_data(session, todo, window_min, None, overrides)
-    for (c0, c1, lo, hi), hour, state, key in missing:
-        sums, counts = data.get(c0, ({}, {}))
-        first = pd.Timestamp(lo)
-        n = round((hi - lo).total_seconds() / (60 * window_min))
-        out[c0] = pair_result((c0, c1), sums, counts, first, n, window_min, hour)
-        if cache is not None:
-            cache.put(key, state, out[c0])
+    by_range: dict[tuple, list] = {}
+    for m in missing:
+        by_range.setdefault(m[0][2:], []).append(m)
+    chunks = [
+        (lo_hi, group[i : i + _CHUNK])
+        for lo_hi, group in by_range.items()
+        for i in range(0, len(group), _CHUNK)
+    ]
+    for (lo, hi), group in chunks:
+        w_lo, n = _range_windows(lo, hi, window_min)
+        found = pair_trial.pair_results(
+            np.arange(w_lo, w_lo + n),
+            np.stack([data[pair[0]][0] for pair, *_ in group]).reshape(len(group), n, len(SUMS)),
+            np.stack([data[pair[0]][1] for pair, *_ in group]).reshape(
+                len(group), n, 2, len(COUNTS)
+            ),
+            window_min,
+            [hour for _, hour, _, _ in group],
+        )
+        for (pair, _, state, key), result in zip(group, found, strict=True):
+            out[pair[0]] = result
+            if cache is not None:
+                cache.put(key, state, result)
     return out
 
 
@@ -471,19 +532,13 @@ def summary(
     fleet_meters = [m for m in METERS if all(m in r[-1]["totals"] for r in results)]
     fleet_meter = HEADLINE_METER if HEADLINE_METER in fleet_meters else "hvac_and_floor"
     fleet = {m: PairTotals.empty(window_min) for m in fleet_meters}
-    out_trains, windows = [], {}
+    out_trains, counted_w, counted_e = [], [], []
     for t, c0, c1, first, stop, r in results:
         fleet = {m: fleet[m] + r["totals"][m] for m in fleet}
         e0, e1 = r["grid"][:, list(energy_columns(fleet_meter))].T
         one = r["label"] == 1
-        for w, e_act, e_deact in zip(
-            r["index"][r["counted"]],
-            np.where(one, e1, e0)[r["counted"]],
-            np.where(one, e0, e1)[r["counted"]],
-            strict=True,
-        ):
-            pooled = windows.setdefault(int(w), [0.0, 0.0, 0])
-            pooled[0], pooled[1], pooled[2] = pooled[0] + e_act, pooled[1] + e_deact, pooled[2] + 1
+        counted_w.append(r["index"][r["counted"]])
+        counted_e.append(np.stack([np.where(one, e1, e0), np.where(one, e0, e1)])[:, r["counted"]])
         out_trains.append(
             {
                 "id": t.id,
@@ -497,6 +552,11 @@ def summary(
                 **figures(r, window_min),
             }
         )
+    # the counted windows' energies, pooled per window over the trains that count it
+    all_w = np.concatenate(counted_w) if counted_w else np.zeros(0, np.int64)
+    all_e = np.concatenate(counted_e, axis=1) if counted_e else np.zeros((2, 0))
+    starts, which, n_trains = np.unique(all_w, return_inverse=True, return_counts=True)
+    pooled_e = np.stack([np.bincount(which, e, minlength=len(starts)) for e in all_e])
     totals = fleet[fleet_meter]
     pooled = trial.pool([r[-1]["estimate"] for r in results])
     naive = totals.savings_pct
@@ -524,12 +584,12 @@ def summary(
         "trains": out_trains,
         "windows": [
             {
-                "start": pd.Timestamp(w * window_min * 60, unit="s", tz="UTC").to_pydatetime(),
-                "energy_activated_kwh": e_act,
-                "energy_deactivated_kwh": e_deact,
-                "trains": n,
+                "start": pd.Timestamp(int(w) * window_min * 60, unit="s", tz="UTC").to_pydatetime(),
+                "energy_activated_kwh": float(e_act),
+                "energy_deactivated_kwh": float(e_deact),
+                "trains": int(n),
             }
-            for w, (e_act, e_deact, n) in sorted(windows.items())
+            for w, e_act, e_deact, n in zip(starts, *pooled_e, n_trains, strict=True)
         ],
         "coaches_by_status": coaches_by_status(views),
         "attention": attention(

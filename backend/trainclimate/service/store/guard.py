@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from datetime import datetime, timedelta
 
+import numpy as np
 import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -130,10 +131,9 @@ def _evaluate(
         if g.tripped_at is not None:
             continue  # tripped until an operator re-enables the layer
         c0, c1, first, n, hi = ranges[g.train_id]
-        sums, counts = data.get(c0, ({}, {}))
-        result = pair_trial.pair_result(
-            (c0, c1), sums, counts, first, n, WINDOW_MIN, day.switch_hour
-        )
+        empty = (np.zeros((0, len(pair_trial.SUMS))), np.zeros((0, 2, len(pair_trial.COUNTS))))
+        grid, counts = data.get(c0, empty)
+        result = pair_trial.pair_result(grid, counts, first, WINDOW_MIN, day.switch_hour)
         estimate = result["estimate"]
         g.figures = figures(estimate, first, hi)
         g.below_days, trips = step(g.below_days, costs_energy(estimate), guard_days)

@@ -116,69 +116,95 @@ def setpoint_counts(
     return out
 
 
+#: Why a window does not count, by code: 0 where it counts (or is a reference window), then the
+#: telemetry's reasons (:func:`exclusions`), the setpoints' (:func:`labels`) and the lead-in.
+REASONS = (
+    None,
+    "disconnected",
+    "override",
+    "missing_data",
+    "no_setpoint",
+    "preparing",
+    "fallback",
+    "not_regular",
+    "mixed_roles",
+    "plan_switch",
+)
+_CODE = {name: i for i, name in enumerate(REASONS)}
+_REASON_NAMES = np.array(REASONS, dtype=object)
+
+
 def labels(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which coach ran the layer in each window, from both coaches' setpoint counts.
 
     Parameters
     ----------
-    counts : numpy.ndarray of shape (W, 2, len(COUNTS))
-        Per window, coach 0's and coach 1's :data:`COUNTS`.
+    counts : numpy.ndarray of shape (..., W, 2, len(COUNTS))
+        Per window, coach 0's and coach 1's :data:`COUNTS` (any leading axes: pairs).
 
     Returns
     -------
     (numpy.ndarray, numpy.ndarray)
-        The label per window (W,): 0 or 1 (the coach under the layer, the other on T_rule),
-        :data:`~trainclimate.analysis.trial.NEITHER` (both on T_rule, layer off: reference) or
-        :data:`UNLABELLED`; and the reason a window is not labelled (W,), None where it is.
+        The label per window (..., W): 0 or 1 (the coach under the layer, the other on
+        T_rule), :data:`~trainclimate.analysis.trial.NEITHER` (both on T_rule, layer off:
+        reference) or :data:`UNLABELLED`; and the code of the reason a window is not labelled
+        (..., W) in :data:`REASONS`, 0 where it is.
     """
-    c = {name: counts[:, :, i] for i, name in enumerate(COUNTS)}
+    c = {name: counts[..., i] for i, name in enumerate(COUNTS)}
     ticks = c["ticks"]
     ddpc = (ticks > 0) & (c["ddpc"] == ticks)
     rule = (ticks > 0) & (c["inactive"] == ticks)
-    label = np.full(len(counts), UNLABELLED)
-    label[ddpc[:, 0] & rule[:, 1]] = 0
-    label[ddpc[:, 1] & rule[:, 0]] = 1
-    label[rule[:, 0] & rule[:, 1]] = trial.NEITHER
+    label = np.full(counts.shape[:-2], UNLABELLED)
+    label[ddpc[..., 0] & rule[..., 1]] = 0
+    label[ddpc[..., 1] & rule[..., 0]] = 1
+    label[rule[..., 0] & rule[..., 1]] = trial.NEITHER
     conditions = [
-        (ticks == 0).any(axis=1),
-        (c["override"] > 0).any(axis=1),
-        (c["no_model"] > 0).any(axis=1),
-        (c["fallback"] > 0).any(axis=1),
-        (c["not_regular"] > 0).any(axis=1),
+        (ticks == 0).any(axis=-1),
+        (c["override"] > 0).any(axis=-1),
+        (c["no_model"] > 0).any(axis=-1),
+        (c["fallback"] > 0).any(axis=-1),
+        (c["not_regular"] > 0).any(axis=-1),
     ]
     reasons = ["no_setpoint", "override", "preparing", "fallback", "not_regular"]
-    reason = np.select(conditions, reasons, default="mixed_roles").astype(object)
-    reason[label != UNLABELLED] = None
-    return label, reason
+    code = np.select(conditions, [_CODE[r] for r in reasons], default=_CODE["mixed_roles"])
+    code[label != UNLABELLED] = 0
+    return label, code
 
 
 def lead_in(label: np.ndarray, window_min: float, lead_in_min: float = LEAD_IN_MIN) -> np.ndarray:
     """The windows within ``lead_in_min`` of a change of the activated coach (between labelled
-    windows: 0, 1 or reference), shape (W,) bool."""
-    out = np.zeros(len(label), bool)
+    windows: 0, 1 or reference), shape (..., W) bool, along the last axis."""
     n = int(np.ceil(lead_in_min / window_min))
-    previous = None
-    for w, x in enumerate(label):
-        if x == UNLABELLED:
-            continue
-        if previous is not None and x != previous:
-            out[w : w + n] = True
-        previous = x
-    return out
+    w = label.shape[-1]
+    if w == 0:
+        return np.zeros(label.shape, bool)
+    labelled = label != UNLABELLED
+    # the last labelled window before each window (−1: none)
+    last = np.maximum.accumulate(np.where(labelled, np.arange(w), -1), axis=-1)
+    before = np.concatenate([np.full((*label.shape[:-1], 1), -1), last[..., :-1]], axis=-1)
+    previous = np.take_along_axis(label, np.maximum(before, 0), axis=-1)
+    change = labelled & (before >= 0) & (label != previous)
+    # a change at w marks w … w + n − 1: the windows with a change in the n up to them
+    changes = np.cumsum(change, axis=-1)
+    earlier = np.zeros_like(changes)
+    if n < w:
+        earlier[..., n:] = changes[..., : w - n]
+    return changes - earlier > 0
 
 
 def exclusions(sums: np.ndarray, window_min: float) -> np.ndarray:
-    """The telemetry's reason to exclude each window (W,), None where it has none: a coach's
-    link lost, an override in force, a minute missing or without power."""
-    minutes = sums[:, SUMS_INDEX["minutes"]]
-    affected = sums[:, SUMS_INDEX["affected_minutes"]]
+    """The telemetry's reason to exclude each window, as a code of :data:`REASONS` (..., W), 0
+    where it has none: a coach's link lost, an override in force, a minute missing or without
+    power."""
+    minutes = sums[..., SUMS_INDEX["minutes"]]
+    affected = sums[..., SUMS_INDEX["affected_minutes"]]
     conditions = [
-        sums[:, SUMS_INDEX["disconnected_minutes"]] > 0,
-        sums[:, SUMS_INDEX["overridden_minutes"]] > 0,
+        sums[..., SUMS_INDEX["disconnected_minutes"]] > 0,
+        sums[..., SUMS_INDEX["overridden_minutes"]] > 0,
         (minutes < round(window_min)) | (affected > 0),
     ]
-    reasons = np.select(conditions, ["disconnected", "override", "missing_data"], default="")
-    return np.where(reasons == "", None, reasons).astype(object)
+    codes = [_CODE[r] for r in ("disconnected", "override", "missing_data")]
+    return np.select(conditions, codes, default=0)
 
 
 def windows(
@@ -191,9 +217,9 @@ def windows(
 
     Parameters
     ----------
-    sums : numpy.ndarray of shape (W, S)
-        The pair's consecutive windows' sums (:data:`SUMS`, coach 0 first).
-    counts : numpy.ndarray of shape (W, 2, len(COUNTS))
+    sums : numpy.ndarray of shape (..., W, S)
+        The pair's consecutive windows' sums (:data:`SUMS`, coach 0 first; leading axes: pairs).
+    counts : numpy.ndarray of shape (..., W, 2, len(COUNTS))
         Both coaches' setpoint counts per window.
     window_min : float
         Window length. [min]
@@ -203,104 +229,121 @@ def windows(
     Returns
     -------
     (numpy.ndarray, numpy.ndarray)
-        Labels (W,) as :func:`labels`, and the reason per window (W,), None where it counts
-        (a window labelled reference counts for the reference estimate only).
+        Labels (..., W) as :func:`labels`, and the code of the reason per window (..., W) in
+        :data:`REASONS`, 0 where it counts (a window labelled reference counts for the
+        reference estimate only).
     """
-    label, reason = labels(counts)
+    label, code = labels(counts)
     telemetry = exclusions(sums, window_min)
-    reason = np.where(telemetry != None, telemetry, reason)  # noqa: E711 (element-wise)
-    switching = lead_in(label, window_min, lead_in_min) & (reason == None)  # noqa: E711
-    reason[switching] = "plan_switch"
-    return label, reason
+    code = np.where(telemetry != 0, telemetry, code)
+    code[lead_in(label, window_min, lead_in_min) & (code == 0)] = _CODE["plan_switch"]
+    return label, code
 
 
-def pair_totals(
-    grid: np.ndarray,
+def _totals(
+    grids: np.ndarray,
     label: np.ndarray,
     counted: np.ndarray,
     window_min: float,
     meter_columns: tuple[int, int],
-) -> PairTotals:
-    """The pair's totals on one meter over its counted windows (activated and deactivated by
+) -> list[PairTotals]:
+    """Each pair's totals on one meter over its counted windows (activated and deactivated by
     each window's label); violation and discomfort over the minutes in band, nothing affected,
     of every window in which a coach ran the layer (counted or not: an excluded window's
     comfort still happened).
 
     Parameters
     ----------
-    grid : numpy.ndarray of shape (W, S)
+    grids : numpy.ndarray of shape (P, W, S)
         Window sums, coach 0 first.
-    label : numpy.ndarray of int, shape (W,)
-    counted : numpy.ndarray of bool, shape (W,)
+    label : numpy.ndarray of int, shape (P, W)
+    counted : numpy.ndarray of bool, shape (P, W)
         Windows labelled 0 or 1 and not excluded.
     window_min : float
         Window length. [min]
     meter_columns : (int, int)
         Coach 0's and coach 1's energy columns of the meter.
     """
-    e0, e1 = grid[:, meter_columns[0]], grid[:, meter_columns[1]]
+    e0, e1 = grids[..., meter_columns[0]], grids[..., meter_columns[1]]
     one = label == 1
-    e_act, e_deact = np.where(one, e1, e0), np.where(one, e0, e1)
-    d0 = grid[:, [SUMS_INDEX[f"discomfort_0_{d}_kh"] for d in ("up", "mid", "low")]]
-    d1 = grid[:, [SUMS_INDEX[f"discomfort_1_{d}_kh"] for d in ("up", "mid", "low")]]
-    roles = label >= 0
-    d_act = np.where(one[:, None], d1, d0)
-    d_deact = np.where(one[:, None], d0, d1)
-    return PairTotals(
-        energy_activated_kwh=float(e_act[counted].sum()),
-        energy_deactivated_kwh=float(e_deact[counted].sum()),
-        windows=len(grid),
-        excluded_windows=int(len(grid) - counted.sum()),
-        window_min=window_min,
-        counted_hours=float(grid[roles, SUMS_INDEX["counted_minutes"]].sum() / 60.0),
-        discomfort_kh=d_act[roles].sum(axis=0),
-        baseline_discomfort_kh=d_deact[roles].sum(axis=0),
-    )
+    e_act = np.where(counted, np.where(one, e1, e0), 0.0).sum(axis=-1)
+    e_deact = np.where(counted, np.where(one, e0, e1), 0.0).sum(axis=-1)
+    d0 = grids[..., [SUMS_INDEX[f"discomfort_0_{d}_kh"] for d in ("up", "mid", "low")]]
+    d1 = grids[..., [SUMS_INDEX[f"discomfort_1_{d}_kh"] for d in ("up", "mid", "low")]]
+    roles = (label >= 0)[..., None]
+    d_act = np.where(roles, np.where(one[..., None], d1, d0), 0.0).sum(axis=-2)
+    d_deact = np.where(roles, np.where(one[..., None], d0, d1), 0.0).sum(axis=-2)
+    minutes = np.where(roles[..., 0], grids[..., SUMS_INDEX["counted_minutes"]], 0.0)
+    n_windows = grids.shape[-2]
+    excluded = n_windows - counted.sum(axis=-1)
+    return [
+        PairTotals(
+            energy_activated_kwh=float(e_act[p]),
+            energy_deactivated_kwh=float(e_deact[p]),
+            windows=n_windows,
+            excluded_windows=int(excluded[p]),
+            window_min=window_min,
+            counted_hours=float(minutes[p].sum() / 60.0),
+            discomfort_kh=d_act[p],
+            baseline_discomfort_kh=d_deact[p],
+        )
+        for p in range(len(grids))
+    ]
 
 
-def estimate(
+def _estimates(
     index: np.ndarray,
     energy: np.ndarray,
     label: np.ndarray,
-    reason: np.ndarray,
+    code: np.ndarray,
     window_min: float,
-    switch_hour: int = trial.DEFAULT_SWITCH_HOUR,
-) -> trial.TrialEstimate:
-    """The pair's trial estimate from its windows: counted and reference windows summed per
-    service day (:func:`trial.daily`), then :func:`trial.estimate`. With counted windows but no
-    day of :data:`MIN_DAY_WINDOWS`, the naive figure over them (confounded).
+    switch_hours: list[int],
+) -> list[trial.TrialEstimate]:
+    """Each pair's trial estimate from its windows: counted and reference windows summed per
+    service day (:func:`trial.daily_many`), then :func:`trial.estimate_many`. With counted
+    windows but no day of :data:`MIN_DAY_WINDOWS`, the naive figure over them (confounded).
 
     Parameters
     ----------
     index : numpy.ndarray of int, shape (W,)
-        Window indices (starts in window lengths since 1970).
-    energy : numpy.ndarray of shape (W, 2)
-        Coach 0's and coach 1's energy per window on the headline meter. [kWh]
-    label, reason : numpy.ndarray of shape (W,)
+        Window indices (starts in window lengths since 1970), the same for every pair.
+    energy : numpy.ndarray of shape (P, W, 2)
+        Coach 0's and coach 1's energy per window on each pair's headline meter. [kWh]
+    label, code : numpy.ndarray of shape (P, W)
         From :func:`windows`.
     window_min : float
         Window length. [min]
-    switch_hour : int
-        The train's local switch hour. [h]
+    switch_hours : list of int
+        Each pair's train's local switch hour. [h]
     """
     starts = pd.to_datetime(index * round(window_min * 60), unit="s", utc=True)
-    usable = reason == None  # noqa: E711 (element-wise)
-    days = trial.daily(
-        trial.service_days(starts, switch_hour),
-        energy,
-        np.where(usable, label, trial.NEITHER),
-        usable & (label != UNLABELLED),
-        min_windows=MIN_DAY_WINDOWS,
-    )
-    result = trial.estimate(days)
+    usable = code == 0
+    activated = np.where(usable, label, trial.NEITHER)
+    counts_for_days = usable & (label != UNLABELLED)
+    days: list = [None] * len(label)
+    hours = np.asarray(switch_hours)
+    for hour in np.unique(hours):
+        mine = np.flatnonzero(hours == hour)
+        found = trial.daily_many(
+            trial.service_days(starts, int(hour)),
+            energy[mine],
+            activated[mine],
+            counts_for_days[mine],
+            min_windows=MIN_DAY_WINDOWS,
+        )
+        for p, d in zip(mine, found, strict=True):
+            days[p] = d
+    out = trial.estimate_many(days)
     counted = usable & (label >= 0)
-    if result.estimator is None and counted.any():
-        act = energy[counted, label[counted]].sum()
-        deact = energy[counted, 1 - label[counted]].sum()
-        naive = savings_pct(act, deact)
-        why = "fewer than a day's windows: the saving is confounded with the coaches"
-        return trial.TrialEstimate("fixed_naive", naive, None, why, naive, result.days)
-    return result
+    for p, result in enumerate(out):
+        if result.estimator is None and counted[p].any():
+            lab = label[p, counted[p]]
+            act = energy[p, counted[p], lab].sum()
+            deact = energy[p, counted[p], 1 - lab].sum()
+            naive = savings_pct(act, deact)
+            why = "fewer than a day's windows: the saving is confounded with the coaches"
+            out[p] = trial.TrialEstimate("fixed_naive", naive, None, why, naive, result.days)
+    return out
 
 
 def excluded_minutes_by_reason(reason: np.ndarray, window_min: float) -> dict[str, float]:
@@ -309,91 +352,98 @@ def excluded_minutes_by_reason(reason: np.ndarray, window_min: float) -> dict[st
     return {str(v): float(k * window_min) for v, k in zip(values, n, strict=True)}
 
 
-def pair_windows(
-    sums: dict[int, np.ndarray], first: pd.Timestamp, n_windows: int, window_min: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """A pair's ``n_windows`` windows from ``first``, from its :func:`.fleet_summary.window_sums`.
-
-    Returns
-    -------
-    (numpy.ndarray, numpy.ndarray)
-        The windows' indices (n,) (starts in window lengths since 1970) and their sums
-        (n, len(SUMS)) — zeros where the pair has no row.
-    """
-    w0 = int(first.timestamp() // (window_min * 60))
-    index = np.arange(w0, w0 + n_windows)
-    grid = np.array([sums.get(w, np.zeros(len(SUMS))) for w in index]).reshape(-1, len(SUMS))
-    return index, grid
-
-
 def energy_columns(meter: str) -> tuple[int, int]:
     """The columns of :data:`SUMS` with coach 0's and coach 1's energy on ``meter``."""
     suffix = "_kwh" if meter == "hvac_and_floor" else "_hvac_kwh"
     return SUMS_INDEX[f"energy_0{suffix}"], SUMS_INDEX[f"energy_1{suffix}"]
 
 
-def pair_result(
-    coaches: tuple[str, str],
-    sums: dict[int, np.ndarray],
-    counts: dict[str, dict[int, np.ndarray]],
-    first: pd.Timestamp,
-    n_windows: int,
+def pair_results(
+    index: np.ndarray,
+    grids: np.ndarray,
+    counts: np.ndarray,
     window_min: float,
-    switch_hour: int = trial.DEFAULT_SWITCH_HOUR,
-) -> dict:
-    """A pair's figures over its windows: each window labelled and excluded with its reason
-    (:func:`.windows`), the totals on each meter over the counted windows, and the
-    trial estimate on the headline meter.
+    switch_hours: list[int],
+) -> list[dict]:
+    """Pairs' figures over the same windows: each window labelled and excluded with its reason
+    (:func:`.windows`), the totals on each meter over the counted windows, and the trial
+    estimate on the headline meter — all pairs at once, each exactly as alone.
 
     Parameters
     ----------
-    coaches : (str, str)
-        Coach 0 and coach 1.
-    sums : dict
-        The pair's :func:`.fleet_summary.window_sums` (window index → sums).
-    counts : dict
-        :func:`.setpoint_counts` of (at least) both coaches.
+    index : numpy.ndarray of int, shape (W,)
+        The windows (starts in window lengths since 1970).
+    grids : numpy.ndarray of shape (P, W, len(SUMS))
+        Each pair's window sums (:data:`SUMS`, coach 0 first; zeros where it has no row).
+    counts : numpy.ndarray of shape (P, W, 2, len(COUNTS))
+        Both coaches' setpoint counts per window (:func:`setpoint_counts`).
+    window_min : float
+        Window length. [min]
+    switch_hours : list of int
+        Each pair's train's local switch hour. [h]
+
+    Returns
+    -------
+    list of dict
+        Per pair: ``index``, ``grid``, ``label``, ``reason`` (None where the window counts),
+        ``counted`` (arrays per window), ``meter`` (the HVAC units' when every counted minute
+        splits the floor heating off, else the whole coach's), ``totals`` (meter →
+        :class:`PairTotals`) and ``estimate``
+        (:class:`~trainclimate.analysis.trial.TrialEstimate`).
+    """
+    label, code = windows(grids, counts, window_min)
+    counted = (code == 0) & (label >= 0)
+    split = ~np.any(counted & (grids[..., SUMS_INDEX["unsplit_minutes"]] > 0), axis=-1)
+    totals = {m: _totals(grids, label, counted, window_min, energy_columns(m)) for m in METERS}
+    headline = np.where(
+        split[:, None, None],
+        grids[..., list(energy_columns(HEADLINE_METER))],
+        grids[..., list(energy_columns("hvac_and_floor"))],
+    )
+    estimates = _estimates(index, headline, label, code, window_min, switch_hours)
+    out = []
+    for p in range(len(grids)):
+        meters = METERS if split[p] else ("hvac_and_floor",)
+        out.append(
+            {
+                "index": index,
+                "grid": grids[p],
+                "label": label[p],
+                "reason": _REASON_NAMES[code[p]],
+                "counted": counted[p],
+                "meter": HEADLINE_METER if split[p] else "hvac_and_floor",
+                "totals": {m: totals[m][p] for m in meters},
+                "estimate": estimates[p],
+            }
+        )
+    return out
+
+
+def pair_result(
+    grid: np.ndarray,
+    counts: np.ndarray,
+    first: pd.Timestamp,
+    window_min: float,
+    switch_hour: int = trial.DEFAULT_SWITCH_HOUR,
+) -> dict:
+    """One pair's :func:`pair_results` over its windows from ``first``.
+
+    Parameters
+    ----------
+    grid : numpy.ndarray of shape (W, len(SUMS))
+        The pair's window sums (:func:`.fleet_summary.pair_data`).
+    counts : numpy.ndarray of shape (W, 2, len(COUNTS))
+        Both coaches' setpoint counts per window.
     first : pandas.Timestamp
         The first window's start.
-    n_windows : int
-        How many windows are counted.
     window_min : float
         Window length. [min]
     switch_hour : int
         The train's local switch hour. [h]
-
-    Returns
-    -------
-    dict
-        ``index``, ``grid``, ``label``, ``reason``, ``counted`` (arrays per window), ``meter``
-        (the HVAC units' when every counted minute splits the floor heating off, else the
-        whole coach's), ``totals`` (meter → :class:`PairTotals`) and ``estimate``
-        (:class:`~trainclimate.analysis.trial.TrialEstimate`).
     """
-    index, grid = pair_windows(sums, first, n_windows, window_min)
-    zeros = np.zeros(len(COUNTS))
-    per_window = np.array(
-        [[counts.get(c, {}).get(int(w), zeros) for c in coaches] for w in index]
-    ).reshape(len(index), 2, len(COUNTS))
-    label, reason = windows(grid, per_window, window_min)
-    counted = (reason == None) & (label >= 0)  # noqa: E711 (element-wise)
-    split = not np.any(grid[counted, SUMS_INDEX["unsplit_minutes"]] > 0)
-    meters = METERS if split else ("hvac_and_floor",)
-    totals = {m: pair_totals(grid, label, counted, window_min, energy_columns(m)) for m in meters}
-    meter = HEADLINE_METER if split else "hvac_and_floor"
-    result = estimate(
-        index, grid[:, list(energy_columns(meter))], label, reason, window_min, switch_hour
-    )
-    return {
-        "index": index,
-        "grid": grid,
-        "label": label,
-        "reason": reason,
-        "counted": counted,
-        "meter": meter,
-        "totals": totals,
-        "estimate": result,
-    }
+    w0 = round(first.timestamp()) // round(window_min * 60)
+    index = np.arange(w0, w0 + len(grid))
+    return pair_results(index, grid[None], counts[None], window_min, [switch_hour])[0]
 
 
 def figures(result: dict, window_min: float) -> dict:

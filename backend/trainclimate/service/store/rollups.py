@@ -201,23 +201,75 @@ def _index(when: datetime) -> int:
     return round(when.timestamp()) // _WINDOW_S
 
 
-def _overridden(overrides: list, coaches: tuple[str, str], windows: np.ndarray) -> np.ndarray:
-    """Whether an override of either coach overlaps each of ``windows`` (its minutes
-    (starts, ends or cancelled] against the window's (start, start + 30 min])."""
-    hit = np.zeros(len(windows), bool)
-    for _, coach_id, starts, ends, cancelled in overrides:
-        if coach_id in coaches:
-            lo = starts.astimezone(UTC).timestamp() / _WINDOW_S
-            hi = (cancelled or ends).astimezone(UTC).timestamp() / _WINDOW_S
-            hit |= (windows < hi) & (windows + 1 > lo)
-    return hit
+def _fast_rows(session: Session, coaches: list[str], lo_w: int, hi_w: int) -> np.ndarray:
+    """The rollups of ``coaches`` in windows lo_w ≤ w < hi_w as one structured array (fields
+    ``coach`` — the position in ``coaches`` —, ``window``, :data:`MASKS`, :data:`TOTALS`), in
+    no particular order: on PostgreSQL one binary COPY parsed by numpy, no Python object per
+    row; elsewhere the driver's tuples."""
+    dtype = np.dtype(
+        [("coach", np.int64), ("window", np.int64)]
+        + [(m, np.int64) for m in MASKS]
+        + [(t, np.float64) for t in TOTALS]
+    )
+    if not coaches:
+        return np.zeros(0, dtype)
+    columns = [*MASKS, *TOTALS]
+    if session.get_bind().dialect.name != "postgresql":
+        r = _table(WindowRollup)
+        position = case({c: i for i, c in enumerate(coaches)}, value=r.c.coach_id)
+        rows = session.execute(
+            select(position, r.c.window, *(r.c[c] for c in columns)).where(
+                r.c.coach_id.in_(coaches), r.c.window >= lo_w, r.c.window < hi_w
+            )
+        ).all()
+        return np.array([tuple(row) for row in rows], dtype)
+    from psycopg import sql
+
+    query = sql.SQL(
+        'COPY (SELECT k.i, r."window", {columns} FROM window_rollups r '
+        "JOIN unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) ON r.coach_id = k.id "
+        'WHERE r."window" >= {lo} AND r."window" < {hi}) TO STDOUT (FORMAT BINARY)'
+    ).format(
+        columns=sql.SQL(", ").join(sql.SQL("r.") + sql.Identifier(c) for c in columns),
+        ids=sql.Literal(coaches),
+        lo=sql.Literal(int(lo_w)),
+        hi=sql.Literal(int(hi_w)),
+    )
+    raw = session.connection().connection.driver_connection
+    with raw.cursor() as cursor, cursor.copy(query) as copy:
+        data = b"".join(bytes(block) for block in copy)
+    return _parse_copy(data, dtype, offset={"coach": -1})
 
 
-def pair_sums(
+def _parse_copy(data: bytes, dtype: np.dtype, offset: dict) -> np.ndarray:
+    """Rows of PostgreSQL's binary COPY of 8-byte non-NULL columns into ``dtype``'s fields (in
+    order), ``offset`` added to the fields it names. :class:`ValueError` if a row is not of
+    that shape (a NULL, another width)."""
+    header = 11 + 4 + 4 + int.from_bytes(data[15:19], "big")
+    body = data[header:-2]
+    fields = [("n", ">i2")]
+    for name in dtype.names:
+        kind = ">i8" if dtype[name].kind == "i" else ">f8"
+        fields += [(f"{name}_len", ">i4"), (name, kind)]
+    wire = np.dtype(fields)
+    if len(body) % wire.itemsize:
+        raise ValueError("the COPY's rows are not of the expected shape")
+    rows = np.frombuffer(body, wire)
+    if np.any(rows["n"] != len(dtype.names)) or any(
+        np.any(rows[f"{n}_len"] != 8) for n in dtype.names
+    ):
+        raise ValueError("the COPY's rows are not of the expected shape")
+    out = np.empty(len(rows), dtype)
+    for name in dtype.names:
+        out[name] = rows[name] + offset.get(name, 0)
+    return out
+
+
+def pair_grids(
     session: Session, pairs: list[tuple[str, str, datetime, datetime]], overrides: list
-) -> tuple[dict[str, dict[int, np.ndarray]], list[tuple[str, str, datetime, datetime]]]:
-    """Per pair and window the :data:`~.pair_trial.SUMS` a comparison is made of, from the
-    rollups where they give them exactly (see the module's description).
+) -> tuple[dict[str, np.ndarray], list[tuple[str, str, datetime, datetime]]]:
+    """Per pair the :data:`~.pair_trial.SUMS` of each window of its range, from the rollups
+    where they give them exactly (see the module's description).
 
     Parameters
     ----------
@@ -229,58 +281,75 @@ def pair_sums(
     Returns
     -------
     (dict, list)
-        Coach 0's id → window index → sums, and the windows the rollups cannot give, as
-        ranges (coach 0, coach 1, lo, hi) of one window each, for the raw sums.
+        Coach 0's id → sums per window of (lo, hi], shape (W, len(SUMS)) (zeros where they
+        are not exact); and the windows the rollups cannot give, as ranges (coach 0, coach 1,
+        lo, hi) of one window each, for the raw sums.
     """
     if not pairs:
         return {}, []
     coaches = sorted({c for p in pairs for c in p[:2]})
-    lo_w = min(_index(p[2]) for p in pairs)
-    hi_w = max(_index(p[3]) for p in pairs)
-    r = WindowRollup
-    rows = session.execute(
-        select(r.coach_id, r.window, *(r.__table__.c[c] for c in (*MASKS, *TOTALS)))
-        .where(r.coach_id.in_(coaches), r.window >= lo_w, r.window < hi_w)
-        .order_by(r.coach_id, r.window)
-    ).all()
-    by_coach: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    if rows:
-        ids = np.array([row[0] for row in rows])
-        window = np.array([row[1] for row in rows], np.int64)
-        masks = np.array([row[2:7] for row in rows], np.int64)
-        totals = np.array([row[7:] for row in rows], float)
-        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-        for a, b in zip(starts, [*starts[1:], len(ids)], strict=True):
-            by_coach[str(ids[a])] = (window[a:b], masks[a:b], totals[a:b])
-    empty = (np.zeros(0, np.int64), np.zeros((0, len(MASKS)), np.int64), np.zeros((0, 5)))
-    out: dict[str, dict[int, np.ndarray]] = {}
+    position = {c: i for i, c in enumerate(coaches)}
+    rows = _fast_rows(
+        session, coaches, min(_index(p[2]) for p in pairs), max(_index(p[3]) for p in pairs)
+    )
+    masks = np.stack([rows[m] for m in MASKS], axis=-1) if len(rows) else np.zeros((0, 5), int)
+    totals = np.stack([rows[t] for t in TOTALS], axis=-1) if len(rows) else np.zeros((0, 5))
+    out: dict[str, np.ndarray] = {}
     raw = []
-    for c0, c1, lo, hi in pairs:
-        w_lo, w_hi = _index(lo), _index(hi)
-        sides = []
-        for c in (c0, c1):
-            w, m, s = by_coach.get(c, empty)
-            keep = (w >= w_lo) & (w < w_hi)
-            sides.append((w[keep], m[keep], s[keep]))
-        (wa, ma, sa), (wb, mb, sb) = sides
-        both, ia, ib = np.intersect1d(wa, wb, assume_unique=True, return_indices=True)
-        ma, mb, sa, sb = ma[ia], mb[ib], sa[ia], sb[ib]
-        pa, pb = ma[:, 0], mb[:, 0]
-        ok_a = pa & ma[:, 1] & ma[:, 2] & ma[:, 3]
-        ok_b = pb & mb[:, 1] & mb[:, 2] & mb[:, 3]
-        paired = (pa & pb) != 0
-        dirty = paired & ((pa != pb) | (ok_a != ok_b) | _overridden(overrides, (c0, c1), both))
-        # a window only one coach has rows in has no paired minute; nor is it in the raw sums
-        for w in both[dirty]:
-            start = datetime.fromtimestamp(int(w) * _WINDOW_S, UTC)
-            end = datetime.fromtimestamp((int(w) + 1) * _WINDOW_S, UTC)
-            raw.append((c0, c1, start, end))
-        exact = paired & ~dirty
-        if not exact.any():
-            continue
-        sums = _sums(ma[exact], mb[exact], sa[exact], sb[exact])
-        out[c0] = {int(w): row for w, row in zip(both[exact], sums, strict=True)}
+    by_range: dict[tuple, list] = {}
+    for p in pairs:
+        by_range.setdefault((_index(p[2]), _index(p[3])), []).append(p)
+    for (w_lo, w_hi), group in by_range.items():
+        for chunk in (group[i : i + _CHUNK] for i in range(0, len(group), _CHUNK)):
+            grids, dirty = _chunk_grids(chunk, w_lo, w_hi, position, rows, masks, totals, overrides)
+            for (c0, c1, _, _), grid, bad in zip(chunk, grids, dirty, strict=True):
+                out[c0] = grid
+                for w in np.flatnonzero(bad) + w_lo:
+                    start = datetime.fromtimestamp(int(w) * _WINDOW_S, UTC)
+                    end = datetime.fromtimestamp((int(w) + 1) * _WINDOW_S, UTC)
+                    raw.append((c0, c1, start, end))
     return out, raw
+
+
+#: Pairs whose windows are worked out together (bounds the arrays: 128 pairs × 30 days ≈ 25 MB).
+_CHUNK = 128
+
+
+def _chunk_grids(chunk, w_lo, w_hi, position, rows, masks, totals, overrides):
+    """:func:`pair_grids` of pairs over the same windows [w_lo, w_hi): their sums (P, W,
+    len(SUMS)) and the windows to sum from the raw minutes (P, W) bool."""
+    n_w = w_hi - w_lo
+    side_masks = np.zeros((2, len(chunk), n_w, len(MASKS)), np.int64)
+    side_totals = np.zeros((2, len(chunk), n_w, len(TOTALS)))
+    has = np.zeros((2, len(chunk), n_w), bool)
+    for side in (0, 1):
+        row_of = np.full(len(position), -1)
+        row_of[[position[p[side]] for p in chunk]] = np.arange(len(chunk))
+        r = row_of[rows["coach"]] if len(rows) else np.zeros(0, int)
+        w = rows["window"] - w_lo if len(rows) else np.zeros(0, int)
+        mine = (r >= 0) & (w >= 0) & (w < n_w)
+        side_masks[side, r[mine], w[mine]] = masks[mine]
+        side_totals[side, r[mine], w[mine]] = totals[mine]
+        has[side, r[mine], w[mine]] = True
+    ma, mb = side_masks
+    pa, pb = ma[..., 0], mb[..., 0]
+    ok_a = pa & ma[..., 1] & ma[..., 2] & ma[..., 3]
+    ok_b = pb & mb[..., 1] & mb[..., 2] & mb[..., 3]
+    # a window only one coach has rows in has no paired minute; nor is it in the raw sums
+    paired = has[0] & has[1] & ((pa & pb) != 0)
+    windows = np.arange(w_lo, w_hi)
+    touched = np.zeros((len(chunk), n_w), bool)
+    for _, coach_id, starts, ends, cancelled in overrides:
+        hit = [coach_id in p[:2] for p in chunk]
+        if any(hit):
+            lo = starts.astimezone(UTC).timestamp() / _WINDOW_S
+            hi = (cancelled or ends).astimezone(UTC).timestamp() / _WINDOW_S
+            touched[hit] |= (windows < hi) & (windows + 1 > lo)
+    dirty = paired & ((pa != pb) | (ok_a != ok_b) | touched)
+    exact = paired & ~dirty
+    grids = np.zeros((len(chunk), n_w, len(SUMS)))
+    grids[exact] = _sums(ma[exact], mb[exact], side_totals[0][exact], side_totals[1][exact])
+    return grids, dirty
 
 
 def _sums(mask_a: np.ndarray, mask_b: np.ndarray, tot_a: np.ndarray, tot_b: np.ndarray):
