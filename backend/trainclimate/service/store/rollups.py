@@ -42,6 +42,7 @@ from sqlalchemy import (
 from sqlalchemy import cast as sql_cast
 from sqlalchemy.orm import Session
 
+from trainclimate.service.store import binary_copy
 from trainclimate.service.store.models import CoachFeed, Telemetry, UTCDateTime, WindowRollup
 from trainclimate.service.store.pair_trial import SUMS, SUMS_INDEX
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
@@ -226,43 +227,16 @@ def _fast_rows(session: Session, coaches: list[str], lo_w: int, hi_w: int) -> np
     from psycopg import sql
 
     query = sql.SQL(
-        'COPY (SELECT k.i, r."window", {columns} FROM window_rollups r '
+        'SELECT k.i - 1, r."window", {columns} FROM window_rollups r '
         "JOIN unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) ON r.coach_id = k.id "
-        'WHERE r."window" >= {lo} AND r."window" < {hi}) TO STDOUT (FORMAT BINARY)'
+        'WHERE r."window" >= {lo} AND r."window" < {hi}'
     ).format(
         columns=sql.SQL(", ").join(sql.SQL("r.") + sql.Identifier(c) for c in columns),
         ids=sql.Literal(coaches),
         lo=sql.Literal(int(lo_w)),
         hi=sql.Literal(int(hi_w)),
     )
-    raw = session.connection().connection.driver_connection
-    with raw.cursor() as cursor, cursor.copy(query) as copy:
-        data = b"".join(bytes(block) for block in copy)
-    return _parse_copy(data, dtype, offset={"coach": -1})
-
-
-def _parse_copy(data: bytes, dtype: np.dtype, offset: dict) -> np.ndarray:
-    """Rows of PostgreSQL's binary COPY of 8-byte non-NULL columns into ``dtype``'s fields (in
-    order), ``offset`` added to the fields it names. :class:`ValueError` if a row is not of
-    that shape (a NULL, another width)."""
-    header = 11 + 4 + 4 + int.from_bytes(data[15:19], "big")
-    body = data[header:-2]
-    fields = [("n", ">i2")]
-    for name in dtype.names:
-        kind = ">i8" if dtype[name].kind == "i" else ">f8"
-        fields += [(f"{name}_len", ">i4"), (name, kind)]
-    wire = np.dtype(fields)
-    if len(body) % wire.itemsize:
-        raise ValueError("the COPY's rows are not of the expected shape")
-    rows = np.frombuffer(body, wire)
-    if np.any(rows["n"] != len(dtype.names)) or any(
-        np.any(rows[f"{n}_len"] != 8) for n in dtype.names
-    ):
-        raise ValueError("the COPY's rows are not of the expected shape")
-    out = np.empty(len(rows), dtype)
-    for name in dtype.names:
-        out[name] = rows[name] + offset.get(name, 0)
-    return out
+    return binary_copy.copy_rows(session, query, dtype)
 
 
 def pair_grids(

@@ -10,17 +10,15 @@ controller needs has arrived, and the samples follow the training data's convent
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 from datetime import datetime
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import func, select
+from sqlalchemy import case, select
 from sqlalchemy.orm import Session
-from sqlalchemy.sql.expression import ColumnElement
 
-from trainclimate.service.store import rollups
+from trainclimate.service.store import binary_copy, rollups
 from trainclimate.service.store.models import Telemetry
 from trainclimate.service.store.upsert import insert_new_keys
 
@@ -89,37 +87,64 @@ def load_rows(
 ) -> dict[str, CoachRows]:
     """Every coach's rows with start < time ≤ end (empty arrays for a coach without any), from
     one query, without a DataFrame or an object per row (the tick reads 1 000 coaches at a
-    time): on PostgreSQL the database gives each row's time as epoch seconds and its regular
-    mode as a boolean, and the columns become arrays at once."""
-    t = Telemetry.__table__
-    when: ColumnElement
+    time): on PostgreSQL a binary COPY (:mod:`.binary_copy`) with each row's time as epoch
+    seconds, a value not reported as NaN and its regular mode as 0/1; elsewhere the driver's
+    tuples, column by column."""
     if session.get_bind().dialect.name == "postgresql":
-        when = func.date_part("epoch", t.c.time)
-    else:  # SQLite's own epoch has whole seconds only: the stored time, converted here
-        when = t.c.time
+        coach, time_s, values, regular = _copied_rows(session, coach_ids, start, end)
+    else:
+        coach, time_s, values, regular = _selected_rows(session, coach_ids, start, end)
+    # each coach's rows are contiguous and in time order: where each coach's run starts
+    edges = np.searchsorted(coach, np.arange(len(coach_ids) + 1))
+    return {
+        cid: CoachRows(time_s[a:b], values[a:b], regular[a:b])
+        for cid, a, b in zip(coach_ids, edges[:-1], edges[1:], strict=True)
+    }
+
+
+def _copied_rows(session: Session, coach_ids: list[str], start: datetime, end: datetime):
+    """:func:`load_rows`' columns on PostgreSQL: (coach's position in ``coach_ids``, time [s
+    since 1970], values (n, len(VALUE_COLS)), regular) ordered by coach and time."""
+    from psycopg import sql
+
+    dtype = np.dtype(
+        [("coach", np.int64), ("time", np.float64)]
+        + [(c, np.float64) for c in VALUE_COLS]
+        + [("regular", np.int64)]
+    )
+    query = sql.SQL(
+        "SELECT k.i - 1, date_part('epoch', t.time), {values}, "
+        "(t.mode = 'regular')::int::int8 FROM telemetry t "
+        "JOIN unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) ON t.coach_id = k.id "
+        "WHERE t.time > {start} AND t.time <= {end} ORDER BY k.i, t.time"
+    ).format(
+        values=sql.SQL(", ").join(
+            sql.SQL("coalesce(t.{}, 'NaN'::float8)").format(sql.Identifier(c)) for c in VALUE_COLS
+        ),
+        ids=sql.Literal(list(coach_ids)),
+        start=sql.Literal(start),
+        end=sql.Literal(end),
+    )
+    rows = binary_copy.copy_rows(session, query, dtype)
+    values = np.stack([rows[c] for c in VALUE_COLS], axis=-1).reshape(len(rows), len(VALUE_COLS))
+    return rows["coach"], rows["time"], values, rows["regular"] == 1
+
+
+def _selected_rows(session: Session, coach_ids: list[str], start: datetime, end: datetime):
+    """:func:`_copied_rows` through the driver's tuples (SQLite)."""
+    t = Telemetry.__table__
+    position = case({c: i for i, c in enumerate(coach_ids)}, value=t.c.coach_id)
     query = (
-        select(t.c.coach_id, when, *(t.c[c] for c in VALUE_COLS), t.c.mode == "regular")
+        select(position, t.c.time, *(t.c[c] for c in VALUE_COLS), t.c.mode == "regular")
         .where(t.c.coach_id.in_(coach_ids), t.c.time > start, t.c.time <= end)
-        .order_by(t.c.coach_id, t.c.time)
+        .order_by(position, t.c.time)
     )
-    columns = list(zip(*session.connection().execute(query), strict=True)) or [()] * (
-        3 + len(VALUE_COLS)
-    )
-    ids, times = columns[0], columns[1]
-    if times and isinstance(times[0], datetime):
-        times = tuple(x.timestamp() for x in times)
-    time_s = np.array(times, float)
-    values = np.array(columns[2 : 2 + len(VALUE_COLS)], float).T.reshape(len(ids), len(VALUE_COLS))
-    regular = np.array(columns[-1], bool)
-    spans, first = {}, 0  # each coach's rows are contiguous (whatever the collation's order)
-    for cid, group in itertools.groupby(ids):
-        spans[cid] = (first, first + sum(1 for _ in group))
-        first = spans[cid][1]
-    out = {}
-    for cid in coach_ids:
-        a, b = spans.get(cid, (0, 0))
-        out[cid] = CoachRows(time_s[a:b], values[a:b], regular[a:b])
-    return out
+    rows = session.connection().execute(query).all()
+    columns = list(zip(*rows, strict=True)) or [()] * (3 + len(VALUE_COLS))
+    # the stored time, converted here (SQLite's own epoch has whole seconds only)
+    time_s = np.array([x.timestamp() for x in columns[1]], float)
+    values = np.array(columns[2 : 2 + len(VALUE_COLS)], float).T.reshape(len(rows), len(VALUE_COLS))
+    return np.array(columns[0], np.int64), time_s, values, np.array(columns[-1], bool)
 
 
 @dataclass
