@@ -112,7 +112,7 @@ def comparison(
                 "excluded_reason": reason if reason is not None or counted else "reference",
             }
         )
-    figures = pair_trial.figures(r, window_min)
+    figures = r["figures"]
     return {
         "train_id": train.id,
         "plan": plan,

@@ -56,7 +56,7 @@ from trainclimate.service.store.models import (
     Train,
     UTCDateTime,
 )
-from trainclimate.service.store.pair_trial import COUNTS, SUMS, energy_columns, figures
+from trainclimate.service.store.pair_trial import COUNTS, SUMS, energy_columns
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 from trainclimate.sim.power import HEADLINE_METER, METERS
 from trainclimate.sim.setpoint import COMFORT_BAND_K
@@ -92,7 +92,8 @@ def overrides_over(session: Session, pairs: list[tuple[str, str, datetime, datet
     (id, coach_id, starts_at, ends_at, cancelled_at), by id."""
     if not pairs:
         return []
-    return session.execute(
+    coaches = {c for pair in pairs for c in pair[:2]}
+    rows = session.execute(
         select(
             Override.id,
             Override.coach_id,
@@ -100,13 +101,14 @@ def overrides_over(session: Session, pairs: list[tuple[str, str, datetime, datet
             Override.ends_at,
             Override.cancelled_at,
         )
-        .where(Override.coach_id.in_({c for pair in pairs for c in pair[:2]}))
+        .where(queries.among(Override.coach_id, coaches))
         .where(
             Override.starts_at < max(x[3] for x in pairs),
             Override.ends_at > min(x[2] for x in pairs),
         )
         .order_by(Override.id)
     ).all()
+    return [r for r in rows if r.coach_id in coaches]
 
 
 def window_sums(
@@ -310,10 +312,9 @@ def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
     of_coach = Telemetry.coach_id == Coach.id
     first = select(func.min(Telemetry.time)).where(of_coach).scalar_subquery()
     newest = select(func.max(Telemetry.time)).where(of_coach).scalar_subquery()
-    rows = session.execute(
-        select(Coach.id, first, newest).where(Coach.id.in_([c.id for c in coaches]))
-    )
-    return {cid: (t0, t1) for cid, t0, t1 in rows}
+    ids = {c.id for c in coaches}
+    rows = session.execute(select(Coach.id, first, newest).where(queries.among(Coach.id, ids)))
+    return {cid: (t0, t1) for cid, t0, t1 in rows if cid in ids}
 
 
 def pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
@@ -334,14 +335,14 @@ def pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
         cid: (newest, late)
         for cid, newest, late in session.execute(
             select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.late_rows).where(
-                CoachFeed.coach_id.in_(coaches)
+                queries.among(CoachFeed.coach_id, coaches)
             )
         )
     }
     ticks = {
         cid: tick
         for cid, tick in session.execute(
-            select(Coach.id, Coach.last_tick).where(Coach.id.in_(coaches))
+            select(Coach.id, Coach.last_tick).where(queries.among(Coach.id, coaches))
         )
     }
     states = []
@@ -549,7 +550,7 @@ def summary(
                 "deactivated": next((c.id for c in (c0, c1) if not c.ddpc_active), None),
                 "start": first.to_pydatetime(),
                 "end": stop,
-                **figures(r, window_min),
+                **r["figures"],
             }
         )
     # the counted windows' energies, pooled per window over the trains that count it
@@ -635,11 +636,13 @@ def comfort_violations(session: Session, ends: dict[str, datetime]) -> dict[str,
     lookback = timedelta(minutes=VIOLATION_LOOKBACK_MIN)
     found = session.execute(
         select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.last_ok).where(
-            CoachFeed.coach_id.in_(list(ends))
+            queries.among(CoachFeed.coach_id, ends)
         )
     )
     out = {}
     for cid, newest, last_ok in found:
+        if cid not in ends:
+            continue
         lo = ends[cid] - lookback
         if newest <= lo:
             continue  # no row in the lookback

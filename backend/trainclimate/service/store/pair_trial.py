@@ -389,7 +389,8 @@ def pair_results(
         ``counted`` (arrays per window), ``meter`` (the HVAC units' when every counted minute
         splits the floor heating off, else the whole coach's), ``totals`` (meter →
         :class:`PairTotals`) and ``estimate``
-        (:class:`~trainclimate.analysis.trial.TrialEstimate`).
+        (:class:`~trainclimate.analysis.trial.TrialEstimate`), and its ``figures``
+        (:func:`figures`).
     """
     label, code = windows(grids, counts, window_min)
     counted = (code == 0) & (label >= 0)
@@ -404,18 +405,18 @@ def pair_results(
     out = []
     for p in range(len(grids)):
         meters = METERS if split[p] else ("hvac_and_floor",)
-        out.append(
-            {
-                "index": index,
-                "grid": grids[p],
-                "label": label[p],
-                "reason": _REASON_NAMES[code[p]],
-                "counted": counted[p],
-                "meter": HEADLINE_METER if split[p] else "hvac_and_floor",
-                "totals": {m: totals[m][p] for m in meters},
-                "estimate": estimates[p],
-            }
-        )
+        result = {
+            "index": index,
+            "grid": grids[p],
+            "label": label[p],
+            "reason": _REASON_NAMES[code[p]],
+            "counted": counted[p],
+            "meter": HEADLINE_METER if split[p] else "hvac_and_floor",
+            "totals": {m: totals[m][p] for m in meters},
+            "estimate": estimates[p],
+        }
+        result["figures"] = figures(result, window_min)
+        out.append(result)
     return out
 
 

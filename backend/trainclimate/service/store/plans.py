@@ -30,7 +30,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
 from trainclimate.service.store.models import Coach, Telemetry, Train, TrainPlan, TrialDay, utcnow
-from trainclimate.service.store.queries import EARLIEST, fleet_clock
+from trainclimate.service.store.queries import EARLIEST, among, fleet_clock
 from trainclimate.service.store.upsert import insert_new
 
 FIXED = "fixed"
@@ -199,7 +199,7 @@ def plans_at(
     (None: none), in one query; trains without either are left out."""
     newest = (
         select(TrainPlan.train_id, func.max(TrainPlan.effective_from).label("effective_from"))
-        .where(TrainPlan.train_id.in_(train_ids), TrainPlan.effective_from <= at)
+        .where(among(TrainPlan.train_id, train_ids), TrainPlan.effective_from <= at)
         .group_by(TrainPlan.train_id)
         .subquery()
     )
@@ -207,7 +207,7 @@ def plans_at(
         select(TrainPlan)
         .outerjoin(newest, TrainPlan.train_id == newest.c.train_id)
         .where(
-            TrainPlan.train_id.in_(train_ids),
+            among(TrainPlan.train_id, train_ids),
             or_(
                 TrainPlan.effective_from == newest.c.effective_from,
                 TrainPlan.effective_from > at,
@@ -216,7 +216,10 @@ def plans_at(
         .order_by(TrainPlan.effective_from, TrainPlan.id)
     )
     out: dict[str, tuple[TrainPlan | None, TrainPlan | None]] = {}
+    wanted = set(train_ids)
     for row in rows:  # in force: the newest of the latest time; after: the earliest
+        if row.train_id not in wanted:
+            continue
         current, upcoming = out.get(row.train_id, (None, None))
         if row.effective_from <= at:
             out[row.train_id] = (row, upcoming)

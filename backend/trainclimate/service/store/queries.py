@@ -12,8 +12,9 @@ from datetime import UTC, datetime, timedelta
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import func, select
+from sqlalchemy import func, select, true
 from sqlalchemy.orm import Session
+from sqlalchemy.sql.expression import ColumnElement
 
 from trainclimate.service.store import liveness
 from trainclimate.service.store.comfort import comfort_now
@@ -456,9 +457,32 @@ def counted_range(
     """
     if earliest is not None and earliest - timedelta(minutes=1) > start:
         start = earliest - timedelta(minutes=1)  # nothing to compare before the pair's data
-    window = pd.Timedelta(minutes=window_min)
-    first = pd.Timestamp(start).ceil(window)
-    return first, max(0, int((pd.Timestamp(end) - first) // window))
+    window_us = round(window_min * 60e6)
+    first_us = -(-_epoch_us(start) // window_us) * window_us  # the boundary at or after start
+    n = (_epoch_us(end) - first_us) // window_us
+    return pd.Timestamp(first_us, unit="us", tz="UTC").tz_convert(pd.Timestamp(start).tz), max(
+        0, int(n)
+    )
+
+
+#: Above this many ids, :func:`among` reads every row instead of naming them.
+AMONG_MAX = 200
+
+
+def among(column, ids) -> ColumnElement[bool]:
+    """``column IN ids`` — or no condition at all when there are more than :data:`AMONG_MAX`
+    ids: a statement with thousands of parameters costs more to build and plan than reading
+    every row of a table with one row per coach. Callers keep only the rows of ``ids``."""
+    ids = list(ids)
+    return column.in_(ids) if len(ids) <= AMONG_MAX else true()
+
+
+def _epoch_us(t: datetime) -> int:
+    """Microseconds since 1970 of the timezone-aware ``t`` (exact)."""
+    return (t - _EPOCH) // timedelta(microseconds=1)
+
+
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 
 def replicas(session: Session, since: datetime) -> list[dict]:
