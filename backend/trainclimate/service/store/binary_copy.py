@@ -47,6 +47,8 @@ def copy_rows(session: Session, query: sql.Composable, dtype: np.dtype) -> np.nd
     never NULL) read in the session's transaction with a binary COPY (PostgreSQL only)."""
     statement = sql.SQL("COPY ({}) TO STDOUT (FORMAT BINARY)").format(query)
     raw = session.connection().connection.driver_connection
+    if raw is None:
+        raise CopyShapeError("no driver connection to COPY through")
     with raw.cursor() as cursor, cursor.copy(statement) as copy:
         data = b"".join(bytes(block) for block in copy)
     return parse(data, dtype)

@@ -34,7 +34,7 @@ from sqlalchemy import (
     true,
     union_all,
 )
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy.orm import Session
 from sqlalchemy.sql.expression import ColumnElement
 
 from trainclimate.analysis import trial
@@ -304,7 +304,7 @@ def pair_counts(
     return out
 
 
-def _coach_times(session: Session, coaches: list[Coach]) -> dict[str, tuple]:
+def _coach_times(session: Session, coaches: list) -> dict[str, tuple]:
     """Each coach's first and newest telemetry time: two index probes per coach, in one
     statement (one plan for all coaches)."""
     if not coaches:
@@ -370,16 +370,16 @@ def pair_data(
     cache: ReadCache | None = None,
     overrides: list | None = None,
     states: list | None = None,
-) -> dict[str, tuple[dict, dict]]:
-    """Each pair's :func:`window_sums` and both coaches' setpoint counts
-    (:func:`.pair_trial.setpoint_counts`), those whose state (:func:`pair_states`, or
-    ``states`` if given) is unchanged since they were computed taken from ``cache``, the others
-    computed together (and kept).
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each pair's :func:`pair_grids` and :func:`pair_counts` over its range, those whose state
+    (:func:`pair_states`, or ``states`` if given) is unchanged since they were computed taken
+    from ``cache``, the others computed together (and kept).
 
     Returns
     -------
     dict
-        Coach 0's id → (window sums, coach id → setpoint counts).
+        Coach 0's id → (window sums (W, len(SUMS)), both coaches' setpoint counts
+        (W, 2, len(COUNTS))).
     """
     if overrides is None:
         overrides = overrides_over(session, pairs)
@@ -497,10 +497,16 @@ def summary(
         and how many ``trains`` do; ``coaches_by_status`` (:func:`coaches_by_status`) and
         ``attention`` (:func:`attention`).
     """
-    trains = session.scalars(select(Train).options(selectinload(Train.coaches)).order_by(Train.id))
+    # trains and coaches as plain rows (an ORM object per train and coach costs more than the
+    # rest of a refresh at 450 trains)
+    by_train: dict[str, list] = {}
+    for c in session.execute(
+        select(Coach.id, Coach.train_id, Coach.fleet, Coach.ddpc_active).order_by(Coach.id)
+    ):
+        by_train.setdefault(c.train_id, []).append(c)
     paired = []
-    for t in trains:
-        pair = queries.pair_coaches(t)
+    for t in session.execute(select(Train.id, Train.name).order_by(Train.id)):
+        pair = queries.pick_pair(by_train.get(t.id, []))
         if pair is not None:
             paired.append((t, pair))
     times = _coach_times(session, [c for _, pair in paired for c in pair])

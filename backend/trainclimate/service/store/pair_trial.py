@@ -331,16 +331,16 @@ def _estimates(
             counts_for_days[mine],
             min_windows=MIN_DAY_WINDOWS,
         )
-        for p, d in zip(mine, found, strict=True):
-            days[p] = d
+        for i, d in zip(mine, found, strict=True):
+            days[i] = d
     out = trial.estimate_many(days)
     counted = usable & (label >= 0)
     for p, result in enumerate(out):
         if result.estimator is None and counted[p].any():
             lab = label[p, counted[p]]
-            act = energy[p, counted[p], lab].sum()
-            deact = energy[p, counted[p], 1 - lab].sum()
-            naive = savings_pct(act, deact)
+            naive = savings_pct(
+                energy[p, counted[p], lab].sum(), energy[p, counted[p], 1 - lab].sum()
+            )
             why = "fewer than a day's windows: the saving is confounded with the coaches"
             out[p] = trial.TrialEstimate("fixed_naive", naive, None, why, naive, result.days)
     return out

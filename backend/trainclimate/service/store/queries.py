@@ -413,12 +413,18 @@ def pair_coaches(train: Train) -> tuple[Coach, Coach] | None:
     """The train's pair, ordered by id (coach 0, coach 1): its first activated and first
     deactivated coach, or — when no coach or every coach is activated (a reference day of a
     trial) — its first two coaches; None with fewer than two coaches."""
-    on = [c for c in train.coaches if c.ddpc_active]
-    off = [c for c in train.coaches if not c.ddpc_active]
+    return pick_pair(train.coaches)
+
+
+def pick_pair(coaches: list):
+    """:func:`pair_coaches` of a train's ``coaches`` (by id; anything with ``id`` and
+    ``ddpc_active``)."""
+    on = [c for c in coaches if c.ddpc_active]
+    off = [c for c in coaches if not c.ddpc_active]
     if on and off:
         pair = [on[0], off[0]]
-    elif len(train.coaches) >= 2:
-        pair = list(train.coaches[:2])
+    elif len(coaches) >= 2:
+        pair = list(coaches[:2])
     else:
         return None
     c0, c1 = sorted(pair, key=lambda c: c.id)
