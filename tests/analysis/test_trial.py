@@ -6,7 +6,9 @@ from datetime import date
 import numpy as np
 import pandas as pd
 import pytest
+from scipy import stats
 
+from trainclimate.analysis import trial
 from trainclimate.analysis.trial import (
     NEITHER,
     TrialDays,
@@ -14,6 +16,7 @@ from trainclimate.analysis.trial import (
     daily,
     day_start,
     estimate,
+    estimate_many,
     pool,
     service_day,
     service_days,
@@ -167,3 +170,148 @@ def test_one_train_pooled_alone_keeps_its_interval():
     assert fleet["savings_ci95_pct"][1] - fleet["savings_ci95_pct"][0] == pytest.approx(
         e.savings_ci95_pct[1] - e.savings_ci95_pct[0]
     )
+
+
+@pytest.mark.parametrize("switch_hour", [0, 3, 23])
+def test_service_days_are_the_dates_of_the_local_times_less_the_switch_hour(switch_hour):
+    # both daylight-saving changes of 2024 (31 March, 27 October) and a winter new year
+    times = pd.DatetimeIndex(
+        np.concatenate(
+            [
+                pd.date_range(start, periods=4 * 24 * 3, freq="15min", tz="UTC")
+                for start in ("2024-03-29 12:00", "2024-10-25 12:00", "2023-12-30 12:00")
+            ]
+        )
+    )
+    local = times.tz_convert("Europe/Zurich") - pd.Timedelta(hours=switch_hour)
+    expected = [d.toordinal() for d in local.tz_localize(None).normalize().date]
+    days = service_days(times, switch_hour)
+    assert days.dtype == np.int64
+    assert days.tolist() == expected
+    assert days.tolist() == [service_day(t, switch_hour).toordinal() for t in times]
+
+
+def _scipy_interval(samples, coef, n_resamples=4999, seed=0):
+    """The 95 % and 68 % intervals of ln(1 − s) and its standard error as the bootstrap-t was
+    computed with scipy.stats.bootstrap, one pair at a time."""
+    a, b = samples
+    theta = coef * (a.mean() - b.mean())
+    se = abs(coef) * np.sqrt(np.var(a, ddof=1) / len(a) + np.var(b, ddof=1) / len(b))
+
+    def pivot(a, b, axis=-1):
+        t = coef * (np.mean(a, axis=axis) - np.mean(b, axis=axis))
+        var = np.var(a, axis=axis, ddof=1) / a.shape[axis]
+        s = abs(coef) * np.sqrt(var + np.var(b, axis=axis, ddof=1) / b.shape[axis])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (t - theta) / s
+
+    with np.errstate(all="ignore"):
+        res = stats.bootstrap(
+            samples,
+            pivot,
+            n_resamples=n_resamples,
+            method="percentile",
+            vectorized=True,
+            rng=np.random.default_rng(seed),
+        )
+    q = np.quantile(np.nan_to_num(res.bootstrap_distribution, nan=0.0), [0.025, 0.16, 0.84, 0.975])
+    bounds = 100.0 * (1.0 - np.exp(theta - q * se))  # the savings fall as ln(1 − s) rises
+    return [bounds[0], bounds[3]], [bounds[1], bounds[2]], 100.0 * np.exp(theta) * se
+
+
+def test_the_batched_bootstrap_is_scipys(monkeypatch):
+    # blocks of three pairs, so that pairs of one size are split over blocks; with 3 + 3 days,
+    # 1/81 of the resamples have no spread in either group (studentized to ±inf)
+    monkeypatch.setattr(trial, "_BLOCK_SIZE", 3 * 4999)
+    rng = np.random.default_rng(11)
+    sizes = [tuple(rng.integers(3, 21, 2)) for _ in range(24)] + [(7, 7)] * 4 + [(3, 3)] * 8
+    pairs, expected = [], []
+    for k, (n_a, n_b) in enumerate(sizes):
+        crossover = k % 2 == 0
+        # a saving of 2–10 % and a day-to-day spread down to 1e-9 of the log-ratios' level
+        effect = np.log(1 - rng.uniform(0.02, 0.1)) * (0.5 if crossover else 1.0)
+        spread = 10.0 ** rng.choice([-9, -6, -2, -1])
+        level = np.log(rng.uniform(0.8, 1.25))
+        if crossover:
+            act = np.r_[np.zeros(n_a, int), np.ones(n_b, int)]
+            x = level + np.where(act == 0, effect, -effect)
+            coef = 0.5
+        else:
+            act = np.r_[np.full(n_a, k % 4 // 2), np.full(n_b, NEITHER)]
+            sign = 1.0 if act[0] == 0 else -1.0
+            x = level + np.where(act == NEITHER, 0.0, sign * effect)
+            coef = sign
+        x = x + rng.normal(0.0, spread, n_a + n_b)
+        energy = np.c_[50.0 * np.exp(x), np.full(n_a + n_b, 50.0)]
+        pairs.append(TrialDays(np.arange(n_a + n_b), energy, act, np.full(n_a + n_b, 40)))
+        logs = np.log(energy[:, 0] / energy[:, 1])
+        expected.append(_scipy_interval((logs[:n_a], logs[n_a:]), coef))
+    got = estimate_many(pairs)
+    for e, (ci95, ci68, se) in zip(got, expected, strict=True):
+        assert e.savings_ci95_pct == pytest.approx(ci95, rel=1e-9)
+        assert e.standard_error_pct == pytest.approx(se, rel=1e-9)
+        assert e.meets_guideline_14 == ((ci68[1] - ci68[0]) / 2 < 0.5 * abs(e.savings_pct))
+    assert {e.estimator for e in got} == {"crossover", "fixed_reference"}
+    assert {e.meets_guideline_14 for e in got} == {True, False}
+
+
+def test_estimating_many_pairs_at_once_is_estimating_each():
+    fixed = _crossover(10, 0.06, 1.12, 0.01, 2, plan="fixed")
+    ref = _crossover(8, 0.06, 1.12, 0.01, 3, plan="reference")
+    fixed_reference = TrialDays(
+        np.r_[fixed.day, ref.day + 100],
+        np.r_[fixed.energy_kwh, ref.energy_kwh],
+        np.r_[fixed.activated, ref.activated],
+        np.r_[fixed.windows, ref.windows],
+    )
+    act = np.arange(8) % 2
+    energy = np.c_[np.where(act == 0, 2.0, 1.0), np.ones(8)]  # log-ratios ln 2 and 0, exactly
+    no_spread = TrialDays(np.arange(8), energy, act, np.full(8, 40))
+    pairs = [
+        _crossover(14, 0.06, 1.1, 0.03, 1),
+        fixed_reference,
+        fixed,
+        TrialDays(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0, int), np.zeros(0)),
+        _crossover(4, 0.06, 1.1, 0.02, 1),
+        no_spread,
+        _crossover(14, 0.06, 0.9, 0.05, 2),  # the first's sizes: one bootstrap for both
+        _crossover(9, 0.03, 1.0, 0.02, 4),
+    ]
+    got = estimate_many(pairs, target_half_width_pct=1.0, n_resamples=999, seed=3)
+    each = [estimate(d, target_half_width_pct=1.0, n_resamples=999, seed=3) for d in pairs]
+    assert [e.estimator for e in got] == [
+        "crossover",
+        "fixed_reference",
+        "fixed_naive",
+        None,
+        "crossover",
+        "crossover",
+        "crossover",
+        "crossover",
+    ]
+    assert [e.ci_reason for e in got[2:6]] == [
+        "fixed plan: the saving is confounded with the coaches' own difference",
+        "no comparable days yet",
+        "fewer than 3 days in a group of the crossover estimate",
+        "no day-to-day spread",
+    ]
+    for e, one in zip(got, each, strict=True):
+        if one.savings_ci95_pct is None:
+            assert e.savings_ci95_pct is None
+        else:
+            assert e.savings_ci95_pct == pytest.approx(one.savings_ci95_pct, rel=1e-12)
+        assert e.standard_error_pct == one.standard_error_pct
+        assert (e.estimator, e.savings_pct, e.ci_reason, e.naive_savings_pct, e.days) == (
+            one.estimator,
+            one.savings_pct,
+            one.ci_reason,
+            one.naive_savings_pct,
+            one.days,
+        )
+        assert (e.days_to_target, e.meets_guideline_14) == (
+            one.days_to_target,
+            one.meets_guideline_14,
+        )
+    assert estimate_many([]) == []
+    with pytest.raises(ValueError, match="at least one resample"):
+        estimate_many(pairs, n_resamples=0)

@@ -31,7 +31,8 @@ the day level cancels within each day, the coach level between days:
   difference included — reported without an interval, labelled as confounded.
 
 The 95 % interval is a bootstrap over service days — the day is the independent unit, windows
-within a day are not — each group of days resampled on its own by scipy.stats.bootstrap. It is a
+within a day are not — each group of days resampled on its own, with the draws of
+scipy.stats.bootstrap (:func:`estimate_many` computes them for many pairs at once). It is a
 bootstrap-t interval: the resampled statistic is the estimate studentized by its standard error,
 which keeps its coverage near 95 % with the week or two of days a trial has (a percentile or BCa
 interval of the estimate itself covers about 90 % with seven days a group).
@@ -55,6 +56,7 @@ References
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from datetime import date
@@ -77,6 +79,13 @@ MIN_GROUP_DAYS = 3
 TARGET_HALF_WIDTH_PCT = 2.0
 #: Neither coach activated (a ``reference`` day), in the ``activated`` arrays.
 NEITHER = -1
+#: Quantiles of the studentized bootstrap distribution: the 95 % and the 68 % intervals.
+_QUANTILES = (0.025, 0.16, 0.84, 0.975)
+#: Pairs × resamples whose bootstrap distributions are computed in one block: few enough for
+#: its arrays (160 kB each) to stay in the processor's cache.
+_BLOCK_SIZE = 20_000
+#: ``date(1970, 1, 1).toordinal()``.
+_ORDINAL_1970 = 719163
 
 
 def service_day(time: pd.Timestamp, switch_hour: int = DEFAULT_SWITCH_HOUR) -> date:
@@ -101,8 +110,8 @@ def service_day(time: pd.Timestamp, switch_hour: int = DEFAULT_SWITCH_HOUR) -> d
 def service_days(times: pd.DatetimeIndex, switch_hour: int = DEFAULT_SWITCH_HOUR) -> np.ndarray:
     """:func:`service_day` of every time, as day ordinals (``date.toordinal()``), shape (n,)."""
     local = pd.DatetimeIndex(times).tz_convert(LOCAL_TZ) - pd.Timedelta(hours=switch_hour)
-    days = local.tz_localize(None).normalize()
-    return np.asarray([d.toordinal() for d in days.date], dtype=np.int64)
+    days = local.tz_localize(None).normalize().to_numpy().astype("datetime64[D]")
+    return days.astype(np.int64) + _ORDINAL_1970
 
 
 def day_start(day: date, switch_hour: int = DEFAULT_SWITCH_HOUR) -> pd.Timestamp:
@@ -364,7 +373,7 @@ def estimate(
     seed: int = 0,
 ) -> TrialEstimate:
     """The savings of a pair over its service days, with a 95 % bootstrap interval (see the module
-    docstring for the estimators).
+    docstring for the estimators): :func:`estimate_many` of the one pair.
 
     Parameters
     ----------
@@ -384,6 +393,95 @@ def estimate(
         days (confounded with the coaches), with fewer than :data:`MIN_GROUP_DAYS` days in a
         group, or without day-to-day spread.
     """
+    return estimate_many(
+        [days], target_half_width_pct=target_half_width_pct, n_resamples=n_resamples, seed=seed
+    )[0]
+
+
+def estimate_many(
+    days_list: list[TrialDays],
+    *,
+    target_half_width_pct: float = TARGET_HALF_WIDTH_PCT,
+    n_resamples: int = 4999,
+    seed: int = 0,
+) -> list[TrialEstimate]:
+    """:func:`estimate` of every pair, the bootstraps of pairs with the same group sizes computed
+    together.
+
+    The interval is a bootstrap-t (Efron and Tibshirani 1993, ch. 12): each group of days is
+    resampled with replacement, the resampled estimate studentized as (θ* − θ) / se*, and the
+    interval of ln(1 − s) is θ − q·se at the quantiles q of that distribution. A resample is
+    its row of a counts matrix C (resamples × days: how often each day is drawn; C/n is
+    Efron and Tibshirani's resampling vector), so that its mean is C·x / n and its sum of
+    squared deviations C·x² − n·mean², with x the group's log-ratios. Pairs with the same group
+    sizes and seed share C, and their resampled means and variances are matrix products; each
+    group's days are centred on their mean first, so that the variance does not lose precision
+    to cancellation. The draws are those of ``scipy.stats.bootstrap`` (for the first group, then
+    the second, ``Generator.integers(0, n, (n_resamples, n))`` from ``default_rng(seed)``), and
+    the intervals equal its to floating-point rounding (verified against it in the tests).
+
+    Parameters
+    ----------
+    days_list : list of TrialDays
+        From :func:`daily`, one per pair.
+    target_half_width_pct : float, default 2.0
+        The half-width ``days_to_target`` aims at. [percentage points]
+    n_resamples : int, default 4999
+        Bootstrap resamples.
+    seed : int, default 0
+        The bootstrap's seed, the same for every pair (each interval is reproducible).
+
+    Returns
+    -------
+    list of TrialEstimate
+        In the order of ``days_list``; see :func:`estimate`.
+
+    Raises
+    ------
+    ValueError
+        If ``n_resamples`` is below 1.
+    """
+    if n_resamples < 1:
+        raise ValueError("the bootstrap needs at least one resample")
+    out: dict[int, TrialEstimate] = {}
+    pending: dict[tuple[int, int], list[tuple[int, _Bootstrap]]] = {}
+    for i, days in enumerate(days_list):
+        prepared = _prepare(days)
+        if isinstance(prepared, TrialEstimate):
+            out[i] = prepared
+        else:
+            sizes = (len(prepared.a), len(prepared.b))
+            pending.setdefault(sizes, []).append((i, prepared))
+    block_pairs = max(1, _BLOCK_SIZE // n_resamples)
+    for (n_a, n_b), group in pending.items():
+        counts_a, counts_b = _resample_counts(n_a, n_b, n_resamples, seed)
+        for start in range(0, len(group), block_pairs):
+            block = group[start : start + block_pairs]
+            q = _pivot_quantiles([p for _, p in block], counts_a, counts_b)
+            for (i, p), q_i in zip(block, q, strict=True):
+                out[i] = _interval(p, q_i, target_half_width_pct)
+    return [out[i] for i in range(len(days_list))]
+
+
+@dataclass
+class _Bootstrap:
+    """A pair whose interval awaits the bootstrap: its groups of log-ratios ``a`` and ``b``, the
+    effect ln(1 − s) = ``coef`` (mean a − mean b) = ``theta`` and its standard error ``se``, and
+    the figures its estimate reports."""
+
+    estimator: str
+    coef: float
+    a: np.ndarray
+    b: np.ndarray
+    theta: float
+    se: float
+    point: float
+    naive: float | None
+    counts: dict
+
+
+def _prepare(days: TrialDays) -> TrialEstimate | _Bootstrap:
+    """The pair's estimate if it has no interval, else what its bootstrap needs."""
     x = np.log(days.energy_kwh[:, 0] / days.energy_kwh[:, 1]) if len(days.day) else np.zeros(0)
     groups = {g: x[days.activated == g] for g in (0, 1, NEITHER)}
     counts = {
@@ -414,50 +512,97 @@ def estimate(
     theta, se = _effect(coef, *samples)
     if not se > 0:
         return TrialEstimate(estimator, point, None, "no day-to-day spread", naive, counts)
+    return _Bootstrap(estimator, coef, *samples, theta, se, point, naive, counts)
 
-    def pivot(a, b, axis=-1):
-        t, s = _effect(coef, a, b, axis=axis)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return (t - theta) / s
 
-    with np.errstate(all="ignore"):  # a resample without spread studentizes to ±inf
-        res = stats.bootstrap(
-            samples,
-            pivot,
-            n_resamples=n_resamples,
-            method="percentile",
-            vectorized=True,
-            rng=np.random.default_rng(seed),
-        )
-    t_star = res.bootstrap_distribution
-    q = np.quantile(np.nan_to_num(t_star, nan=0.0), [0.025, 0.16, 0.84, 0.975])
+@functools.lru_cache(maxsize=64)
+def _resample_counts(
+    n_a: int, n_b: int, n_resamples: int, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The counts matrices of scipy.stats.bootstrap's resamples of two groups of ``n_a`` and
+    ``n_b`` days: row r, column j holds how often day j is drawn in resample r, shapes
+    (n_resamples, n_a) and (n_resamples, n_b), read-only (they are cached)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for n in (n_a, n_b):
+        drawn = rng.integers(0, n, (n_resamples, n)) + n * np.arange(n_resamples)[:, None]
+        counts = np.bincount(drawn.ravel(), minlength=n_resamples * n).astype(float)
+        counts = counts.reshape(n_resamples, n)
+        counts.flags.writeable = False
+        out.append(counts)
+    return out[0], out[1]
+
+
+def _pivot_quantiles(
+    pairs: list[_Bootstrap], counts_a: np.ndarray, counts_b: np.ndarray
+) -> np.ndarray:
+    """The quantiles :data:`_QUANTILES` of each pair's studentized bootstrap distribution
+    (θ* − θ) / se*, shape (pairs, 4), from the counts matrices of its groups' resamples (all
+    pairs have the groups' sizes). A resample without spread studentizes to ±inf (0/0 to 0)."""
+    moments = []
+    for x, counts in (([p.a for p in pairs], counts_a), ([p.b for p in pairs], counts_b)):
+        centred = np.asarray(x)
+        centred = centred - centred.mean(axis=1, keepdims=True)
+        n = centred.shape[1]
+        # (pairs, resamples): the resample's mean less the group's, C·x / n, and the variance
+        # of the resample's mean, var / n = (C·x² − n·mean²) / (n (n − 1)) with var the sample
+        # variance (ddof 1); the divisors are applied to x, before the products
+        mean = (centred / n) @ counts.T
+        scaled = centred / (n * (n - 1))
+        var_mean = (scaled * centred) @ counts.T - (scaled @ counts.T) * mean
+        # rounding leaves a resample without spread a little off 0, or below: clipped, as np.var
+        moments.append((mean, np.maximum(var_mean, 0.0)))
+    (mean_a, var_a), (mean_b, var_b) = moments
+    # (θ* − θ) / se* = coef (mean_a − mean_b) / (|coef| √(var_a + var_b)): |coef| cancels
+    sign = np.sign([p.coef for p in pairs])[:, None]
+    with np.errstate(all="ignore"):
+        t_star = sign * (mean_a - mean_b) / np.sqrt(var_a + var_b)
+    return _quantiles(np.nan_to_num(t_star, nan=0.0))
+
+
+def _quantiles(t: np.ndarray) -> np.ndarray:
+    """The quantiles :data:`_QUANTILES` of each row of ``t``, shape (rows, 4): those of
+    ``numpy.quantile`` (linear interpolation between the neighbouring order statistics, from
+    the nearer one), read off the sorted rows, which is faster than its partition per row."""
+    ordered = np.sort(t, axis=1)
+    position = np.asarray(_QUANTILES) * (t.shape[1] - 1)
+    below = np.floor(position).astype(np.int64)
+    above = np.minimum(below + 1, t.shape[1] - 1)
+    frac = position - below
+    low, high = ordered[:, below], ordered[:, above]
+    step = high - low
+    return np.where(frac >= 0.5, high - step * (1.0 - frac), low + step * frac)
+
+
+def _interval(p: _Bootstrap, q: np.ndarray, target_half_width_pct: float) -> TrialEstimate:
+    """The pair's estimate from the quantiles ``q`` of its studentized bootstrap distribution."""
     if not np.all(np.isfinite(q)):
-        return TrialEstimate(estimator, point, None, "the bootstrap is degenerate", naive, counts)
+        reason = "the bootstrap is degenerate"
+        return TrialEstimate(p.estimator, p.point, None, reason, p.naive, p.counts)
     # the interval of ln(1 − s) is θ − q·se; the savings fall as ln(1 − s) rises
-    low, high = (float(_savings(theta - q[i] * se)) for i in (0, 3))
-    low68, high68 = (float(_savings(theta - q[i] * se)) for i in (1, 2))
-    n = sum(len(g) for g in samples)
+    low, high = (float(_savings(p.theta - q[i] * p.se)) for i in (0, 3))
+    low68, high68 = (float(_savings(p.theta - q[i] * p.se)) for i in (1, 2))
+    n = len(p.a) + len(p.b)
     half = (high - low) / 2.0
     return TrialEstimate(
-        estimator=estimator,
-        savings_pct=point,
+        estimator=p.estimator,
+        savings_pct=p.point,
         savings_ci95_pct=[low, high],
         ci_reason=None,
-        naive_savings_pct=naive,
-        days=counts,
-        standard_error_pct=float(100.0 * math.exp(theta) * se),
+        naive_savings_pct=p.naive,
+        days=p.counts,
+        standard_error_pct=float(100.0 * math.exp(p.theta) * p.se),
         days_to_target=max(0, math.ceil(n * (half / target_half_width_pct) ** 2 - n)),
-        meets_guideline_14=bool((high68 - low68) / 2.0 < 0.5 * abs(point)),
+        meets_guideline_14=bool((high68 - low68) / 2.0 < 0.5 * abs(p.point)),
     )
 
 
-def _effect(coef: float, a: np.ndarray, b: np.ndarray, axis: int = -1) -> tuple:
+def _effect(coef: float, a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """ln(1 − s) = coef (mean a − mean b) and its standard error |coef| √(var a/na + var b/nb)
-    (sample variances), along ``axis``."""
-    na, nb = a.shape[axis], b.shape[axis]
-    theta = coef * (np.mean(a, axis=axis) - np.mean(b, axis=axis))
-    var = np.var(a, axis=axis, ddof=1) / na + np.var(b, axis=axis, ddof=1) / nb
-    return theta, abs(coef) * np.sqrt(var)
+    (sample variances)."""
+    theta = coef * (np.mean(a) - np.mean(b))
+    var = np.var(a, ddof=1) / len(a) + np.var(b, ddof=1) / len(b)
+    return float(theta), float(abs(coef) * np.sqrt(var))
 
 
 def pool(estimates: list[TrialEstimate]) -> dict:
