@@ -81,9 +81,6 @@ TARGET_HALF_WIDTH_PCT = 2.0
 NEITHER = -1
 #: Quantiles of the studentized bootstrap distribution: the 95 % and the 68 % intervals.
 _QUANTILES = (0.025, 0.16, 0.84, 0.975)
-#: Pairs × resamples whose bootstrap distributions are computed in one block: few enough for
-#: its arrays (160 kB each) to stay in the processor's cache.
-_BLOCK_SIZE = 20_000
 #: ``date(1970, 1, 1).toordinal()``.
 _ORDINAL_1970 = 719163
 
@@ -452,14 +449,14 @@ def estimate_many(
         else:
             sizes = (len(prepared.a), len(prepared.b))
             pending.setdefault(sizes, []).append((i, prepared))
-    block_pairs = max(1, _BLOCK_SIZE // n_resamples)
     for (n_a, n_b), group in pending.items():
         counts_a, counts_b = _resample_counts(n_a, n_b, n_resamples, seed)
-        for start in range(0, len(group), block_pairs):
-            block = group[start : start + block_pairs]
-            q = _pivot_quantiles([p for _, p in block], counts_a, counts_b)
-            for (i, p), q_i in zip(block, q, strict=True):
-                out[i] = _interval(p, q_i, target_half_width_pct)
+        # one pair per product: the matrix library's rounding depends on a product's shape, and
+        # a pair's interval must not depend on the pairs it is computed with
+        for i, p in group:
+            out[i] = _interval(
+                p, _pivot_quantiles([p], counts_a, counts_b)[0], target_half_width_pct
+            )
     return [out[i] for i in range(len(days_list))]
 
 
@@ -658,8 +655,3 @@ def pool(estimates: list[TrialEstimate]) -> dict:
         tau2=tau2,
     )
     return out
-
-
-def estimate_many(days_list: list[TrialDays]) -> list[TrialEstimate]:
-    """TEMPORARY until the batched bootstrap lands."""
-    return [estimate(d) for d in days_list]
