@@ -203,11 +203,12 @@ def decided(
     client, coach_id: str, first: int, last: int, source: str = "ddpc", reason: str = "ok"
 ) -> None:
     """Setpoints of ``coach_id`` at the ticks at(first), at(first + 5), … ≤ at(last), as the
-    scheduler stores them (``ddpc``/``ok``; the layer off: ``rule``/``inactive``), where the coach
-    has none; the coach's last tick moved up to the newest, so the live loop does not issue them
-    again."""
+    scheduler stores them (``ddpc``/``ok``; the layer off: ``rule``/``inactive``) and counts them
+    (:mod:`.setpoint_rollups`), where the coach has none; the coach's last tick moved up to the
+    newest, so the live loop does not issue them again."""
     from sqlalchemy import select
 
+    from trainclimate.service.store import setpoint_rollups
     from trainclimate.service.store.models import Coach, Setpoint
 
     ticks = [at(m) for m in range(first, last + 1, 5)]
@@ -217,18 +218,15 @@ def decided(
                 select(Setpoint.tick).where(Setpoint.coach_id == coach_id, Setpoint.tick.in_(ticks))
             )
         )
-        for tick in ticks:
-            if tick not in have:
-                s.add(
-                    Setpoint(
-                        coach_id=coach_id,
-                        tick=tick,
-                        t_rule_c=22.0,
-                        t_ref_c=22.0,
-                        source=source,
-                        reason=reason,
-                    )
-                )
+        rows = [
+            {"coach_id": coach_id, "tick": tick, "t_rule_c": 22.0, "t_ref_c": 22.0}
+            | {"source": source, "reason": reason}
+            for tick in ticks
+            if tick not in have
+        ]
+        if rows:
+            s.execute(Setpoint.__table__.insert(), rows)
+            setpoint_rollups.add(s, rows)
         coach = s.get(Coach, coach_id)
         if coach.last_tick is None or coach.last_tick < ticks[-1]:
             coach.last_tick = ticks[-1]

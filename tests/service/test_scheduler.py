@@ -5,8 +5,9 @@ a database migrated with a model, coaches and telemetry, and ``Scheduler.tick_fl
 Checked: a tick is issued once per coach (a second call, a second scheduler, or two replicas
 racing on it issue nothing more; the unique (coach, tick) holds in the database); the order of
 decisions (warm-up, inactive, stale, override, DDPC after ρ = 12 samples); one coach's exception
-gives it a fallback and leaves the others theirs; a restarted scheduler continues from the stored
-history; the live loop issues only the current tick and survives the database going away.
+gives it a fallback and leaves the others theirs; each setpoint is counted in its window in the
+tick's transaction; a restarted scheduler continues from the stored history; the live loop issues
+only the current tick and survives the database going away.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from service_support import (
 from trainclimate.service import scheduler as scheduler_module
 from trainclimate.service.app import register_model_file
 from trainclimate.service.scheduler import Scheduler
-from trainclimate.service.store import commands, liveness
+from trainclimate.service.store import commands, liveness, setpoint_rollups
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import (
     Coach,
@@ -35,6 +36,7 @@ from trainclimate.service.store.models import (
     Override,
     PredictorModel,
     Setpoint,
+    SetpointRollup,
     Train,
 )
 from trainclimate.service.store.tokens import Principal
@@ -79,6 +81,15 @@ def setpoints(db: Database, tick=None) -> list[Setpoint]:
 
 def by_coach(db: Database, tick) -> dict[str, Setpoint]:
     return {sp.coach_id: sp for sp in setpoints(db, tick)}
+
+
+def rollups(db: Database) -> dict[tuple[str, int], tuple[int, ...]]:
+    """The setpoint rollups: (coach, window) → (ticks, ddpc, inactive, fallback)."""
+    with db.transaction() as session:
+        return {
+            (r.coach_id, r.window): (r.ticks, r.ddpc, r.inactive, r.fallback)
+            for r in session.scalars(select(SetpointRollup))
+        }
 
 
 def test_a_tick_is_issued_once(db, settings):
@@ -209,6 +220,15 @@ def test_inactive_stale_and_missing_coaches(db, settings):
     assert got["stale"] == ("fallback", "stale", 20.5, 20.5)
     assert got["never"] == ("fallback", "stale", None, None)
     assert got["on"][:2] == ("ddpc", "ok")
+    # each counted in its window as it was stored
+    w = round(at(60).timestamp()) // 1800
+    assert rollups(db) == {
+        ("on", w): (1, 1, 0, 0),
+        ("off", w): (1, 0, 1, 0),
+        ("edge", w): (1, 0, 1, 0),
+        ("stale", w): (1, 0, 0, 1),
+        ("never", w): (1, 0, 0, 1),
+    }
 
 
 def test_one_coach_raising_does_not_stop_the_others(db, settings, monkeypatch, caplog):
@@ -421,6 +441,28 @@ def test_the_tick_transaction_is_all_or_nothing(db, settings, monkeypatch):
     monkeypatch.setattr(scheduler_module, "_row", row)
     assert scheduler.tick_fleet("live", at(10)) == 2
     assert [sp.coach_id for sp in setpoints(db, at(10))] == ["A", "B"]
+
+
+def test_the_setpoints_and_their_counts_are_stored_together(db, settings, monkeypatch):
+    """The setpoint rollups are kept in the tick's transaction: when counting fails, no setpoint
+    is stored either, and the next try stores and counts them."""
+    add_coaches(db, ["A", "B"], active=False)
+    for cid in "AB":
+        ingest(db, cid, flat_rows(1, 10))
+    scheduler = Scheduler(db, settings)
+    add = setpoint_rollups.add
+
+    def fail(session, rows):
+        raise OperationalError("INSERT", {}, Exception("connection lost"))
+
+    monkeypatch.setattr(setpoint_rollups, "add", fail)
+    with pytest.raises(OperationalError):
+        scheduler.tick_fleet("live", at(10))
+    assert setpoints(db) == [] and rollups(db) == {}
+    monkeypatch.setattr(setpoint_rollups, "add", add)
+    assert scheduler.tick_fleet("live", at(10)) == 2
+    w = round(at(10).timestamp()) // 1800
+    assert rollups(db) == {("A", w): (1, 0, 1, 0), ("B", w): (1, 0, 1, 0)}
 
 
 def test_a_live_coach_whose_gateway_is_late_gets_the_tick_with_its_row(db, settings):

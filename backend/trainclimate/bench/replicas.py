@@ -16,8 +16,9 @@ warm-up ticks (the controllers, the engine's connections; with SKIP LOCKED a pro
 other coaches at each tick, hence two), then three measured ticks: a tick's time is from the
 common start to the moment the last process finished; the median of the three is reported.
 Both numbers of processes decide the same five ticks on the same telemetry: before each run the
-setpoints are deleted and the coaches' ``last_tick`` and ``held_by`` reset (the decisions' cost
-depends on the data: later ticks of the scenario, nearer sunrise, take the solver longer).
+setpoints and their rollups are deleted and the coaches' ``last_tick`` and ``held_by`` reset (the
+decisions' cost depends on the data: later ticks of the scenario, nearer sunrise, take the solver
+longer).
 
 Each process reports per tick the coaches it issued, its own time, its CPU time, the time in
 the database (every cursor execute, timed with SQLAlchemy's ``before_cursor_execute`` and
@@ -140,8 +141,13 @@ def run(coaches: int = 10_000, db: str | None = None, *, batch: int = BATCH, pro
         runs = {}
         for p in PROCESSES:
             # every run decides the same ticks on the same telemetry, from the same tables
-            sql(url, "DELETE FROM setpoints", "UPDATE coaches SET last_tick = NULL, held_by = NULL")
-            sql(url, "VACUUM ANALYZE coaches, setpoints", autocommit=True)
+            sql(
+                url,
+                "DELETE FROM setpoints",
+                "DELETE FROM setpoint_rollups",
+                "UPDATE coaches SET last_tick = NULL, held_by = NULL",
+            )
+            sql(url, "VACUUM ANALYZE coaches, setpoints, setpoint_rollups", autocommit=True)
             runs[str(p)] = _run(url, model, p, ticks, len(ids), batch, Path(tmp))
             step(1)
         server_info = postgres(url)

@@ -11,7 +11,8 @@ ticks.
 A tick for coach c at time t is *claimed* in the database: the coach's row is locked
 (``SELECT … FOR UPDATE SKIP LOCKED`` on PostgreSQL, so replicas sharing the database take
 different coaches) where its ``last_tick`` is before t, and the setpoint is inserted under the
-unique constraint (coach, tick) in the same transaction that advances ``last_tick``. So a tick is
+unique constraint (coach, tick) in the same transaction that advances ``last_tick`` and counts
+it in its coach's window (:mod:`~trainclimate.service.store.setpoint_rollups`). So a tick is
 issued at most once, whatever crashes or replicas do; and since the lead-in comes from stored
 telemetry, a restarted loop carries on where it stopped.
 
@@ -62,7 +63,7 @@ from trainclimate.service import logs, policy
 from trainclimate.service.metrics import Metrics
 from trainclimate.service.policy import Decision
 from trainclimate.service.settings import LOOP_READY_MIN_S, Settings
-from trainclimate.service.store import guard, plans
+from trainclimate.service.store import guard, plans, setpoint_rollups
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import (
     Coach,
@@ -348,6 +349,7 @@ class Scheduler:
                     rows.append(_row(coach.id, tick, decision, self._model_id, self.replica))
                     coach.last_tick, coach.held_by = tick, self.replica
             session.execute(Setpoint.__table__.insert(), rows)
+            setpoint_rollups.add(session, rows)
             if shadows:
                 session.execute(ShadowPrediction.__table__.insert(), shadows)
         self._days.update(recorded)

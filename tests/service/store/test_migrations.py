@@ -25,6 +25,7 @@ from trainclimate.service.store.models import (
     CoachFeed,
     FleetClock,
     Setpoint,
+    SetpointRollup,
     Telemetry,
     Train,
     TrainPlan,
@@ -37,8 +38,9 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 #: The newest revision.
-HEAD = "0014"
+HEAD = "0015"
 TABLES = {
+    "setpoint_rollups",
     "window_rollups",
     "coach_feed",
     "coach_liveness",
@@ -60,6 +62,7 @@ TABLES = {
 
 #: The tables before 0008.
 BEFORE_0008 = TABLES - {
+    "setpoint_rollups",
     "train_plans",
     "trial_days",
     "pair_guards",
@@ -342,4 +345,64 @@ def test_rollups_are_computed_for_the_telemetry_already_stored(db_url):
     finally:
         db.dispose()
     downgrade(db_url, "0011")
-    assert schema(db_url) == (TABLES - {"window_rollups", "coach_feed"}, "0011")
+    assert schema(db_url) == (TABLES - {"window_rollups", "coach_feed", "setpoint_rollups"}, "0011")
+
+
+def test_setpoint_rollups_are_counted_from_the_setpoints_already_stored(db_url):
+    """0015 adds the setpoint rollups and counts the setpoints a database at 0014 holds: coach
+    A's ticks at 06:00–06:25 in one window, its tick at 06:30 in the next, B's in its own."""
+    from sqlalchemy import create_engine, text
+
+    migrate(db_url, "0014")
+    engine = create_engine(db_url)
+    t0 = datetime(2024, 11, 28, 6, 0, tzinfo=UTC)
+    ticks = [
+        ("A", 0, "ddpc", "ok"),
+        ("A", 5, "rule", "inactive"),
+        ("A", 10, "rule", "costing_energy"),
+        ("A", 15, "fallback", "stale"),
+        ("A", 20, "rule", "no_model"),
+        ("A", 25, "rule", "not_regular"),
+        ("A", 30, "override", "override"),
+        ("B", 0, "ddpc", "ok"),
+    ]
+    with engine.begin() as c:
+        train = text("INSERT INTO trains (id, name, created_at) VALUES ('T', 't', :t)")
+        c.execute(train, {"t": t0})
+        c.execute(
+            text(
+                "INSERT INTO coaches (id, train_id, fleet, ddpc_active, created_at)"
+                " VALUES (:id, 'T', 'live', false, :t)"
+            ),
+            [{"id": cid, "t": t0} for cid in "AB"],
+        )
+        c.execute(
+            text(
+                "INSERT INTO setpoints (coach_id, tick, source, reason, detail, created_at)"
+                " VALUES (:c, :t, :s, :r, '', :t)"
+            ),
+            [
+                {"c": cid, "t": t0 + timedelta(minutes=m), "s": source, "r": reason}
+                for cid, m, source, reason in ticks
+            ],
+        )
+    engine.dispose()
+    migrate(db_url)
+    w0 = round(t0.timestamp()) // 1800
+    columns = ("ticks", "ddpc", "inactive", "no_model", "override", "fallback", "not_regular")
+    db = Database(db_url)
+    try:
+        with db.transaction() as s:
+            got = {
+                (r.coach_id, r.window - w0): tuple(getattr(r, c) for c in columns)
+                for r in s.scalars(select(SetpointRollup))
+            }
+    finally:
+        db.dispose()
+    assert got == {
+        ("A", 0): (6, 1, 2, 1, 0, 1, 1),
+        ("A", 1): (1, 0, 0, 0, 1, 0, 0),
+        ("B", 0): (1, 1, 0, 0, 0, 0, 0),
+    }
+    downgrade(db_url, "0014")
+    assert schema(db_url) == (TABLES - {"setpoint_rollups"}, "0014")

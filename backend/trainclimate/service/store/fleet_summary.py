@@ -8,11 +8,11 @@ a minute missing, a link lost, an override, a tick that was not DDPC on the acti
 violation and discomfort over the same minutes (both coaches in regular mode, nothing affected).
 Here the telemetry's sums per pair and window come from the window rollups kept at ingest
 (:mod:`.rollups`; the raw minutes only for the windows they cannot give exactly, summed in the
-database in one statement over every train), and the setpoints are counted per coach and window
-in another statement; the fleet's naive figures pool its trains' energies, its savings estimate
-their trial estimates (:func:`trainclimate.analysis.trial.pool`). Each train's figures are kept
-in the read cache while its rows and setpoints in the counted range and its overrides are
-unchanged (:func:`pair_states`).
+database in one statement over every train), and the setpoints' counts per coach and window from
+the setpoint rollups kept by the scheduler (:mod:`.setpoint_rollups`); the fleet's naive figures
+pool its trains' energies, its savings estimate their trial estimates
+(:func:`trainclimate.analysis.trial.pool`). Each train's figures are kept in the read cache while
+its rows and setpoints in the counted range and its overrides are unchanged (:func:`pair_states`).
 """
 
 from __future__ import annotations

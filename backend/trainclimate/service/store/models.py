@@ -14,7 +14,8 @@
   the scheduler first applied it (``trial_days``);
 - each train's guard (``pair_guards``): whether its pair's own outcome handed the layer back;
 - per coach and 30-minute window, its telemetry summed as it arrives (``window_rollups``), and
-  each coach's newest row, newest row within comfort and late rows (``coach_feed``).
+  each coach's newest row, newest row within comfort and late rows (``coach_feed``);
+- per coach and 30-minute window, its setpoints counted as they are issued (``setpoint_rollups``).
 
 Every timestamp is stored in UTC and read back timezone-aware (:class:`UTCDateTime`).
 """
@@ -234,6 +235,24 @@ class Setpoint(Base):
     model_id: Mapped[int | None] = mapped_column(ForeignKey("predictor_models.id"), nullable=True)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     replica: Mapped[str | None] = mapped_column(String(64), nullable=True)
+
+
+class SetpointRollup(Base):
+    """One coach's setpoints in one 30-minute window, counted as they are issued
+    (:mod:`trainclimate.service.store.setpoint_rollups`): every tick, and those that issued a
+    DDPC setpoint, T_rule with the layer off, no model yet, an override, a fallback, or not in
+    regular mode. ``window`` counts windows since 1970-01-01 UTC."""
+
+    __tablename__ = "setpoint_rollups"
+    coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"), primary_key=True)
+    window: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
+    ticks: Mapped[int] = mapped_column(Integer, default=0)
+    ddpc: Mapped[int] = mapped_column(Integer, default=0)
+    inactive: Mapped[int] = mapped_column(Integer, default=0)
+    no_model: Mapped[int] = mapped_column(Integer, default=0)
+    override: Mapped[int] = mapped_column(Integer, default=0)
+    fallback: Mapped[int] = mapped_column(Integer, default=0)
+    not_regular: Mapped[int] = mapped_column(Integer, default=0)
 
 
 class Override(Base):

@@ -25,20 +25,21 @@ counts (:func:`setpoint_counts`).
 from __future__ import annotations
 
 from datetime import datetime
+from typing import cast
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import case, func, select
+from sqlalchemy import Table, select
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals, savings_pct
+from trainclimate.service.store import setpoint_rollups
 from trainclimate.service.store.models import Setpoint
+from trainclimate.service.store.setpoint_rollups import COUNTS
 from trainclimate.service.store.sqltime import EpochSeconds
 from trainclimate.sim.power import HEADLINE_METER, METERS
 
-#: What :func:`setpoint_counts` gives per coach and window, in order.
-COUNTS = ("ticks", "ddpc", "inactive", "no_model", "override", "fallback", "not_regular")
 #: What :func:`.fleet_summary.window_sums` returns per window, in order.
 SUMS = (
     "minutes",
@@ -57,10 +58,6 @@ SUMS = (
 #: Name → column of the :data:`SUMS`.
 SUMS_INDEX = {name: i for i, name in enumerate(SUMS)}
 
-
-#: The reasons of a ``rule`` setpoint with the layer off: switched off, or handed back by the
-#: train's guard (:mod:`.guard`); either counts as T_rule with the layer off.
-LAYER_OFF = ("inactive", "costing_energy")
 #: After the activated coach changes, windows starting within this are excluded. [min]
 LEAD_IN_MIN = 60.0
 #: A service day counts with at least this many counted windows.
@@ -72,8 +69,11 @@ UNLABELLED = -2
 def setpoint_counts(
     session: Session, coaches: list[str], lo: datetime, hi: datetime, window_min: float
 ) -> dict[str, dict[int, np.ndarray]]:
-    """Per coach and window, how many ticks in [lo, hi) issued what (:data:`COUNTS`), in one
-    statement. A setpoint issued at tick t acts from t: its window is ⌊t / window⌋.
+    """Per coach and window, how many ticks in [lo, hi) issued what
+    (:data:`~.setpoint_rollups.COUNTS`). A setpoint issued at tick t acts from t: its window is
+    ⌊t / window⌋. Read from the setpoint rollups (:mod:`.setpoint_rollups`) when the windows are
+    theirs (30 minutes, ``lo`` and ``hi`` on window boundaries), else counted over the setpoints
+    (:func:`setpoint_counts_raw`).
 
     Parameters
     ----------
@@ -88,27 +88,30 @@ def setpoint_counts(
     dict
         Coach id → window index (the window's start in window lengths since 1970) → counts.
     """
+    window_s = setpoint_rollups.WINDOW_MIN * 60
+    lo_s, hi_s = lo.timestamp(), hi.timestamp()
+    if window_min != setpoint_rollups.WINDOW_MIN or lo_s % window_s or hi_s % window_s:
+        return setpoint_counts_raw(session, coaches, lo, hi, window_min)
+    lo_w, hi_w = round(lo_s) // window_s, round(hi_s) // window_s
+    return {
+        cid: dict(zip(index.tolist(), counts, strict=True))
+        for cid, (index, counts) in setpoint_rollups.read(session, coaches, lo_w, hi_w).items()
+    }
+
+
+def setpoint_counts_raw(
+    session: Session, coaches: list[str], lo: datetime, hi: datetime, window_min: float
+) -> dict[str, dict[int, np.ndarray]]:
+    """:func:`setpoint_counts` over the setpoints themselves, in one statement (any window
+    length and range)."""
     if not coaches:
         return {}
-    window = (EpochSeconds(Setpoint.tick) // round(window_min * 60)).label("w")
-
-    def n(condition):
-        return func.sum(case((condition, 1), else_=0))
-
+    t = cast(Table, Setpoint.__table__)
+    window = (EpochSeconds(t.c.tick) // round(window_min * 60)).label("w")
     rows = session.execute(
-        select(
-            Setpoint.coach_id,
-            window,
-            func.count(),
-            n(Setpoint.source == "ddpc"),
-            n((Setpoint.source == "rule") & Setpoint.reason.in_(LAYER_OFF)),
-            n(Setpoint.reason == "no_model"),
-            n(Setpoint.source == "override"),
-            n(Setpoint.source == "fallback"),
-            n(Setpoint.reason == "not_regular"),
-        )
-        .where(Setpoint.coach_id.in_(coaches), Setpoint.tick >= lo, Setpoint.tick < hi)
-        .group_by(Setpoint.coach_id, window)
+        select(t.c.coach_id, window, *setpoint_rollups.aggregates(t))
+        .where(t.c.coach_id.in_(coaches), t.c.tick >= lo, t.c.tick < hi)
+        .group_by(t.c.coach_id, window)
     ).all()
     out: dict[str, dict[int, np.ndarray]] = {}
     for cid, w, *values in rows:

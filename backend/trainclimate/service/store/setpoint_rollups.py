@@ -1,0 +1,140 @@
+"""Setpoint rollups: each coach's setpoints counted per 30-minute window as the scheduler issues
+them, so the pair comparison, the fleet summary and the trial estimates read one row per coach
+and window instead of every tick.
+
+A setpoint issued at tick t acts from t: its window is ⌊t / 30 min⌋ (t in whole seconds since
+1970, :class:`~.models.SetpointRollup`). Setpoints are only ever inserted, each (coach, tick)
+once, so a new setpoint adds one to its window's counts — a tick issued late updates the window
+it belongs to like any other. What each count counts (:data:`COUNTS`) is defined once here
+(:data:`CONDITIONS`), for the counts kept in Python (:func:`increments`) and those summed in the
+database (:func:`aggregates`: the rebuild and :func:`.pair_trial.setpoint_counts` over the raw
+setpoints alike).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import cast
+
+import numpy as np
+from sqlalchemy import Table, and_, case, delete, func, select
+from sqlalchemy.orm import Session
+from sqlalchemy.sql.expression import ColumnElement
+
+from trainclimate.service.store.models import Setpoint, SetpointRollup
+from trainclimate.service.store.sqltime import EpochSeconds
+from trainclimate.service.store.upsert import accumulate
+
+#: What is counted per coach and window, in order.
+COUNTS = ("ticks", "ddpc", "inactive", "no_model", "override", "fallback", "not_regular")
+#: The reasons of a ``rule`` setpoint with the layer off: switched off, or handed back by the
+#: train's guard (:mod:`.guard`); either counts as T_rule with the layer off.
+LAYER_OFF = ("inactive", "costing_energy")
+#: Per count, the values a setpoint's columns must take for it to count (every tick for
+#: ``ticks``).
+CONDITIONS: dict[str, dict[str, tuple[str, ...]]] = {
+    "ticks": {},
+    "ddpc": {"source": ("ddpc",)},
+    "inactive": {"source": ("rule",), "reason": LAYER_OFF},
+    "no_model": {"reason": ("no_model",)},
+    "override": {"source": ("override",)},
+    "fallback": {"source": ("fallback",)},
+    "not_regular": {"reason": ("not_regular",)},
+}
+#: The rollups' window. [min]
+WINDOW_MIN = 30
+_WINDOW_S = WINDOW_MIN * 60
+
+
+def _table() -> Table:
+    """The rollups' table (declared as a table: its type says only "a FROM clause")."""
+    return cast(Table, SetpointRollup.__table__)
+
+
+def window_of(tick) -> int:
+    """The window of a setpoint issued at ``tick`` (timezone-aware): ⌊t / 30 min⌋, t in whole
+    seconds since 1970."""
+    return math.floor(tick.timestamp()) // _WINDOW_S
+
+
+def increments(rows: list[dict]) -> list[dict]:
+    """What new setpoint ``rows`` (as the scheduler stores them: ``coach_id``, ``tick``,
+    ``source``, ``reason``) add per coach and window: its ``coach_id``, ``window`` and the
+    :data:`COUNTS`, ordered by coach and window."""
+    out: dict[tuple[str, int], dict] = {}
+    for r in rows:
+        key = (r["coach_id"], window_of(r["tick"]))
+        acc = out.get(key)
+        if acc is None:
+            acc = out[key] = {"coach_id": key[0], "window": key[1], **dict.fromkeys(COUNTS, 0)}
+        for name in COUNTS:
+            if all(r[column] in values for column, values in CONDITIONS[name].items()):
+                acc[name] += 1
+    return [out[key] for key in sorted(out)]
+
+
+def aggregates(table: Table) -> list[ColumnElement[int]]:
+    """The :data:`COUNTS` over the setpoints of ``table`` (a GROUP BY's aggregates), in order."""
+    out: list[ColumnElement[int]] = []
+    for name in COUNTS:
+        condition = CONDITIONS[name]
+        if not condition:
+            out.append(func.count())
+            continue
+        match = and_(*(table.c[column].in_(values) for column, values in condition.items()))
+        out.append(func.sum(case((match, 1), else_=0)))
+    return out
+
+
+def add(session: Session, rows: list[dict]) -> None:
+    """Add newly stored setpoint ``rows`` to their coaches' window counts, in the caller's
+    transaction, coach by coach and window by window (two writers take the rows' locks in one
+    order)."""
+    accumulate(session, _table(), increments(rows), ["coach_id", "window"], list(COUNTS))
+
+
+def rebuild(session: Session) -> int:
+    """Recount every window from the stored setpoints, in the database (for setpoints stored
+    around the scheduler, e.g. with COPY, and the migration that adds the rollups). Returns how
+    many window rollups there are."""
+    t = cast(Table, Setpoint.__table__)
+    window = (EpochSeconds(t.c.tick) // _WINDOW_S).label("window")
+    counted = select(t.c.coach_id, window, *aggregates(t)).group_by(t.c.coach_id, window)
+    session.execute(delete(SetpointRollup))
+    session.execute(_table().insert().from_select(["coach_id", "window", *COUNTS], counted))
+    return session.scalar(select(func.count()).select_from(SetpointRollup)) or 0
+
+
+def read(
+    session: Session, coaches: list[str], lo_w: int, hi_w: int
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The ``coaches``' counts of windows ``lo_w`` ≤ w < ``hi_w``.
+
+    Returns
+    -------
+    dict
+        Coach id → its windows' indices (n,) int64, ordered, and their counts
+        (n, len(COUNTS)) float; coaches without a window are left out.
+    """
+    if not coaches:
+        return {}
+    t = _table()
+    result = session.connection().execute(
+        select(t.c.coach_id, t.c.window, *(t.c[name] for name in COUNTS))
+        .where(t.c.coach_id.in_(coaches), t.c.window >= lo_w, t.c.window < hi_w)
+        .order_by(t.c.coach_id, t.c.window)
+    )
+    try:
+        # the driver's own tuples (no column here needs converting): no Row built per row
+        rows = result.cursor.fetchall()
+    finally:
+        result.close()
+    if not rows:
+        return {}
+    table = np.array(rows, dtype=object)
+    ids, values = table[:, 0], table[:, 1:].astype(np.int64)
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    return {
+        str(ids[a]): (values[a:b, 0], values[a:b, 1:].astype(float))
+        for a, b in zip(starts, [*starts[1:], len(ids)], strict=True)
+    }
