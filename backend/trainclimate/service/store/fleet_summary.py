@@ -39,7 +39,7 @@ from sqlalchemy.sql.expression import ColumnElement
 
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
-from trainclimate.service.store import pair_trial, plans, queries, rollups
+from trainclimate.service.store import pair_trial, plans, queries, rollups, setpoint_rollups
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
     attention,
@@ -282,24 +282,41 @@ def pair_counts(
     session: Session, pairs: list[tuple[str, str, datetime, datetime]], window_min: float
 ) -> dict[str, np.ndarray]:
     """Both coaches' setpoint counts (:func:`.pair_trial.setpoint_counts`) of each pair per
-    window of its range, (W, 2, len(COUNTS))."""
+    window of its range, (W, 2, len(COUNTS)): from the setpoint rollups
+    (:mod:`.setpoint_rollups`) for their 30-minute windows, else counted over the setpoints."""
     if not pairs:
         return {}
-    counts = pair_trial.setpoint_counts(
-        session,
-        sorted({c for pair in pairs for c in pair[:2]}),
-        min(pair[2] for pair in pairs),
-        max(pair[3] for pair in pairs),
-        window_min,
+    coaches = sorted({c for pair in pairs for c in pair[:2]})
+    ranges = [_range_windows(lo, hi, window_min) for _, _, lo, hi in pairs]
+    if window_min != setpoint_rollups.WINDOW_MIN:
+        counts = pair_trial.setpoint_counts(
+            session, coaches, min(p[2] for p in pairs), max(p[3] for p in pairs), window_min
+        )
+        out = {}
+        for (c0, c1, _, _), (w_lo, n) in zip(pairs, ranges, strict=True):
+            dense = np.zeros((n, 2, len(COUNTS)))
+            for side, c in enumerate((c0, c1)):
+                for w, values in counts.get(c, {}).items():
+                    if w_lo <= w < w_lo + n:
+                        dense[w - w_lo, side] = values
+            out[c0] = dense
+        return out
+    rows = setpoint_rollups.read_rows(
+        session, coaches, min(r[0] for r in ranges), max(r[0] + r[1] for r in ranges)
     )
+    values = np.stack([rows[c] for c in COUNTS], axis=-1).reshape(len(rows), len(COUNTS))
+    position = {c: i for i, c in enumerate(coaches)}
+    # each coach's windows in order, so that a pair's side is two slices
+    order = np.lexsort((rows["window"], rows["coach"]))
+    coach, window, values = rows["coach"][order], rows["window"][order], values[order]
+    edges = np.searchsorted(coach, np.arange(len(coaches) + 1))
     out = {}
-    for c0, c1, lo, hi in pairs:
-        w_lo, n = _range_windows(lo, hi, window_min)
+    for (c0, c1, _, _), (w_lo, n) in zip(pairs, ranges, strict=True):
         dense = np.zeros((n, 2, len(COUNTS)))
         for side, c in enumerate((c0, c1)):
-            for w, values in counts.get(c, {}).items():
-                if w_lo <= w < w_lo + n:
-                    dense[w - w_lo, side] = values
+            a, b = edges[position[c]], edges[position[c] + 1]
+            lo, hi = a + np.searchsorted(window[a:b], [w_lo, w_lo + n])
+            dense[window[lo:hi] - w_lo, side] = values[lo:hi]
         out[c0] = dense
     return out
 

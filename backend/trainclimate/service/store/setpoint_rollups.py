@@ -21,6 +21,7 @@ from sqlalchemy import Table, and_, case, delete, func, select
 from sqlalchemy.orm import Session
 from sqlalchemy.sql.expression import ColumnElement
 
+from trainclimate.service.store import binary_copy
 from trainclimate.service.store.models import Setpoint, SetpointRollup
 from trainclimate.service.store.sqltime import EpochSeconds
 from trainclimate.service.store.upsert import accumulate
@@ -105,10 +106,44 @@ def rebuild(session: Session) -> int:
     return session.scalar(select(func.count()).select_from(SetpointRollup)) or 0
 
 
+def read_rows(session: Session, coaches: list[str], lo_w: int, hi_w: int) -> np.ndarray:
+    """The ``coaches``' counts of windows ``lo_w`` ≤ w < ``hi_w`` as one structured array
+    (fields ``coach`` — the position in ``coaches`` —, ``window`` and :data:`COUNTS`), in no
+    particular order: on PostgreSQL a binary COPY (:mod:`.binary_copy`), elsewhere the
+    driver's tuples."""
+    dtype = np.dtype([("coach", np.int64), ("window", np.int64)] + [(c, np.int64) for c in COUNTS])
+    if not coaches:
+        return np.zeros(0, dtype)
+    t = _table()
+    if session.get_bind().dialect.name == "postgresql":
+        from psycopg import sql
+
+        query = sql.SQL(
+            'SELECT k.i - 1, r."window", {counts} FROM setpoint_rollups r '
+            "JOIN unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) ON r.coach_id = k.id "
+            'WHERE r."window" >= {lo} AND r."window" < {hi}'
+        ).format(
+            counts=sql.SQL(", ").join(
+                sql.SQL("r.{}::int8").format(sql.Identifier(c)) for c in COUNTS
+            ),
+            ids=sql.Literal(list(coaches)),
+            lo=sql.Literal(int(lo_w)),
+            hi=sql.Literal(int(hi_w)),
+        )
+        return binary_copy.copy_rows(session, query, dtype)
+    position = case({c: i for i, c in enumerate(coaches)}, value=t.c.coach_id)
+    rows = session.execute(
+        select(position, t.c.window, *(t.c[name] for name in COUNTS)).where(
+            t.c.coach_id.in_(coaches), t.c.window >= lo_w, t.c.window < hi_w
+        )
+    ).all()
+    return np.array([tuple(r) for r in rows], dtype)
+
+
 def read(
     session: Session, coaches: list[str], lo_w: int, hi_w: int
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The ``coaches``' counts of windows ``lo_w`` ≤ w < ``hi_w``.
+    """The ``coaches``' counts of windows ``lo_w`` ≤ w < ``hi_w`` (:func:`read_rows`).
 
     Returns
     -------
@@ -116,25 +151,12 @@ def read(
         Coach id → its windows' indices (n,) int64, ordered, and their counts
         (n, len(COUNTS)) float; coaches without a window are left out.
     """
-    if not coaches:
-        return {}
-    t = _table()
-    result = session.connection().execute(
-        select(t.c.coach_id, t.c.window, *(t.c[name] for name in COUNTS))
-        .where(t.c.coach_id.in_(coaches), t.c.window >= lo_w, t.c.window < hi_w)
-        .order_by(t.c.coach_id, t.c.window)
-    )
-    try:
-        # the driver's own tuples (no column here needs converting): no Row built per row
-        rows = result.cursor.fetchall()
-    finally:
-        result.close()
-    if not rows:
-        return {}
-    table = np.array(rows, dtype=object)
-    ids, values = table[:, 0], table[:, 1:].astype(np.int64)
-    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    rows = np.sort(read_rows(session, coaches, lo_w, hi_w), order=["coach", "window"])
+    counts = np.stack([rows[c] for c in COUNTS], axis=-1).reshape(len(rows), len(COUNTS))
+    starts = np.flatnonzero(np.r_[True, rows["coach"][1:] != rows["coach"][:-1]])
+    ends = [*starts[1:], len(rows)]
     return {
-        str(ids[a]): (values[a:b, 0], values[a:b, 1:].astype(float))
-        for a, b in zip(starts, [*starts[1:], len(ids)], strict=True)
+        coaches[int(rows["coach"][a])]: (rows["window"][a:b], counts[a:b].astype(float))
+        for a, b in zip(starts, ends, strict=True)
+        if b > a
     }
