@@ -96,8 +96,9 @@ def comparison(
     e0, e1 = r["grid"][:, list(pair_trial.energy_columns(r["meter"]))].T
     ids = (c0.id, c1.id)
     out_windows = []
+    why = pair_trial.reasons(r)
     for i, w in enumerate(r["index"]):
-        label, reason = int(r["label"][i]), r["reason"][i]
+        label, reason = int(r["label"][i]), why[i]
         act, deact = (e1[i], e0[i]) if label == 1 else (e0[i], e1[i])
         counted = bool(r["counted"][i])
         out_windows.append(

@@ -349,10 +349,17 @@ def _estimates(
     return out
 
 
-def excluded_minutes_by_reason(reason: np.ndarray, window_min: float) -> dict[str, float]:
-    """Reason → minutes of the windows excluded for it. [min]"""
-    values, n = np.unique([r for r in reason if r is not None], return_counts=True)
-    return {str(v): float(k * window_min) for v, k in zip(values, n, strict=True)}
+def excluded_minutes_by_reason(code: np.ndarray, window_min: float) -> dict[str, float]:
+    """Reason → minutes of the windows excluded for it, from the windows' codes in
+    :data:`REASONS` (by name). [min]"""
+    n = np.bincount(code, minlength=len(REASONS))
+    found = {str(REASONS[i]): float(n[i] * window_min) for i in range(1, len(REASONS)) if n[i]}
+    return dict(sorted(found.items()))
+
+
+def reasons(result: dict) -> np.ndarray:
+    """A :func:`pair_results` result's reason per window (None where it counts) by name."""
+    return _REASON_NAMES[result["code"]]
 
 
 def energy_columns(meter: str) -> tuple[int, int]:
@@ -388,12 +395,13 @@ def pair_results(
     Returns
     -------
     list of dict
-        Per pair: ``index``, ``grid``, ``label``, ``reason`` (None where the window counts),
-        ``counted`` (arrays per window), ``meter`` (the HVAC units' when every counted minute
-        splits the floor heating off, else the whole coach's), ``totals`` (meter →
-        :class:`PairTotals`) and ``estimate``
-        (:class:`~trainclimate.analysis.trial.TrialEstimate`), and its ``figures``
-        (:func:`figures`).
+        Per pair: ``index``, ``grid``, ``label``, ``code`` (the reason a window is excluded,
+        in :data:`REASONS`, 0 where it counts; :func:`reasons` by name), ``counted`` (arrays
+        per window), ``meter`` (the HVAC units' when every counted minute splits the floor
+        heating off, else the whole coach's), ``totals`` (meter → :class:`PairTotals`),
+        ``estimate`` (:class:`~trainclimate.analysis.trial.TrialEstimate`) and its ``figures``
+        (:func:`figures`). (Codes, not names, so that a kept result holds no object per window
+        for the garbage collector to walk.)
     """
     label, code = windows(grids, counts, window_min)
     counted = (code == 0) & (label >= 0)
@@ -412,7 +420,7 @@ def pair_results(
             "index": index,
             "grid": grids[p],
             "label": label[p],
-            "reason": _REASON_NAMES[code[p]],
+            "code": code[p],
             "counted": counted[p],
             "meter": HEADLINE_METER if split[p] else "hvac_and_floor",
             "totals": {m: totals[m][p] for m in meters},
@@ -466,7 +474,7 @@ def figures(result: dict, window_min: float) -> dict:
         "avg_hourly_violation_activated_k": t.avg_hourly_violation_k,
         "avg_hourly_violation_deactivated_k": t.baseline_violation_k,
         "excluded_minutes": t.excluded_minutes,
-        "excluded_minutes_by_reason": excluded_minutes_by_reason(result["reason"], window_min),
+        "excluded_minutes_by_reason": excluded_minutes_by_reason(result["code"], window_min),
         "counted_windows": int(result["counted"].sum()),
         "counted_hours": t.counted_hours,
         **estimate,

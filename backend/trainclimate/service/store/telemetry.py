@@ -186,40 +186,57 @@ def controller_samples(rows: CoachRows, tick_s: float, period_s: float) -> Sampl
     else:
         u_prev = t_rule_now = float("nan")
         regular_now, last_time_s = False, None
-    times, ys, us, ds = [], [], [], []
+    times: np.ndarray = np.zeros(0)
+    y, u, d = np.zeros((0, 3)), np.zeros(0), np.zeros((0, len(_D)))
     if last_time_s is not None and last_time_s >= tick_s - 60.0:
-        y_ok = ~np.isnan(v[:, _Y]).any(axis=1)
-        block_ok = rows.regular & ~np.isnan(v[:, [_U, *_D]]).any(axis=1)
-        t = tick_s
-        while True:
-            # the reading at t: the rows of its last minute (t − 1 min, t]
-            hi = np.searchsorted(time_s, t, side="right")
-            lo = np.searchsorted(time_s, t - 60.0, side="right")
-            if hi == lo or not y_ok[lo:hi].all():
-                break
-            times.append(t)
-            ys.append(v[lo:hi, _Y].mean(axis=0))
-            # the interval (t − Δ, t] before it: complete, regular, and with every input
-            lo = np.searchsorted(time_s, t - period_s, side="right")
-            if hi - lo < minutes or not block_ok[lo:hi].all():
-                break
-            us.append(float(v[lo:hi, _U].mean()))
-            ds.append(v[lo:hi, _D].mean(axis=0))
-            t -= period_s
+        # the ticks t = tick − kΔ that rows can cover, newest first
+        times = tick_s - period_s * np.arange(int((tick_s - time_s[0]) // period_s) + 2)
+        hi = np.searchsorted(time_s, times, side="right")
+        reading = np.searchsorted(time_s, times - 60.0, side="right")  # (t − 1 min, t]
+        interval = np.searchsorted(time_s, times - period_s, side="right")  # (t − Δ, t]
+        y_bad = np.r_[0, np.cumsum(np.isnan(v[:, _Y]).any(axis=1))]
+        block_bad = np.r_[0, np.cumsum(~rows.regular | np.isnan(v[:, [_U, *_D]]).any(axis=1))]
+        # a tick's reading: a row in its last minute, every deck temperature known; the
+        # interval before it: complete, regular, and with every input
+        read = (hi > reading) & (y_bad[hi] == y_bad[reading])
+        whole = (hi - interval >= minutes) & (block_bad[hi] == block_bad[interval])
+        # walking back: every tick read, and the interval before each but the oldest whole
+        walked = np.cumprod(read & np.r_[True, whole[:-1]])
+        n = int(walked.sum())
+        times, m = times[:n], max(n - 1, 0)
+        y = _means(v[:, _Y], reading[:n], hi[:n])
+        u = _means(v[:, _U], interval[:m], hi[:m])
+        d = _means(v[:, _D], interval[:m], hi[:m])
     # oldest first; the samples are the ticks, u and d the intervals between consecutive ones
-    n = len(times)
-    us, ds = us[: n - 1][::-1], ds[: n - 1][::-1]
     return Samples(
-        times_s=np.array(times[::-1], float),
-        y=np.array(ys[::-1], float).reshape(-1, 3),
-        u=np.array(us, float),
-        d_past=np.array(ds, float).reshape(-1, 5),
-        d_now=ds[-1] if ds else None,
+        times_s=times[::-1].astype(float),
+        y=y[::-1].reshape(-1, 3),
+        u=u[::-1].astype(float),
+        d_past=d[::-1].reshape(-1, 5),
+        d_now=d[0] if len(d) else None,
         u_prev=u_prev,
         t_rule_now=t_rule_now,
         regular=regular_now,
         last_time_s=last_time_s,
     )
+
+
+def _means(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The means of ``values`` (n,) or (n, c) over the rows [lo_k, hi_k) of each k, shape
+    (k,) or (k, c), equal to the bit to ``values[lo_k:hi_k].mean(axis=0)``: numpy sums fewer
+    than 8 rows one after the other, which is done here for every k at once (one addition per
+    row of the longest; a finished sum adds 0); longer ranges are left to numpy."""
+    length = hi - lo
+    if len(lo) == 0 or length.max() >= 8:
+        return np.array([values[a:b].mean(axis=0) for a, b in zip(lo, hi, strict=True)]).reshape(
+            len(lo), *values.shape[1:]
+        )
+    total = np.zeros((len(lo), *values.shape[1:]))
+    for j in range(int(length.max())):
+        row = values[np.minimum(lo + j, len(values) - 1)]
+        within = (j < length).reshape(-1, *([1] * (values.ndim - 1)))
+        total = total + np.where(within, row, 0.0)
+    return total / length.reshape(-1, *([1] * (values.ndim - 1)))
 
 
 #: The fields of a ``POST /api/v1/telemetry`` row besides ``time`` and ``t_room_c``.
