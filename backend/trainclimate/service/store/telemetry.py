@@ -112,11 +112,14 @@ def _copied_rows(session: Session, coach_ids: list[str], start: datetime, end: d
         + [(c, np.float64) for c in VALUE_COLS]
         + [("regular", np.int64)]
     )
+    # coach by coach (LATERAL, kept apart by OFFSET 0): one range scan of the (coach, time)
+    # index each, whatever the planner estimates of a table whose statistics lag its inserts
     query = sql.SQL(
         "SELECT k.i - 1, date_part('epoch', t.time), {values}, "
-        "(t.mode = 'regular')::int::int8 FROM telemetry t "
-        "JOIN unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) ON t.coach_id = k.id "
-        "WHERE t.time > {start} AND t.time <= {end} ORDER BY k.i, t.time"
+        "(t.mode = 'regular')::int::int8 "
+        "FROM unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) CROSS JOIN LATERAL "
+        "(SELECT * FROM telemetry WHERE coach_id = k.id AND time > {start} AND time <= {end} "
+        "OFFSET 0) AS t ORDER BY k.i, t.time"
     ).format(
         values=sql.SQL(", ").join(
             sql.SQL("coalesce(t.{}, 'NaN'::float8)").format(sql.Identifier(c)) for c in VALUE_COLS
