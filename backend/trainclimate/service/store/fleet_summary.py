@@ -241,8 +241,8 @@ def window_sums(
 
 
 def _grid(by_window: dict[int, np.ndarray], w_lo: int, n: int, into: np.ndarray) -> np.ndarray:
-    """``into`` (n, len(SUMS)) with the windows of ``by_window`` (index → sums) in
-    [w_lo, w_lo + n) set."""
+    """``into`` (n, …) with the windows of ``by_window`` (index → values) in [w_lo, w_lo + n)
+    set."""
     for w, values in by_window.items():
         if w_lo <= w < w_lo + n:
             into[w - w_lo] = values
@@ -296,9 +296,7 @@ def pair_counts(
         for (c0, c1, _, _), (w_lo, n) in zip(pairs, ranges, strict=True):
             dense = np.zeros((n, 2, len(COUNTS)))
             for side, c in enumerate((c0, c1)):
-                for w, values in counts.get(c, {}).items():
-                    if w_lo <= w < w_lo + n:
-                        dense[w - w_lo, side] = values
+                _grid(counts.get(c, {}), w_lo, n, dense[:, side])
             out[c0] = dense
         return out
     rows = setpoint_rollups.read_rows(
