@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 from psycopg import sql
+from sqlalchemy import Float, Table, case, select
 from sqlalchemy.orm import Session
 
 
@@ -52,3 +53,44 @@ def copy_rows(session: Session, query: sql.Composable, dtype: np.dtype) -> np.nd
     with raw.cursor() as cursor, cursor.copy(statement) as copy:
         data = b"".join(bytes(block) for block in copy)
     return parse(data, dtype)
+
+
+def coach_windows(
+    session: Session, table: Table, columns: list[str], coaches: list[str], lo_w: int, hi_w: int
+) -> np.ndarray:
+    """The rows of a per-coach, per-window table (``coach_id``, ``window``: the window rollups)
+    for ``coaches`` and windows lo_w ≤ w < hi_w, as one structured array — fields ``coach``
+    (the position in ``coaches``), ``window`` and ``columns`` (float64 for a float column,
+    int64 for the others) — in no particular order: on PostgreSQL one binary COPY, elsewhere
+    the driver's tuples."""
+    dtype = np.dtype(
+        [("coach", np.int64), ("window", np.int64)]
+        + [(c, np.float64 if isinstance(table.c[c].type, Float) else np.int64) for c in columns]
+    )
+    if not coaches:
+        return np.zeros(0, dtype)
+    if session.get_bind().dialect.name != "postgresql":
+        position = case({c: i for i, c in enumerate(coaches)}, value=table.c.coach_id)
+        rows = session.execute(
+            select(position, table.c.window, *(table.c[c] for c in columns)).where(
+                table.c.coach_id.in_(coaches), table.c.window >= lo_w, table.c.window < hi_w
+            )
+        ).all()
+        return np.array([tuple(row) for row in rows], dtype)
+    query = sql.SQL(
+        'SELECT k.i - 1, r."window", {columns} FROM {table} r '
+        "JOIN unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) ON r.coach_id = k.id "
+        'WHERE r."window" >= {lo} AND r."window" < {hi}'
+    ).format(
+        columns=sql.SQL(", ").join(
+            sql.SQL("r.{}::{}").format(
+                sql.Identifier(c), sql.SQL("float8" if dtype[c].kind == "f" else "int8")
+            )
+            for c in columns
+        ),
+        table=sql.Identifier(table.name),
+        ids=sql.Literal(list(coaches)),
+        lo=sql.Literal(int(lo_w)),
+        hi=sql.Literal(int(hi_w)),
+    )
+    return copy_rows(session, query, dtype)

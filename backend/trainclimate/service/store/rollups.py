@@ -202,43 +202,6 @@ def _index(when: datetime) -> int:
     return round(when.timestamp()) // _WINDOW_S
 
 
-def _fast_rows(session: Session, coaches: list[str], lo_w: int, hi_w: int) -> np.ndarray:
-    """The rollups of ``coaches`` in windows lo_w ≤ w < hi_w as one structured array (fields
-    ``coach`` — the position in ``coaches`` —, ``window``, :data:`MASKS`, :data:`TOTALS`), in
-    no particular order: on PostgreSQL one binary COPY parsed by numpy, no Python object per
-    row; elsewhere the driver's tuples."""
-    dtype = np.dtype(
-        [("coach", np.int64), ("window", np.int64)]
-        + [(m, np.int64) for m in MASKS]
-        + [(t, np.float64) for t in TOTALS]
-    )
-    if not coaches:
-        return np.zeros(0, dtype)
-    columns = [*MASKS, *TOTALS]
-    if session.get_bind().dialect.name != "postgresql":
-        r = _table(WindowRollup)
-        position = case({c: i for i, c in enumerate(coaches)}, value=r.c.coach_id)
-        rows = session.execute(
-            select(position, r.c.window, *(r.c[c] for c in columns)).where(
-                r.c.coach_id.in_(coaches), r.c.window >= lo_w, r.c.window < hi_w
-            )
-        ).all()
-        return np.array([tuple(row) for row in rows], dtype)
-    from psycopg import sql
-
-    query = sql.SQL(
-        'SELECT k.i - 1, r."window", {columns} FROM window_rollups r '
-        "JOIN unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) ON r.coach_id = k.id "
-        'WHERE r."window" >= {lo} AND r."window" < {hi}'
-    ).format(
-        columns=sql.SQL(", ").join(sql.SQL("r.") + sql.Identifier(c) for c in columns),
-        ids=sql.Literal(coaches),
-        lo=sql.Literal(int(lo_w)),
-        hi=sql.Literal(int(hi_w)),
-    )
-    return binary_copy.copy_rows(session, query, dtype)
-
-
 def pair_grids(
     session: Session, pairs: list[tuple[str, str, datetime, datetime]], overrides: list
 ) -> tuple[dict[str, np.ndarray], list[tuple[str, str, datetime, datetime]]]:
@@ -263,8 +226,13 @@ def pair_grids(
         return {}, []
     coaches = sorted({c for p in pairs for c in p[:2]})
     position = {c: i for i, c in enumerate(coaches)}
-    rows = _fast_rows(
-        session, coaches, min(_index(p[2]) for p in pairs), max(_index(p[3]) for p in pairs)
+    rows = binary_copy.coach_windows(
+        session,
+        _table(WindowRollup),
+        [*MASKS, *TOTALS],
+        coaches,
+        min(_index(p[2]) for p in pairs),
+        max(_index(p[3]) for p in pairs),
     )
     masks = np.stack([rows[m] for m in MASKS], axis=-1) if len(rows) else np.zeros((0, 5), int)
     totals = np.stack([rows[t] for t in TOTALS], axis=-1) if len(rows) else np.zeros((0, 5))

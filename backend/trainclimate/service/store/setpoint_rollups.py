@@ -109,35 +109,8 @@ def rebuild(session: Session) -> int:
 def read_rows(session: Session, coaches: list[str], lo_w: int, hi_w: int) -> np.ndarray:
     """The ``coaches``' counts of windows ``lo_w`` ≤ w < ``hi_w`` as one structured array
     (fields ``coach`` — the position in ``coaches`` —, ``window`` and :data:`COUNTS`), in no
-    particular order: on PostgreSQL a binary COPY (:mod:`.binary_copy`), elsewhere the
-    driver's tuples."""
-    dtype = np.dtype([("coach", np.int64), ("window", np.int64)] + [(c, np.int64) for c in COUNTS])
-    if not coaches:
-        return np.zeros(0, dtype)
-    t = _table()
-    if session.get_bind().dialect.name == "postgresql":
-        from psycopg import sql
-
-        query = sql.SQL(
-            'SELECT k.i - 1, r."window", {counts} FROM setpoint_rollups r '
-            "JOIN unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) ON r.coach_id = k.id "
-            'WHERE r."window" >= {lo} AND r."window" < {hi}'
-        ).format(
-            counts=sql.SQL(", ").join(
-                sql.SQL("r.{}::int8").format(sql.Identifier(c)) for c in COUNTS
-            ),
-            ids=sql.Literal(list(coaches)),
-            lo=sql.Literal(int(lo_w)),
-            hi=sql.Literal(int(hi_w)),
-        )
-        return binary_copy.copy_rows(session, query, dtype)
-    position = case({c: i for i, c in enumerate(coaches)}, value=t.c.coach_id)
-    rows = session.execute(
-        select(position, t.c.window, *(t.c[name] for name in COUNTS)).where(
-            t.c.coach_id.in_(coaches), t.c.window >= lo_w, t.c.window < hi_w
-        )
-    ).all()
-    return np.array([tuple(r) for r in rows], dtype)
+    particular order (:func:`.binary_copy.coach_windows`)."""
+    return binary_copy.coach_windows(session, _table(), list(COUNTS), coaches, lo_w, hi_w)
 
 
 def read(
