@@ -128,6 +128,23 @@ def flat_rows(first: int, last: int, **values) -> list[dict]:
     return [flat_row(at(m), **values) for m in range(first, last + 1)]
 
 
+def registered(db_url: str, coaches: list[tuple[str, bool]]):
+    """A migrated :class:`~trainclimate.service.store.db.Database` at ``db_url`` with live coaches
+    (id ``{train}-…``, layer activated or not) and their trains."""
+    from trainclimate.service.store.db import Database, migrate
+    from trainclimate.service.store.models import Coach, Train
+
+    migrate(db_url)
+    database = Database(db_url)
+    with database.transaction() as s:
+        trains = sorted({cid.rsplit("-", 1)[0] for cid, _ in coaches})
+        s.add_all([Train(id=t, name=t) for t in trains])
+        s.flush()
+        for cid, active in coaches:
+            s.add(Coach(id=cid, train_id=cid.rsplit("-", 1)[0], fleet="live", ddpc_active=active))
+    return database
+
+
 def wait_for(condition: Callable[[], object], timeout_s: float = 15.0, what: str = ""):
     """Poll ``condition`` until it returns something truthy (returned); fail after the time."""
     deadline = time.monotonic() + timeout_s

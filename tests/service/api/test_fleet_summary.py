@@ -20,7 +20,7 @@ from service_support import (
     shared_coach_model,  # noqa: F401  (autouse)
 )
 from trainclimate.service.settings import Settings
-from trainclimate.service.store import fleet_summary, queries
+from trainclimate.service.store import fleet_summary, pair_windows, queries
 
 FIGURES = (
     "savings_pct",
@@ -257,13 +257,13 @@ def test_summary_kept_while_the_counted_windows_are_unchanged(client, tokens, mo
     op, viewer = tokens["operator"], tokens["viewer"]
     _fleet(client, op)
     summed = []  # the trains whose windows were summed in the database
-    pair_grids = fleet_summary.pair_grids
+    pair_grids = pair_windows.pair_grids
 
     def spy(session, pairs, *args, **kwargs):
         summed.append(sorted(p[0][:2] for p in pairs))
         return pair_grids(session, pairs, *args, **kwargs)
 
-    monkeypatch.setattr(fleet_summary, "pair_grids", spy)
+    monkeypatch.setattr(pair_windows, "pair_grids", spy)
 
     def summary() -> dict:
         params = {"hours": 3, "end": at(180).isoformat()}

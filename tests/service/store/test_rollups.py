@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from sqlalchemy import select
 
-from service_support import T0, at, flat_row, sim_rows
-from trainclimate.service.store import fleet_summary, rollups
-from trainclimate.service.store.db import Database, migrate
-from trainclimate.service.store.models import Coach, CoachFeed, Override, Train, WindowRollup
+from service_support import T0, at, flat_row, registered, sim_rows
+from trainclimate.service.store import fleet_summary, pair_windows, rollups
+from trainclimate.service.store.db import Database
+from trainclimate.service.store.models import CoachFeed, Override, WindowRollup
 from trainclimate.service.store.pair_trial import SUMS
 from trainclimate.service.store.telemetry import insert_rows
 
@@ -31,14 +31,7 @@ def _rows(coach: int, first: int, last: int, changes: dict | None = None) -> lis
 
 @pytest.fixture
 def db(db_url):
-    migrate(db_url)
-    database = Database(db_url)
-    with database.transaction() as s:
-        s.add_all([Train(id="T", name="T"), Train(id="U", name="U")])
-        s.flush()
-        for cid, train, active in (("T-A", "T", True), ("T-B", "T", False), ("U-A", "U", True)):
-            s.add(Coach(id=cid, train_id=train, fleet="live", ddpc_active=active))
-        s.add(Coach(id="U-B", train_id="U", fleet="live", ddpc_active=False))
+    database = registered(db_url, [("T-A", True), ("T-B", False), ("U-A", True), ("U-B", False)])
     yield database
     database.dispose()
 
@@ -88,9 +81,9 @@ def _fill(db: Database) -> None:
 def _both_ways(db: Database) -> tuple[dict, dict, dict, list]:
     pairs = [("T-A", "T-B", T0, at(120)), ("U-A", "U-B", T0, at(120))]
     with db.transaction() as s:
-        overrides = fleet_summary.overrides_over(s, pairs)
-        raw = fleet_summary.window_sums(s, pairs, 30.0, overrides=overrides)
-        kept = fleet_summary.pair_grids(s, pairs, 30.0, overrides)
+        overrides = pair_windows.overrides_over(s, pairs)
+        raw = pair_windows.window_sums(s, pairs, 30.0, overrides=overrides)
+        kept = pair_windows.pair_grids(s, pairs, 30.0, overrides)
         exact, dirty = rollups.pair_grids(s, pairs, overrides)
     return raw, kept, exact, dirty
 

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from sqlalchemy import delete, select
 
-from service_support import T0, at
+from service_support import T0, at, registered
 from trainclimate.service.store import pair_trial, setpoint_rollups
-from trainclimate.service.store.db import Database, migrate
-from trainclimate.service.store.models import Coach, Setpoint, SetpointRollup, Train
+from trainclimate.service.store.db import Database
+from trainclimate.service.store.models import Setpoint, SetpointRollup
 from trainclimate.service.store.setpoint_rollups import COUNTS
 
 COACHES = ["T-A", "T-B", "U-A", "U-B"]
@@ -38,12 +38,7 @@ W0 = round(T0.timestamp()) // 1800
 
 @pytest.fixture
 def db(db_url):
-    migrate(db_url)
-    database = Database(db_url)
-    with database.transaction() as s:
-        s.add_all([Train(id="T", name="T"), Train(id="U", name="U")])
-        s.flush()
-        s.add_all([Coach(id=c, train_id=c[0], fleet="live") for c in COACHES])
+    database = registered(db_url, [(c, False) for c in COACHES])
     yield database
     database.dispose()
 

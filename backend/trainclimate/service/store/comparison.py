@@ -16,7 +16,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis.savings import savings_pct
-from trainclimate.service.store import fleet_summary, pair_trial, plans, queries
+from trainclimate.service.store import pair_trial, pair_windows, plans, queries
 from trainclimate.service.store.models import Telemetry, Train
 
 
@@ -24,7 +24,7 @@ def _range(
     session: Session, train: Train, start: datetime, end: datetime, window_min: float
 ) -> tuple:
     """The pair (coach 0, coach 1), its first window's start and number of windows over
-    (start, end], and the pair's ranges as :func:`.fleet_summary.pair_data` takes them."""
+    (start, end], and the pair's ranges as :func:`.pair_windows.pair_data` takes them."""
     c0, c1 = queries.pair_or_422(train)
     # each coach's first row on its own: one index probe each (a min over both coaches at once
     # reads every index entry of both)
@@ -50,10 +50,10 @@ def comparison_state(
 ) -> tuple:
     """What :func:`comparison` of ``train`` over (start, end] is computed from, besides the
     parameters: the pair and its coaches' roles now, its counted range, and its rows, setpoints
-    and overrides in it (:func:`.fleet_summary.pair_states`)."""
+    and overrides in it (:func:`.pair_windows.pair_states`)."""
     c0, c1, first, n, pairs = _range(session, train, start, end, window_min)
-    overrides = fleet_summary.overrides_over(session, pairs)
-    states = fleet_summary.pair_states(session, pairs, overrides)
+    overrides = pair_windows.overrides_over(session, pairs)
+    states = pair_windows.pair_states(session, pairs, overrides)
     plan = _plan(session, train, end)
     return (c0.id, c0.ddpc_active, c1.id, c1.ddpc_active, plan, first, n, *states)
 
@@ -90,7 +90,7 @@ def comparison(
     c0, c1, first, _, pairs = _range(session, train, start, end, window_min)
     if pd.Timestamp(end) - first < pd.Timedelta(minutes=2):
         raise queries.RequestError("the range is shorter than two minutes")
-    grid, counts = fleet_summary.pair_data(session, pairs, window_min)[c0.id]
+    grid, counts = pair_windows.pair_data(session, pairs, window_min)[c0.id]
     plan, switch_hour, _ = _plan(session, train, end)
     r = pair_trial.pair_result(grid, counts, first, window_min, switch_hour)
     e0, e1 = r["grid"][:, list(pair_trial.energy_columns(r["meter"]))].T

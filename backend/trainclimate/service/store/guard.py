@@ -34,7 +34,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
 from trainclimate.analysis.guard import costs_energy, figures, step
-from trainclimate.service.store import fleet_summary, pair_trial, queries
+from trainclimate.service.store import pair_trial, pair_windows, queries
 from trainclimate.service.store.models import PairGuard
 from trainclimate.service.store.plans import PlanDay
 from trainclimate.service.store.upsert import insert_new
@@ -124,7 +124,7 @@ def _evaluate(
         ranges[g.train_id] = (c0, c1, first, n, hi)
     todo = [(c0, c1, first.to_pydatetime(), hi.to_pydatetime())
             for c0, c1, first, n, hi in ranges.values() if n > 0]  # fmt: skip
-    data = fleet_summary.pair_data(session, todo, WINDOW_MIN) if todo else {}
+    data = pair_windows.pair_data(session, todo, WINDOW_MIN) if todo else {}
     for g in rows:
         day = due[g.train_id]
         g.checked_day = day.day

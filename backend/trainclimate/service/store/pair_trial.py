@@ -18,7 +18,7 @@ Every other window is excluded with its reason, first that applies:
 Counted windows are summed per service day and estimated by :mod:`trainclimate.analysis.trial`
 (crossover where both coaches had activated days, corrected by reference days, or the naive
 figure labelled as confounded). The pair comparison and the fleet summary both build their
-figures here, from the same window sums (:func:`.fleet_summary.window_sums`) and setpoint
+figures here, from the same window sums (:func:`.pair_windows.window_sums`) and setpoint
 counts (:func:`setpoint_counts`).
 """
 
@@ -40,7 +40,7 @@ from trainclimate.service.store.setpoint_rollups import COUNTS
 from trainclimate.service.store.sqltime import EpochSeconds
 from trainclimate.sim.power import HEADLINE_METER, METERS
 
-#: What :func:`.fleet_summary.window_sums` returns per window, in order.
+#: What :func:`.pair_windows.window_sums` returns per window, in order.
 SUMS = (
     "minutes",
     "affected_minutes",
@@ -443,7 +443,7 @@ def pair_result(
     Parameters
     ----------
     grid : numpy.ndarray of shape (W, len(SUMS))
-        The pair's window sums (:func:`.fleet_summary.pair_data`).
+        The pair's window sums (:func:`.pair_windows.pair_data`).
     counts : numpy.ndarray of shape (W, 2, len(COUNTS))
         Both coaches' setpoint counts per window.
     first : pandas.Timestamp

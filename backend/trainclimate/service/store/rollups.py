@@ -11,7 +11,7 @@ coaches have the same minutes (``present``), the same minutes that count for com
 (present, connected, powered, regular) and no override touches the window: the counts come
 from the masks, the energies and the discomfort from each coach's own sums. Any other window —
 a minute one coach has and the other not, a link lost on one coach only, an override — is summed
-from the raw minutes (:func:`.fleet_summary.window_sums`); such windows are few.
+from the raw minutes (:func:`.pair_windows.window_sums`); such windows are few.
 
 Each coach's feed (:class:`~.models.CoachFeed`: its newest row and its newest row within
 comfort, for the attention list; the rows that arrived late, for the read cache) is kept the
@@ -213,7 +213,7 @@ def pair_grids(
     pairs : list of (coach 0 id, coach 1 id, lo, hi)
         Each counted over (lo, hi], both on window boundaries.
     overrides : list
-        :func:`.fleet_summary.overrides_over` the pairs.
+        :func:`.pair_windows.overrides_over` the pairs.
 
     Returns
     -------
