@@ -56,7 +56,6 @@ References
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, field
 from datetime import date
@@ -64,6 +63,8 @@ from datetime import date
 import numpy as np
 import pandas as pd
 from scipy import stats
+
+from trainclimate.analysis import studentized
 
 #: The trial plans a train can run.
 PLANS = ("fixed", "alternate", "randomized", "reference")
@@ -79,8 +80,6 @@ MIN_GROUP_DAYS = 3
 TARGET_HALF_WIDTH_PCT = 2.0
 #: Neither coach activated (a ``reference`` day), in the ``activated`` arrays.
 NEITHER = -1
-#: Quantiles of the studentized bootstrap distribution: the 95 % and the 68 % intervals.
-_QUANTILES = (0.025, 0.16, 0.84, 0.975)
 #: ``date(1970, 1, 1).toordinal()``.
 _ORDINAL_1970 = 719163
 
@@ -402,20 +401,14 @@ def estimate_many(
     n_resamples: int = 4999,
     seed: int = 0,
 ) -> list[TrialEstimate]:
-    """:func:`estimate` of every pair, the bootstraps of pairs with the same group sizes computed
-    together.
+    """:func:`estimate` of every pair, the pairs with the same group sizes sharing their
+    resamples.
 
     The interval is a bootstrap-t (Efron and Tibshirani 1993, ch. 12): each group of days is
     resampled with replacement, the resampled estimate studentized as (θ* − θ) / se*, and the
-    interval of ln(1 − s) is θ − q·se at the quantiles q of that distribution. A resample is
-    its row of a counts matrix C (resamples × days: how often each day is drawn; C/n is
-    Efron and Tibshirani's resampling vector), so that its mean is C·x / n and its sum of
-    squared deviations C·x² − n·mean², with x the group's log-ratios. Pairs with the same group
-    sizes and seed share C, and their resampled means and variances are matrix products; each
-    group's days are centred on their mean first, so that the variance does not lose precision
-    to cancellation. The draws are those of ``scipy.stats.bootstrap`` (for the first group, then
-    the second, ``Generator.integers(0, n, (n_resamples, n))`` from ``default_rng(seed)``), and
-    the intervals equal its to floating-point rounding (verified against it in the tests).
+    interval of ln(1 − s) is θ − q·se at the quantiles q of that distribution
+    (:mod:`.studentized`: the resamples of ``scipy.stats.bootstrap`` as counts matrices, the
+    intervals equal to its to floating-point rounding, as the tests hold).
 
     Parameters
     ----------
@@ -450,12 +443,16 @@ def estimate_many(
             sizes = (len(prepared.a), len(prepared.b))
             pending.setdefault(sizes, []).append((i, prepared))
     for (n_a, n_b), group in pending.items():
-        counts_a, counts_b = _resample_counts(n_a, n_b, n_resamples, seed)
+        counts_a, counts_b = studentized.resample_counts(n_a, n_b, n_resamples, seed)
         # one pair per product: the matrix library's rounding depends on a product's shape, and
         # a pair's interval must not depend on the pairs it is computed with
         for i, p in group:
             out[i] = _interval(
-                p, _pivot_quantiles([p], counts_a, counts_b)[0], target_half_width_pct
+                p,
+                studentized.pivot_quantiles(
+                    p.a[None], p.b[None], np.array([p.coef]), counts_a, counts_b
+                )[0],
+                target_half_width_pct,
             )
     return [out[i] for i in range(len(days_list))]
 
@@ -510,65 +507,6 @@ def _prepare(days: TrialDays) -> TrialEstimate | _Bootstrap:
     if not se > 0:
         return TrialEstimate(estimator, point, None, "no day-to-day spread", naive, counts)
     return _Bootstrap(estimator, coef, *samples, theta, se, point, naive, counts)
-
-
-@functools.lru_cache(maxsize=64)
-def _resample_counts(
-    n_a: int, n_b: int, n_resamples: int, seed: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """The counts matrices of scipy.stats.bootstrap's resamples of two groups of ``n_a`` and
-    ``n_b`` days: row r, column j holds how often day j is drawn in resample r, shapes
-    (n_resamples, n_a) and (n_resamples, n_b), read-only (they are cached)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for n in (n_a, n_b):
-        drawn = rng.integers(0, n, (n_resamples, n)) + n * np.arange(n_resamples)[:, None]
-        counts = np.bincount(drawn.ravel(), minlength=n_resamples * n).astype(float)
-        counts = counts.reshape(n_resamples, n)
-        counts.flags.writeable = False
-        out.append(counts)
-    return out[0], out[1]
-
-
-def _pivot_quantiles(
-    pairs: list[_Bootstrap], counts_a: np.ndarray, counts_b: np.ndarray
-) -> np.ndarray:
-    """The quantiles :data:`_QUANTILES` of each pair's studentized bootstrap distribution
-    (θ* − θ) / se*, shape (pairs, 4), from the counts matrices of its groups' resamples (all
-    pairs have the groups' sizes). A resample without spread studentizes to ±inf (0/0 to 0)."""
-    moments = []
-    for x, counts in (([p.a for p in pairs], counts_a), ([p.b for p in pairs], counts_b)):
-        centred = np.asarray(x)
-        centred = centred - centred.mean(axis=1, keepdims=True)
-        n = centred.shape[1]
-        # (pairs, resamples): the resample's mean less the group's, C·x / n, and the variance
-        # of the resample's mean, var / n = (C·x² − n·mean²) / (n (n − 1)) with var the sample
-        # variance (ddof 1); the divisors are applied to x, before the products
-        mean = (centred / n) @ counts.T
-        scaled = centred / (n * (n - 1))
-        var_mean = (scaled * centred) @ counts.T - (scaled @ counts.T) * mean
-        # rounding leaves a resample without spread a little off 0, or below: clipped, as np.var
-        moments.append((mean, np.maximum(var_mean, 0.0)))
-    (mean_a, var_a), (mean_b, var_b) = moments
-    # (θ* − θ) / se* = coef (mean_a − mean_b) / (|coef| √(var_a + var_b)): |coef| cancels
-    sign = np.sign([p.coef for p in pairs])[:, None]
-    with np.errstate(all="ignore"):
-        t_star = sign * (mean_a - mean_b) / np.sqrt(var_a + var_b)
-    return _quantiles(np.nan_to_num(t_star, nan=0.0))
-
-
-def _quantiles(t: np.ndarray) -> np.ndarray:
-    """The quantiles :data:`_QUANTILES` of each row of ``t``, shape (rows, 4): those of
-    ``numpy.quantile`` (linear interpolation between the neighbouring order statistics, from
-    the nearer one), read off the sorted rows, which is faster than its partition per row."""
-    ordered = np.sort(t, axis=1)
-    position = np.asarray(_QUANTILES) * (t.shape[1] - 1)
-    below = np.floor(position).astype(np.int64)
-    above = np.minimum(below + 1, t.shape[1] - 1)
-    frac = position - below
-    low, high = ordered[:, below], ordered[:, above]
-    step = high - low
-    return np.where(frac >= 0.5, high - step * (1.0 - frac), low + step * frac)
 
 
 def _interval(p: _Bootstrap, q: np.ndarray, target_half_width_pct: float) -> TrialEstimate:
