@@ -7,12 +7,14 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.optimize import OptimizeResult
 
 from cli_support import call, call_json
 from trainclimate.data import fleetlogs
 from trainclimate.data.dataset import build_dataset
 from trainclimate.data.trajectory import Trajectory, read_trajectories
 from trainclimate.sim.params import CoachParams, load_params
+from trainclimate.twin import fit as fit_module
 from trainclimate.twin import replay, validation
 from trainclimate.twin.calibration import calibrate
 from trainclimate.twin.knobs import CalibrationError, apply
@@ -104,6 +106,82 @@ def test_a_known_envelope_is_recovered_from_generated_logs(winter):
     # the parameters are a whole coach-params set, the fitted fields replaced
     expected = apply(known, {"envelope_scale": envelope["value"]})
     assert fit.params.to_dict() == expected.to_dict()
+    assert not [w for w in fit.warnings if "stopped short of a minimum" in w]
+
+
+def _stuck(fun, x0, jac, **_):
+    """``least_squares`` stopping where it starts, as it does on a kink of the error with its
+    ``xtol`` test met."""
+    r = fun(x0)
+    message = "`xtol` termination condition is satisfied."
+    return OptimizeResult(x=x0, fun=r, jac=jac(x0), cost=0.5 * r @ r, message=message)
+
+
+@pytest.mark.slow  # 12 simulated coach-days, a compass search
+def test_a_fit_stuck_at_its_start_is_continued_by_a_compass_search(winter, monkeypatch):
+    """The envelope fit of the first test with an optimiser that never leaves its start: the
+    compass search takes it to the truth all the same, and nothing is warned of."""
+    monkeypatch.setattr(fit_module, "least_squares", _stuck)
+    mine = [t for t in winter if t.coach == "44A"]
+    known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
+    fit = calibrate("44A", mine, ("envelope_scale",), base=known, starts=1, bootstrap=0)
+    assert fit.fitted["envelope_scale"]["value"] == pytest.approx(TRUTH["envelope_scale"], rel=0.05)
+    assert not [w for w in fit.warnings if "stopped short of a minimum" in w]
+
+
+@pytest.mark.slow  # 12 simulated coach-days
+def test_a_fit_left_stuck_is_warned_of(winter, monkeypatch):
+    """Without the compass search (no rounds) the stuck fit stays at the best screened start,
+    which is not passed off as the coach's: the warning says how much a step would still
+    gain."""
+    monkeypatch.setattr(fit_module, "least_squares", _stuck)
+    monkeypatch.setattr(fit_module, "COMPASS_ROUNDS", 0)
+    mine = [t for t in winter if t.coach == "44A"]
+    known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
+    fit = calibrate("44A", mine, ("envelope_scale",), base=known, starts=1, bootstrap=0)
+    assert fit.fitted["envelope_scale"]["value"] != pytest.approx(TRUTH["envelope_scale"], rel=0.02)
+    (warning,) = [w for w in fit.warnings if "stopped short of a minimum" in w]
+    assert "(`xtol` termination condition is satisfied)" in warning
+    share = int(warning.split("predicts ")[1].split("%")[0])
+    assert share > 100 * fit_module.STALLED_SHARE
+
+
+def test_the_compass_search_gets_past_kinks_within_the_bounds():
+    """|z₀ − 0.7| + |z₁ − 1.3| has a kink at its minimum (a gradient method's step test stops
+    anywhere near it); the compass search ends within its finest step, and never leaves the
+    bounds (the second minimum lies beyond z₁ ≤ 1.2: it stops at the bound)."""
+
+    def residuals(points):
+        return [np.array([abs(z[0] - 0.7) + abs(z[1] - 1.3)]) for z in points]
+
+    lo, z0 = np.zeros(2), np.array([1.0, 1.0])
+    z, r = fit_module.compass(residuals, z0, residuals([z0])[0], lo, np.full(2, 3.0))
+    finest = fit_module.COMPASS_FINEST * np.maximum(np.abs(z0), 0.1)
+    np.testing.assert_array_less(np.abs(z - [0.7, 1.3]), 2 * finest)
+    assert r[0] < 2 * finest.sum()
+    z, _ = fit_module.compass(residuals, z0, residuals([z0])[0], lo, np.array([3.0, 1.2]))
+    assert z[1] == pytest.approx(1.2) and abs(z[0] - 0.7) < 2 * finest[0]
+
+
+def test_the_predicted_fall_of_a_linear_problem():
+    """r(z) = A z − b: from the optimum a Gauss–Newton step removes nothing; from elsewhere it
+    removes exactly what lies between; at a bound the optimum lies beyond, nothing either."""
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(40, 3)), rng.normal(size=40)
+    lo, hi = np.full(3, -10.0), np.full(3, 10.0)
+    best = np.linalg.lstsq(a, b, rcond=None)[0]
+    r_best = a @ best - b
+    assert fit_module.predicted_fall(r_best, a, best, lo, hi) == pytest.approx(0.0, abs=1e-12)
+    z = best + np.array([0.5, -0.3, 0.2])
+    r = a @ z - b
+    expected = 1.0 - (r_best @ r_best) / (r @ r)
+    assert fit_module.predicted_fall(r, a, z, lo, hi) == pytest.approx(expected, rel=1e-9)
+    # the unconstrained optimum at 2 in the first coordinate, the bound at 1: stopped there
+    eye, target = np.eye(2), np.array([2.0, 0.0])
+    at_bound = np.array([1.0, 0.0])
+    r = eye @ at_bound - target
+    assert fit_module.predicted_fall(r, eye, at_bound, np.zeros(2), np.ones(2)) == 0.0
+    assert fit_module.predicted_fall(np.zeros(3), a, best, lo, hi) == 0.0
 
 
 @pytest.mark.slow  # a fit of one parameter

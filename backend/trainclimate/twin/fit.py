@@ -25,6 +25,13 @@ MAX_EVALUATIONS = 100
 #: most parameter sets simulated as one fleet (bounds the memory: each set runs every training
 #: trajectory).
 GAUSS_NEWTON_DAMPING, MAX_SETS = 1e-3, 24
+#: A fit has stalled when one Gauss–Newton step from it, within the bounds, predicts the sum of
+#: squared residuals to fall by more than this share: it stopped on a kink of the piecewise-smooth
+#: error (a tolerance test met), not at a minimum.
+STALLED_SHARE = 0.02
+#: The compass search that continues a stalled fit: its first step and its finest, relative to
+#: each knob's scaled value (at least 0.1, as the Jacobian's), and the most fleets it runs.
+COMPASS_STEP, COMPASS_FINEST, COMPASS_ROUNDS = 0.08, 0.005, 24
 
 
 class Problem:
@@ -85,18 +92,32 @@ class Problem:
         return out
 
     def solve(self, candidates: np.ndarray) -> list:
-        """``least_squares`` from each of ``candidates`` (scaled values)."""
-        return [
-            least_squares(
-                self.fun,
-                np.clip(z0, self.lo, self.hi),
-                jac=self.jac,
-                bounds=(self.lo, self.hi),
-                x_scale="jac",
-                max_nfev=MAX_EVALUATIONS,
-            )
-            for z0 in candidates
-        ]
+        """A fit from each of ``candidates`` (scaled values): ``least_squares``; where it
+        stalled (:func:`predicted_fall` above :data:`STALLED_SHARE`), continued by a
+        :func:`compass` search and ``least_squares`` again from where that ends."""
+        fits = []
+        for z0 in candidates:
+            fit = self._least_squares(np.clip(z0, self.lo, self.hi))
+            if predicted_fall(fit.fun, fit.jac, fit.x, self.lo, self.hi) > STALLED_SHARE:
+                z, r = compass(self._residuals, fit.x, fit.fun, self.lo, self.hi)
+                if r @ r < fit.fun @ fit.fun:
+                    fit = self._least_squares(z)
+            fits.append(fit)
+        return fits
+
+    def _least_squares(self, z0: np.ndarray):
+        return least_squares(
+            self.fun,
+            z0,
+            jac=self.jac,
+            bounds=(self.lo, self.hi),
+            x_scale="jac",
+            max_nfev=MAX_EVALUATIONS,
+        )
+
+    def _residuals(self, points: list[np.ndarray]) -> list[np.ndarray]:
+        """The residuals at each of ``points`` (scaled values), simulated as one fleet."""
+        return residuals_of_sets(self.rep, [self.params_at(z) for z in points])
 
     def step(self, z: np.ndarray, r: np.ndarray, j: np.ndarray, w: np.ndarray) -> np.ndarray:
         """One damped Gauss–Newton step from ``z`` on the residuals ``r`` (Jacobian ``j``)
@@ -105,6 +126,43 @@ class Problem:
         a += GAUSS_NEWTON_DAMPING * np.diag(np.diag(a))
         delta = np.linalg.lstsq(a, -(j.T @ (w * r)), rcond=None)[0]
         return np.clip(z + delta, self.lo, self.hi)
+
+
+def predicted_fall(r: np.ndarray, j: np.ndarray, z: np.ndarray, lo, hi) -> float:
+    """The share of the sum of squared residuals ‖r‖² that one Gauss–Newton step from ``z``
+    (residuals ``r``, Jacobian ``j``), clipped to the bounds [lo, hi], predicts to remove on the
+    linearised residuals r + j Δz: 1 − ‖r + j Δz‖² / ‖r‖² (0 at a smooth minimum, where
+    jᵀr = 0; 0 for ‖r‖ = 0). [–]"""
+    ssr = float(r @ r)
+    if not ssr > 0:
+        return 0.0
+    delta = np.linalg.lstsq(j, -r, rcond=None)[0]
+    step = np.clip(z + delta, lo, hi) - z
+    after = r + j @ step
+    return max(0.0, 1.0 - float(after @ after) / ssr)
+
+
+def compass(residuals, z, r, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """A compass search from ``z`` (residuals ``r``), which kinks do not stop: the 2k points
+    ±h along each axis, clipped to [lo, hi], evaluated together (``residuals(points)``: one
+    fleet); the best taken if it lowers ‖r‖², else h halved — from :data:`COMPASS_STEP` to
+    :data:`COMPASS_FINEST` of each value (at least 0.1), at most :data:`COMPASS_ROUNDS`
+    rounds. Returns the point reached and its residuals (Kolda, Lewis & Torczon, "Optimization
+    by direct search", SIAM Review 45(3), 2003: the compass search, §3)."""
+    scale = np.maximum(np.abs(z), 0.1)
+    h, eye = COMPASS_STEP * scale, np.eye(len(z))
+    for _ in range(COMPASS_ROUNDS):
+        if np.all(h < COMPASS_FINEST * scale):
+            break
+        points = [np.clip(z + sign * h * e, lo, hi) for e in eye for sign in (1.0, -1.0)]
+        found = residuals(points)
+        costs = [float(x @ x) for x in found]
+        best = int(np.argmin(costs))
+        if costs[best] < float(r @ r):
+            z, r = points[best], found[best]
+        else:
+            h = h / 2
+    return z, r
 
 
 def estimates(fit, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
