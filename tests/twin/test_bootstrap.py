@@ -116,3 +116,21 @@ def test_a_fit_outside_its_own_interval_is_warned_about():
     }
     (warning,) = interval_warnings(fitted)
     assert warning.startswith("fan_supply_w: the fit 1100 lies outside its own 95 % interval")
+
+
+def test_days_that_disagree_on_one_knob_are_a_warning_for_every_knob():
+    """The second structure's case after the compass search: the windows' g-value shows as
+    days that disagree on the solar aperture, while the fans' interval, tight and around its
+    value, misses the coach's own 1 100 W (they carry the extra fresh air per passenger). The
+    fans are not named on their own, but the closing warning covers every knob."""
+    fitted = {
+        "solar_scale": {"value": 1.08, "std": 0.0015, "ci95": [1.0754, 1.0996]},
+        "fan_supply_w": {"value": 1325.6, "std": 28.6, "ci95": [1151.4, 1375.6]},
+        "cop_level": {"value": 1.105, "std": 0.074, "ci95": [0.931, 1.199]},
+    }
+    first, last = interval_warnings(fitted)
+    assert first.startswith("solar_scale: the days disagree")
+    assert last.startswith("the days disagree on solar_scale: the logs' coach may differ")
+    assert "every fitted value may carry part of that difference" in last
+    calm = {n: f for n, f in fitted.items() if n != "solar_scale"}
+    assert interval_warnings(calm) == []

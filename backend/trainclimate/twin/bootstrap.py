@@ -116,8 +116,10 @@ def interval_warnings(fitted: dict[str, dict]) -> list[str]:
     standard error says (half-width above :data:`UNDERSTATED` × 1.96 σ: the days disagree,
     which a model structure the knobs do not span does), and those whose interval leaves out
     the fitted value itself (the re-fits on resampled days settle elsewhere: the fit did not
-    reach the optimum those days have, or has several)."""
-    out = []
+    reach the optimum those days have, or has several). Where the days disagree on any knob,
+    one more warning says what that means for all of them: the logs' coach may differ from the
+    model in ways no knob spans, and each fitted value may carry part of it."""
+    out, disagree = [], []
     for n, f in fitted.items():
         low, high = f["ci95"]
         if not low <= f["value"] <= high:
@@ -132,8 +134,16 @@ def interval_warnings(fitted: dict[str, dict]) -> list[str]:
                 f"{WIDE_INTERVAL:.0%} of {f['value']:.4g}): the data do not pin it down"
             )
         elif (high - low) / 2 > UNDERSTATED * 1.96 * f["std"]:
+            disagree.append(n)
             out.append(
                 f"{n}: the days disagree: 95 % interval [{low:.4g}, {high:.4g}] is over "
                 f"{UNDERSTATED:g} times what its standard error {f['std']:.2g} says"
             )
+    if disagree:
+        out.append(
+            f"the days disagree on {', '.join(disagree)}: the logs' coach may differ from the "
+            "model in ways no knob spans, and then every fitted value may carry part of that "
+            "difference (a knob standing in for what the model lacks), its interval missing "
+            "the coach's own value"
+        )
     return out
