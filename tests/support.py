@@ -21,11 +21,11 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from trainclimate.coach.rule import MODE_REGULAR
 from trainclimate.predict import TransientPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
-from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator
 from trainclimate.twin.validity import params_file
 

@@ -1,13 +1,16 @@
 """The package's layers, read from the source: every ``trainclimate.X`` import of every module under
 ``backend/trainclimate`` (at the top of a module or inside a function, ``if TYPE_CHECKING`` too)
-runs down the layer order of docs/architecture.md, the simulator imports only itself, and no
-module imports itself back through others.
+runs down the layer order of docs/architecture.md, the coach's vocabulary imports only itself,
+the simulator only itself and that vocabulary, and no module imports itself back through others.
 
-The layers, bottom to top: ``sim`` ← ``data`` ← ``twin`` ← ``predict`` ← ``control`` ←
-``analysis`` ← ``service`` / ``study`` ← ``bench`` ← ``cli``. The twin (a simulator calibrated to
-a coach's trajectories) imports ``sim`` and ``data``; the service, ``bench`` and ``cli`` import it.
+The layers, bottom to top: ``coach`` ← ``sim`` ← ``data`` ← ``twin`` ← ``predict`` ← ``control``
+← ``analysis`` ← ``service`` / ``study`` ← ``bench`` ← ``cli``. ``coach`` is the coach as the
+layers above see it (the rule-based controller and the HVAC modes, the setpoint band, the HVAC
+states, the meters), the simulator the first layer that speaks it. The twin (a simulator
+calibrated to a coach's trajectories) imports ``coach``, ``sim`` and ``data``; the service,
+``bench`` and ``cli`` import it.
 ``paths``, ``resources`` and the package's own ``__init__`` (its version) are below every layer
-but ``sim``, and import none of them.
+but ``coach`` and ``sim``, and import none of them.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1] / "backend" / "trainclimate"
 #: The layers, bottom to top; the packages of one layer do not import each other.
 LAYERS = (
+    ("coach",),
     ("sim",),
     ("data",),
     ("twin",),
@@ -31,8 +35,8 @@ LAYERS = (
     ("bench",),
     ("cli",),
 )
-#: Modules any layer but ``sim`` may import; they import no layer. ``trainclimate`` is the
-#: package's ``__init__``.
+#: Modules any layer but ``coach`` and ``sim`` may import; they import no layer. ``trainclimate``
+#: is the package's ``__init__``.
 BASE = ("trainclimate", "paths", "resources")
 #: Imports known to run up the layers, (importing package, imported package) → the modules: each
 #: entry is a debt to pay, and the test fails once it is paid until the entry is removed.
@@ -101,11 +105,18 @@ def test_every_package_has_a_layer():
     assert packages - set(BASE) == set(RANK)
 
 
-def test_the_simulator_imports_only_itself():
+#: What each self-contained package may import besides itself: the coach's vocabulary nothing of
+#: the package, the simulator only that vocabulary (not even ``paths``).
+SELF_CONTAINED = {"coach": set(), "sim": {"coach"}}
+
+
+@pytest.mark.parametrize("package", sorted(SELF_CONTAINED))
+def test_the_vocabulary_and_the_simulator_are_self_contained(package):
+    allowed = {package} | SELF_CONTAINED[package]
     outside = {
-        module: sorted(name for name in imported if package_of(name) != "sim")
+        module: sorted(name for name in imported if package_of(name) not in allowed)
         for module, imported in IMPORTS.items()
-        if package_of(module) == "sim"
+        if package_of(module) == package
     }
     assert {m: names for m, names in outside.items() if names} == {}
 

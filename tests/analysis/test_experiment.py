@@ -27,10 +27,10 @@ from trainclimate.analysis.experiment import (
     setup_for,
 )
 from trainclimate.cli import main
+from trainclimate.coach.rule import MODE_REGULAR
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import VARIED, CoachParams
-from trainclimate.sim.rule import MODE_REGULAR
 
 DOCUMENTED_KEYS = (
     "savings_pct",

@@ -26,9 +26,9 @@ from trainclimate.analysis.experiment import (
 )
 from trainclimate.analysis.kpi import avg_hourly_violation_k
 from trainclimate.cli import main
+from trainclimate.coach.rule import MODE_REGULAR
+from trainclimate.coach.states import COOLING
 from trainclimate.sim import scenarios
-from trainclimate.sim.hvac import COOLING
-from trainclimate.sim.rule import MODE_REGULAR
 
 
 @pytest.fixture(scope="module")

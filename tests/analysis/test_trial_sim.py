@@ -26,9 +26,9 @@ from trainclimate.analysis.trial_sim import (
 )
 from trainclimate.cli import experiment as cli_experiment
 from trainclimate.cli import main
+from trainclimate.coach.rule import MODE_REGULAR
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
-from trainclimate.sim.rule import MODE_REGULAR
 
 DAYS = 6
 KEYS = (

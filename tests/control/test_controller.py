@@ -8,11 +8,11 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+from trainclimate.coach.rule import RuleCurve
 from trainclimate.control import BandEdgeController, DDPCController, OCPSettings, Solution
 from trainclimate.control import controller as controller_module
 from trainclimate.control.coach_model import CoachModel
 from trainclimate.control.controller import REASONS
-from trainclimate.sim.rule import RuleCurve
 
 RHO, T, PERIOD = 12, 6, 300.0
 NOW = 1.7e9  # s since the epoch

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from trainclimate.coach.rule import RuleCurve
 from trainclimate.control import DDPCProblem, OCPSettings, ReferenceProblem
 from trainclimate.control.ocp import DEFAULT_OBJECTIVE
-from trainclimate.sim.rule import RuleCurve
 
 RHO, T = 12, 6
 #: the weights and bounds the instances run under (pinned, not the tunable defaults): balanced,

@@ -18,6 +18,7 @@ import pandas as pd
 import pytest
 from sqlalchemy import func, select
 
+from trainclimate.coach.states import MIXED
 from trainclimate.service.adapters import demo
 from trainclimate.service.app import register_model_file
 from trainclimate.service.scheduler import Scheduler
@@ -34,7 +35,7 @@ from trainclimate.service.store.models import (
     TrialDay,
 )
 from trainclimate.service.store.telemetry import load_frame
-from trainclimate.sim import hvac, scenarios
+from trainclimate.sim import scenarios
 from trainclimate.sim.simulator import FleetSimulator
 
 TRAINS = {t.id: t for t in demo.TRAINS}
@@ -172,7 +173,7 @@ def test_on_the_mild_day_heating_and_cooling_alternate(afternoon):
     cooling = result.power_w["compressor"][run]
     for cid in ("D8-A", "D8-B"):
         c = afternoon.ids.index(cid)
-        assert (result.hvac_state[run, c] == hvac.MIXED).any(), cid
+        assert (result.hvac_state[run, c] == MIXED).any(), cid
         assert (heating[:, c] > 0).any() and (cooling[:, c] > 0).any(), cid
         # a deck's unit switches between heating and cooling, back and forth
         sign = np.sign(result.q_hvac_w[run, c, 1])

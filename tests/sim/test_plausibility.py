@@ -6,10 +6,10 @@ import pandas as pd
 import pytest
 
 from trainclimate.analysis.summary import coach_kpis
+from trainclimate.coach.rule import MODE_OFF, MODE_REGULAR
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
-from trainclimate.sim.rule import MODE_OFF, MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator
 
 

@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from trainclimate.sim import hvac, scenarios
-from trainclimate.sim.rule import MODE_OFF, MODE_REGULAR, MODE_SLUMBER
+from trainclimate.coach.rule import MODE_OFF, MODE_REGULAR, MODE_SLUMBER
+from trainclimate.coach.states import HEATING, OFF, PREHEATING, SLUMBER_STATES
+from trainclimate.sim import scenarios
 from trainclimate.sim.simulator import FleetSimulator
 
 REQUIRED = {
@@ -56,8 +57,8 @@ def test_winter_day_covers_every_mode_and_the_main_states():
     modes = set(np.unique(env.mode))
     assert {MODE_OFF, MODE_SLUMBER, MODE_REGULAR} <= modes
     states = set(np.unique(result.hvac_state).tolist())
-    assert {hvac.PREHEATING, hvac.HEATING, hvac.OFF} <= states
-    assert states & set(hvac.SLUMBER_STATES)
+    assert {PREHEATING, HEATING, OFF} <= states
+    assert states & set(SLUMBER_STATES)
     # the in-service coach stops at stations with its doors open
     assert env.door_open.sum() > 50
     assert env.speed_kmh.max() > 80

@@ -5,10 +5,10 @@ import pandas as pd
 import pytest
 from scipy.integrate import solve_ivp
 
+from trainclimate.coach.rule import MODE_OFF, MODE_REGULAR
 from trainclimate.sim import hvac, thermal
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, stack
-from trainclimate.sim.rule import MODE_OFF, MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator
 
 P1 = stack([CoachParams()])

@@ -15,8 +15,8 @@ paper counted from 14:00 after activating at 13:15), and the HVAC options of the
 paper's text implies (the cooling's switching limit of Experiment 1). The comparison itself is
 :func:`trainclimate.analysis.savings.compare`, the function the service's API calls.
 
-Energy is counted on both meters of :data:`~trainclimate.sim.power.METERS`; the headline is the
-paper's (the HVAC units alone, :data:`~trainclimate.sim.power.HEADLINE_METER`). Violation is
+Energy is counted on both meters of :data:`~trainclimate.coach.meters.METERS`; the headline is the
+paper's (the HVAC units alone, :data:`~trainclimate.coach.meters.HEADLINE_METER`). Violation is
 counted from the true deck temperatures and, as the paper could measure it, from the onboard
 sensors' readings (their noise and resolution).
 """
@@ -31,16 +31,16 @@ import numpy as np
 import pandas as pd
 
 from trainclimate.analysis.savings import CoachSeries, Comparison, compare
+from trainclimate.coach.meters import HEADLINE_METER, METERS
+from trainclimate.coach.rule import MODE_REGULAR
+from trainclimate.coach.states import STATE_NAMES
 from trainclimate.control import OCPSettings
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers, tick_summary
 from trainclimate.control.ocp import DEFAULT_OBJECTIVE, OFFLINE_TIME_LIMIT_S
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
-from trainclimate.sim.hvac import STATE_NAMES
 from trainclimate.sim.params import CoachParams, diversify
-from trainclimate.sim.power import HEADLINE_METER, METERS
-from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator, SimulationResult
 
 #: The columns of a pair simulation.
@@ -193,7 +193,7 @@ class PairResult:
     result : SimulationResult
         Columns :data:`ACTIVATED`, :data:`DEACTIVATED` and :data:`EDGE`.
     by_meter : dict of str to (Comparison, Comparison)
-        Per meter (:data:`~trainclimate.sim.power.METERS`): the activated and the band-edge
+        Per meter (:data:`~trainclimate.coach.meters.METERS`): the activated and the band-edge
         coach each against the deactivated one.
     violation_sensor_k : float
         The activated coach's average hourly violation from its sensors' readings. [K]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trainclimate.sim.setpoint import COMFORT_BAND_K
+from trainclimate.coach.setpoint import COMFORT_BAND_K
 
 
 def violation_k(

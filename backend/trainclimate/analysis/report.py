@@ -11,9 +11,10 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from trainclimate.analysis.summary import fleet_kpis
-from trainclimate.sim import hvac, thermal
-from trainclimate.sim.power import HEADLINE_METER, METER_LABELS
-from trainclimate.sim.rule import MODE_NAMES
+from trainclimate.coach.meters import HEADLINE_METER, METER_LABELS
+from trainclimate.coach.rule import MODE_NAMES
+from trainclimate.coach.states import STATE_NAMES
+from trainclimate.sim import thermal
 from trainclimate.sim.scenarios import LOCAL_TZ, Scenario
 from trainclimate.sim.simulator import DECKS, SimulationResult
 
@@ -162,7 +163,7 @@ def state_figure(result: SimulationResult, title: str, coach: int = 0) -> go.Fig
     fig.add_trace(
         go.Scatter(
             x=t,
-            y=[hvac.STATE_NAMES[int(v)] for v in result.hvac_state[e, coach]],
+            y=[STATE_NAMES[int(v)] for v in result.hvac_state[e, coach]],
             name="HVAC state",
             mode="lines",
             line={"shape": "hv"},

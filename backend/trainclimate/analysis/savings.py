@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from trainclimate.analysis.kpi import discomfort_kh
-from trainclimate.sim.setpoint import COMFORT_BAND_K
+from trainclimate.coach.setpoint import COMFORT_BAND_K
 
 
 @dataclass

@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 
 from trainclimate.analysis.kpi import avg_hourly_violation_k, discomfort_kh, energy_kwh
-from trainclimate.sim.rule import MODE_REGULAR
-from trainclimate.sim.setpoint import COMFORT_BAND_K
+from trainclimate.coach.rule import MODE_REGULAR
+from trainclimate.coach.setpoint import COMFORT_BAND_K
 from trainclimate.sim.simulator import SimulationResult
 
 

@@ -58,15 +58,15 @@ from trainclimate.analysis.trial import (
     estimate,
     service_days,
 )
+from trainclimate.coach.meters import HEADLINE_METER
+from trainclimate.coach.rule import MODE_REGULAR, mode_from_operation
 from trainclimate.control.closed_loop import ClosedLoop, TickLog, build_controllers
 from trainclimate.data.fleetlogs import draw_service_day, local_hours
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
-from trainclimate.sim.power import HEADLINE_METER
 from trainclimate.sim.routes import LINES, OperationSeries, service_day, stationary
-from trainclimate.sim.rule import MODE_REGULAR, mode_from_operation
 from trainclimate.sim.seeding import seed_of
 from trainclimate.sim.simulator import FleetSimulator
 from trainclimate.sim.solar import solar_position

@@ -132,9 +132,9 @@ def _instances(predictor, n: int, seed: int = 0) -> list[dict]:
     """``n`` realistic controller inputs: windows of the default dataset's 5-min trajectories
     (measured y, u, d and the true future d), T_rule from the rule curve; times in s since the
     epoch, temperatures in °C."""
+    from trainclimate.coach.rule import RuleCurve
     from trainclimate.data.cache import default_dataset
     from trainclimate.data.trajectory import iter_trajectories
-    from trainclimate.sim.rule import RuleCurve
 
     rho, T = predictor.rho, predictor.horizon
     path = Path(default_dataset()) / "trajectories_5min.parquet"

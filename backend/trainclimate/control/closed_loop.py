@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from trainclimate.coach.rule import MODE_REGULAR
+from trainclimate.coach.setpoint import apply_setpoint
 from trainclimate.control.coach_model import CoachModel
 from trainclimate.control.controller import BandEdgeController, DDPCController, StepResult
 from trainclimate.control.forecast import (
@@ -33,8 +35,6 @@ from trainclimate.control.forecast import (
 from trainclimate.control.ocp import OCPSettings
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.predict.setting import HORIZON, RHO
-from trainclimate.sim.rule import MODE_REGULAR
-from trainclimate.sim.setpoint import apply_setpoint
 from trainclimate.sim.simulator import FleetSimulator
 
 #: Driver/operator limit around T_rule (K), also the HVAC interface's.

@@ -65,10 +65,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from trainclimate.coach.setpoint import COMFORT_BAND_K, U_BAND_K
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.predict.hankel import NU, NY, NZ
 from trainclimate.sim.params import CoachParams
-from trainclimate.sim.setpoint import COMFORT_BAND_K, U_BAND_K
 
 #: The objectives: the paper's Eq. (10), Eq. (10) with T_ref kept within a margin of the
 #: predicted room temperature, and Eq. (10) with T_ref raised only where the HVAC's state rules

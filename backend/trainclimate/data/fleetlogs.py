@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from trainclimate.coach.rule import MODE_NAMES, RuleCurve, mode_from_operation
 from trainclimate.data.defects import Defects, add_defects, power_dropouts
 from trainclimate.data.formats import (
     CANONICAL,
@@ -51,7 +52,6 @@ from trainclimate.data.formats import (
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
 from trainclimate.sim.routes import LINES, haversine_m, service_day, stationary
-from trainclimate.sim.rule import MODE_NAMES, RuleCurve, mode_from_operation
 from trainclimate.sim.simulator import FleetSimulator
 from trainclimate.sim.solar import solar_position
 from trainclimate.sim.weather import SITES, Weather, generate_weather

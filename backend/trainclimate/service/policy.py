@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from trainclimate.analysis.guard import REASON, describe
-from trainclimate.sim.setpoint import U_BAND_K
+from trainclimate.coach.setpoint import U_BAND_K
 
 if TYPE_CHECKING:
     from trainclimate.control import DDPCController

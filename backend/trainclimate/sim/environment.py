@@ -44,7 +44,7 @@ class Environment:
     door_open : numpy.ndarray of shape (S, N)
         Fraction of the step the lower-deck door is open, 0…1. [–]
     mode : numpy.ndarray of shape (S, N)
-        HVAC mode, ``MODE_*`` of :mod:`trainclimate.sim.rule`.
+        HVAC mode, ``MODE_*`` of :mod:`trainclimate.coach.rule`.
     q_roof_w_m2, q_side_w_m2 : numpy.ndarray of shape (S, N)
         Derived roof and side irradiance Q_Gt, Q_Gs (:mod:`trainclimate.sim.solar`). [W/m²]
 

@@ -7,7 +7,8 @@ Three sub-blocks, as in the paper's Figure 2:
 
 - :func:`next_state`: the HVAC state from the mode, T_room, T_ref and T_amb, with hysteresis.
   Regular mode: preheating, precooling, heating, cooling, mixed. Slumber mode: active heating,
-  active ventilation, active cooling, off. Off mode: off.
+  active ventilation, active cooling, off. Off mode: off. The states' codes and names are the
+  coach's vocabulary (:mod:`trainclimate.coach.states`).
 - :func:`fresh_air_fraction`: the substate — recirculated, outside or mixed air — from the
   state, T_room, T_amb and the occupancy (a minimum of fresh air per passenger).
 - :class:`PID`: one PID per deck whose output limits, rate limits, initial conditions, resets and
@@ -21,27 +22,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from trainclimate.coach.rule import MODE_REGULAR, MODE_SLUMBER
+from trainclimate.coach.states import (
+    COOLING,
+    HEATING,
+    MIXED,
+    OFF,
+    PRECOOLING,
+    PREHEATING,
+    SLUMBER_COOLING,
+    SLUMBER_HEATING,
+    SLUMBER_OFF,
+    SLUMBER_VENTILATION,
+)
 from trainclimate.sim.params import AIR_DENSITY_KG_M3, CoachParams
-from trainclimate.sim.rule import MODE_REGULAR, MODE_SLUMBER
-
-# HVAC states ----------------------------------------------------------------------------------
-OFF = 0
-PREHEATING, PRECOOLING, HEATING, COOLING, MIXED = 1, 2, 3, 4, 5
-SLUMBER_HEATING, SLUMBER_VENTILATION, SLUMBER_COOLING, SLUMBER_OFF = 6, 7, 8, 9
-STATE_NAMES = {
-    OFF: "off",
-    PREHEATING: "preheating",
-    PRECOOLING: "precooling",
-    HEATING: "heating",
-    COOLING: "cooling",
-    MIXED: "mixed",
-    SLUMBER_HEATING: "slumber_heating",
-    SLUMBER_VENTILATION: "slumber_ventilation",
-    SLUMBER_COOLING: "slumber_cooling",
-    SLUMBER_OFF: "slumber_off",
-}
-REGULAR_STATES = (PREHEATING, PRECOOLING, HEATING, COOLING, MIXED)
-SLUMBER_STATES = (SLUMBER_HEATING, SLUMBER_VENTILATION, SLUMBER_COOLING, SLUMBER_OFF)
 
 # Substates (fresh-air modes) -----------------------------------------------------------------
 RECIRCULATED, OUTSIDE, MIXED_AIR = 0, 1, 2
@@ -169,7 +163,7 @@ def next_state(
     state : numpy.ndarray of shape (N,)
         The previous HVAC state (``OFF``, ``PREHEATING``, …).
     mode : numpy.ndarray of shape (N,)
-        HVAC mode, ``MODE_*`` of :mod:`trainclimate.sim.rule`.
+        HVAC mode, ``MODE_*`` of :mod:`trainclimate.coach.rule`.
     t_room_c : numpy.ndarray of shape (N, 3)
         Measured deck temperatures; the unit controls on their mean. [°C]
     t_ref_c : numpy.ndarray of shape (N,)

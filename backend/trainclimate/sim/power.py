@@ -1,7 +1,8 @@
 """Electrical power of the HVAC: the quantity every energy saving is measured in.
 
 The paper's experiments measured the HVAC's electrical power with external loggers, so savings
-are counted on electrical, not thermal, power. Components (all W, vectorised over coaches):
+are counted on electrical, not thermal, power, on the meters that sum its components
+(:mod:`trainclimate.coach.meters`). Components (all W, vectorised over coaches):
 
 - heating elements in the HVAC unit: ``Q_heat / η`` (resistive, η ≈ 1);
 - floor and wall heating: ``Q_fw / η`` (resistive);
@@ -40,19 +41,6 @@ from trainclimate.sim.params import CoachParams
 
 #: 0 °C in kelvin.
 KELVIN = 273.15
-
-#: What each meter counts, by component: ``hvac`` the HVAC units alone (heater, compressor,
-#: fans) — what the paper's external loggers measured (Section V); ``hvac_and_floor`` adds the
-#: floor and wall heating, a system beside the HVAC set by its state and T_amb, not by T_ref
-#: (Section II.B).
-METERS = {
-    "hvac": ("heater", "compressor", "fans"),
-    "hvac_and_floor": ("heater", "floor_wall", "compressor", "fans"),
-}
-#: The meter of every headline saving: the paper's.
-HEADLINE_METER = "hvac"
-#: How reports and the dashboard name each meter.
-METER_LABELS = {"hvac": "HVAC units", "hvac_and_floor": "HVAC + floor/wall heating"}
 
 
 def cop(t_amb_c: np.ndarray, p: CoachParams, t_mix_c: np.ndarray | None = None) -> np.ndarray:

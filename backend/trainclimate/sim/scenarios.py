@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from trainclimate.coach.rule import MODE_REGULAR, mode_from_operation
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
 from trainclimate.sim.routes import LINES, service_day, stationary
-from trainclimate.sim.rule import MODE_REGULAR, mode_from_operation
 from trainclimate.sim.solar import solar_position
 from trainclimate.sim.weather import SITES, Weather, generate_weather
 

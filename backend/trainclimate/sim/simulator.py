@@ -19,11 +19,13 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from trainclimate.coach.meters import METERS
+from trainclimate.coach.rule import MODE_REGULAR, RuleCurve
+from trainclimate.coach.states import OFF
 from trainclimate.sim import hvac, thermal
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, stack
-from trainclimate.sim.power import METERS, electrical_power
-from trainclimate.sim.rule import MODE_REGULAR, RuleCurve
+from trainclimate.sim.power import electrical_power
 
 DECKS = ("up", "mid", "low")
 #: A temperature no coach reaches: a state beyond ± this means the integration diverged (caught
@@ -66,7 +68,8 @@ class SimulationResult:
     t_ref_c, t_rule_c : numpy.ndarray of shape (S, N)
         Applied setpoint T_ref and rule-based T_rule. [°C]
     hvac_state, substate : numpy.ndarray of int8, shape (S, N)
-        HVAC state and substate codes (:mod:`trainclimate.sim.hvac`).
+        HVAC state codes (:mod:`trainclimate.coach.states`) and substate codes
+        (:mod:`trainclimate.sim.hvac`).
     fresh_fraction : numpy.ndarray of shape (S, N)
         Fresh-air fraction of the supply air. [–]
     q_hvac_w, q_fw_w : numpy.ndarray of shape (S, N, 3)
@@ -106,7 +109,7 @@ class SimulationResult:
         return sum(self.power_w.values())
 
     def meter_w(self, meter: str) -> np.ndarray:
-        """The electrical power a meter counts (:data:`~trainclimate.sim.power.METERS`), shape
+        """The electrical power a meter counts (:data:`~trainclimate.coach.meters.METERS`), shape
         (S, N). [W]"""
         return sum(self.power_w[c] for c in METERS[meter])
 
@@ -202,7 +205,7 @@ class FleetSimulator:
     env : Environment
         The disturbances and operation; its time step is the simulator's.
     rule : RuleCurve, optional
-        The rule-based controller (default: :class:`~trainclimate.sim.rule.RuleCurve`).
+        The rule-based controller (default: :class:`~trainclimate.coach.rule.RuleCurve`).
     seed : int, default 0
         Seed of the sensor noise.
     initial_c : numpy.ndarray of shape (N, 9) or (9,), optional
@@ -257,7 +260,7 @@ class FleetSimulator:
             else initial_states(env, self.rule)
         )
         self.T = np.broadcast_to(self.T, (n, thermal.N_STATES)).copy()
-        self.hvac_state = np.full(n, hvac.OFF, dtype=np.int8)
+        self.hvac_state = np.full(n, OFF, dtype=np.int8)
         self.pid = hvac.PID(n, self.p, self.dt_s)
         self.k = 0
         s = len(env.time)

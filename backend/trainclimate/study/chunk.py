@@ -13,7 +13,7 @@ baseline's run, so every controller is counted over the same steps:
 - ``mixed mode``: the HVAC heats one deck and cools another (any day);
 - ``off or slumber``: depot, layovers and the night — the layer does not act there.
 
-Energy is counted on both meters (:data:`~trainclimate.sim.power.METERS`: the HVAC units alone,
+Energy is counted on both meters (:data:`~trainclimate.coach.meters.METERS`: the HVAC units alone,
 the headline, and the whole coach with floor and wall heating), over every step; comfort as
 the discomfort of the true deck temperatures against T_rule ± 1 K (paper, Eq. (4)), over the
 regular-mode steps.
@@ -29,12 +29,12 @@ import pandas as pd
 import psutil
 
 from trainclimate.analysis.kpi import violation_k
+from trainclimate.coach.meters import HEADLINE_METER, METERS
+from trainclimate.coach.rule import MODE_REGULAR
+from trainclimate.coach.states import COOLING, MIXED, PRECOOLING
 from trainclimate.control.closed_loop import ClosedLoop, build_controllers
 from trainclimate.control.ocp import OFFLINE_TIME_LIMIT_S, OCPSettings
 from trainclimate.predict.base import MultistepPredictor
-from trainclimate.sim import hvac
-from trainclimate.sim.power import HEADLINE_METER, METERS
-from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.seeding import seed_of
 from trainclimate.sim.simulator import FleetSimulator, SimulationResult
 from trainclimate.sim.weather import Weather
@@ -62,11 +62,11 @@ def situations(result: SimulationResult, parked: np.ndarray) -> np.ndarray:
     """
     state = result.hvac_state
     regular = result.env.mode[: len(state)] == MODE_REGULAR
-    cooling = np.isin(state, (hvac.COOLING, hvac.PRECOOLING))
+    cooling = np.isin(state, (COOLING, PRECOOLING))
     out = np.where(
         parked[None, :], np.where(cooling, _PARKED_COOLING, _PARKED_HEATING), _IN_SERVICE
     )
-    out = np.where(state == hvac.MIXED, _MIXED, out)
+    out = np.where(state == MIXED, _MIXED, out)
     return np.where(regular, out, _OFF)
 
 

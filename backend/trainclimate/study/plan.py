@@ -20,13 +20,13 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import pandas as pd
 
+from trainclimate.coach.rule import MODE_REGULAR, mode_from_operation
 from trainclimate.control.forecast import FORECASTS
 from trainclimate.control.ocp import DEFAULT_OBJECTIVE, OBJECTIVES
 from trainclimate.data.fleetlogs import draw_service_day, local_hours
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
 from trainclimate.sim.routes import LINES, service_day, stationary
-from trainclimate.sim.rule import MODE_REGULAR, mode_from_operation
 from trainclimate.sim.seeding import seed_of
 from trainclimate.sim.solar import solar_position
 from trainclimate.sim.weather import SITES, Weather, generate_weather

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from trainclimate.sim.power import HEADLINE_METER
+from trainclimate.coach.meters import HEADLINE_METER
 from trainclimate.sim.seeding import seed_of
 from trainclimate.study.bootstrap import CONFIDENCE, RESAMPLES, coach_day_table, savings_interval
 from trainclimate.study.chunk import OTHER_METER, SITUATIONS

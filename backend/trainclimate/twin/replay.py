@@ -35,11 +35,11 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from trainclimate.coach.rule import MODE_REGULAR
 from trainclimate.data.trajectory import Trajectory
 from trainclimate.sim import thermal
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
-from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.simulator import FleetSimulator
 from trainclimate.twin.knobs import CalibrationError
 

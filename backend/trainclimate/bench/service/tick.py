@@ -152,8 +152,8 @@ def _fleet_block(coaches: int, minutes: int):
     """``coaches`` coaches of ``parked-heating-nov`` (HVAC in regular mode) simulated for
     ``minutes``, as 1-minute telemetry rows minute by minute (every coach's row of a minute
     together, as a live feed stores them): (ids, the first row's minute start, COPY block)."""
+    from trainclimate.coach.rule import MODE_REGULAR
     from trainclimate.sim import scenarios
-    from trainclimate.sim.rule import MODE_REGULAR
     from trainclimate.sim.simulator import FleetSimulator
 
     ids = pair_ids("L", coaches // 2)[0]

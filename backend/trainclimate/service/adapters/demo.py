@@ -46,6 +46,8 @@ import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
 
+from trainclimate.coach.rule import MODE_REGULAR
+from trainclimate.coach.setpoint import apply_setpoint
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.store import commands, rollups
 from trainclimate.service.store.db import Database
@@ -62,9 +64,7 @@ from trainclimate.service.store.tokens import Principal
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams
-from trainclimate.sim.rule import MODE_REGULAR
 from trainclimate.sim.scenarios import Scenario, Service
-from trainclimate.sim.setpoint import apply_setpoint
 from trainclimate.sim.simulator import FleetSimulator
 from trainclimate.twin import validity
 

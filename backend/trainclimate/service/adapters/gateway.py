@@ -42,13 +42,13 @@ import httpx
 import numpy as np
 import pandas as pd
 
+from trainclimate.coach.rule import MODE_REGULAR
+from trainclimate.coach.setpoint import apply_setpoint
 from trainclimate.service.adapters.mqtt import Broker
 from trainclimate.service.api.schemas import MAX_BATCH_ROWS
 from trainclimate.service.store.telemetry import rows_from_simulation, to_wire
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
-from trainclimate.sim.rule import MODE_REGULAR
-from trainclimate.sim.setpoint import apply_setpoint
 from trainclimate.sim.simulator import FleetSimulator
 
 log = logging.getLogger(__name__)

@@ -1,6 +1,6 @@
 """Whether a coach's decks are within the comfort band now: its newest telemetry row against
 T_rule ± T_max (the bound the controller holds the decks to,
-:data:`trainclimate.sim.setpoint.COMFORT_BAND_K`).
+:data:`trainclimate.coach.setpoint.COMFORT_BAND_K`).
 
 This is the instantaneous check the coaches list shows beside each coach's status. The fleet
 summary's attention list keeps its own rule over time (a coach outside the band for more than

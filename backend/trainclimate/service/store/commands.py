@@ -11,6 +11,7 @@ from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
+from trainclimate.coach.setpoint import U_BAND_K
 from trainclimate.service.store import guard, liveness, plans
 from trainclimate.service.store.models import (
     ApiToken,
@@ -41,7 +42,6 @@ from trainclimate.service.store.tokens import (
     create_token,
 )
 from trainclimate.service.store.upsert import insert_new
-from trainclimate.sim.setpoint import U_BAND_K
 
 
 class ConflictError(Exception):

@@ -30,6 +30,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
+from trainclimate.coach.meters import HEADLINE_METER, METERS
 from trainclimate.service.store import pair_trial, pair_windows, plans, queries
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
@@ -46,7 +47,6 @@ from trainclimate.service.store.models import (
     Train,
 )
 from trainclimate.service.store.pair_trial import COUNTS, SUMS, energy_columns
-from trainclimate.sim.power import HEADLINE_METER, METERS
 
 
 def _coach_times(session: Session, coaches: list) -> dict[str, tuple]:

@@ -34,11 +34,11 @@ from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals, savings_pct
+from trainclimate.coach.meters import HEADLINE_METER, METERS
 from trainclimate.service.store import setpoint_rollups
 from trainclimate.service.store.models import Setpoint
 from trainclimate.service.store.setpoint_rollups import COUNTS
 from trainclimate.service.store.sqltime import EpochSeconds
-from trainclimate.sim.power import HEADLINE_METER, METERS
 
 #: What :func:`.pair_windows.window_sums` returns per window, in order.
 SUMS = (

@@ -27,6 +27,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import Session
 from sqlalchemy.sql.expression import ColumnElement
 
+from trainclimate.coach.setpoint import COMFORT_BAND_K
 from trainclimate.service.store import pair_trial, queries, rollups, setpoint_rollups
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.models import (
@@ -38,7 +39,6 @@ from trainclimate.service.store.models import (
 )
 from trainclimate.service.store.pair_trial import COUNTS, SUMS
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
-from trainclimate.sim.setpoint import COMFORT_BAND_K
 
 DECKS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
 ID, TIME = Telemetry.coach_id.type, UTCDateTime()

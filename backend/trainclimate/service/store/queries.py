@@ -16,6 +16,7 @@ from sqlalchemy import func, select, true
 from sqlalchemy.orm import Session
 from sqlalchemy.sql.expression import ColumnElement
 
+from trainclimate.coach.setpoint import COMFORT_BAND_K, U_BAND_K
 from trainclimate.service.store import liveness
 from trainclimate.service.store.comfort import comfort_now
 from trainclimate.service.store.models import (
@@ -28,7 +29,6 @@ from trainclimate.service.store.models import (
     Train,
 )
 from trainclimate.service.store.telemetry import load_frame
-from trainclimate.sim.setpoint import COMFORT_BAND_K, U_BAND_K
 
 #: A coach's status from the reason of its newest setpoint (any other reason: ``fallback``).
 #: Before it come, in this order: ``no-data`` (nothing reported), ``stale`` (no telemetry in

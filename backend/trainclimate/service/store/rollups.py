@@ -42,12 +42,12 @@ from sqlalchemy import (
 from sqlalchemy import cast as sql_cast
 from sqlalchemy.orm import Session
 
+from trainclimate.coach.setpoint import COMFORT_BAND_K
 from trainclimate.service.store import binary_copy
 from trainclimate.service.store.models import CoachFeed, Telemetry, UTCDateTime, WindowRollup
 from trainclimate.service.store.pair_trial import SUMS, SUMS_INDEX
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 from trainclimate.service.store.upsert import accumulate, keep_latest
-from trainclimate.sim.setpoint import COMFORT_BAND_K
 
 #: The rollups' window. [min]
 WINDOW_MIN = 30

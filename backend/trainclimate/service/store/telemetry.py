@@ -292,7 +292,7 @@ def rows_from_simulation(
     the floor and wall heating's share of it,
     and whether the link was up: ``connected`` is false for a coach's minute with a step where
     ``disconnected`` ((steps, coaches) bool on the simulator's grid; default none) is true."""
-    from trainclimate.sim.rule import MODE_NAMES, MODE_REGULAR
+    from trainclimate.coach.rule import MODE_NAMES, MODE_REGULAR
 
     r, env = sim.result(), sim.env
     per_min = round(60.0 / sim.dt_s)

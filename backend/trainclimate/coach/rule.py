@@ -1,9 +1,10 @@
-"""The rule-based controller (paper, Section II.A): T_rule from T_amb, and the HVAC mode.
+"""The rule-based controller (paper, Section II.A): T_rule from T_amb, and the HVAC modes.
 
 The paper states only that the rules yield "a non-decreasing piecewise linear relation between the
 reference temperature and the ambient temperature". SBB's curve is not published; the default
 here is an ASSUMPTION (22 °C up to 19 °C outside, then +0.25 K per K, held above 35 °C) and every
-caller can pass its own :class:`RuleCurve`.
+caller can pass its own :class:`RuleCurve`. The simulator runs the curve and the modes
+(:mod:`trainclimate.sim`); the data, the controller, the analyses and the service read them.
 """
 
 from __future__ import annotations

@@ -3,8 +3,8 @@ applied, else T_rule."""
 
 import numpy as np
 
+from trainclimate.coach.setpoint import U_BAND_K, apply_setpoint
 from trainclimate.control import OCPSettings
-from trainclimate.sim.setpoint import U_BAND_K, apply_setpoint
 
 
 def test_the_band_is_the_drivers_two_kelvin_and_the_controllers_default():

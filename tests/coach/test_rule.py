@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from trainclimate.sim.rule import (
+from trainclimate.coach.rule import (
     MODE_OFF,
     MODE_REGULAR,
     MODE_SLUMBER,

@@ -1,4 +1,4 @@
-"""The HVAC interface's side of the predictive layer: the band and how a reference is applied.
+"""The HVAC interface as the predictive layer sees it: the band and how a reference is applied.
 
 The layer may move the setpoint only within the band the driver could set by hand,
 T_rule ± :data:`U_BAND_K` (the paper's constraint (6)); operators' overrides are held to the same
