@@ -86,7 +86,9 @@ def run(url: str, model: Path, coaches: int, lead_ticks: int, repeats: int) -> d
         if j == 1:
             for d in decisions:
                 baseline_reasons[d.reason] = baseline_reasons.get(d.reason, 0) + 1
-    rows_stored = sql(url, "SELECT count(*) FROM telemetry")[0][0]
+    rows_stored = sql_all(
+        url, "SELECT count(*) FROM telemetry WHERE coach_id = ANY(%s)", (list(ids),)
+    )[0][0]
 
     # the tick's claim and writes: a tick with no telemetry in its window (every coach stale, so
     # no samples and no controller step) is the claim, the reads (empty, still one DataFrame per
@@ -95,8 +97,14 @@ def run(url: str, model: Path, coaches: int, lead_ticks: int, repeats: int) -> d
     t0 = time.perf_counter()
     stale_written = scheduler.tick_fleet("live", empty)
     claim_write_s = time.perf_counter() - t0
+    # the live fleet's setpoints only: the fleet-scale part's trial may have one at that tick
     stale = dict(
-        sql_all(url, "SELECT reason, count(*) FROM setpoints WHERE tick = %s GROUP BY 1", (empty,))
+        sql_all(
+            url,
+            "SELECT reason, count(*) FROM setpoints WHERE tick = %s AND coach_id = ANY(%s) "
+            "GROUP BY 1",
+            (empty, list(ids)),
+        )
     )
     if stale_written != len(ids) or stale != {"stale": len(ids)}:
         raise RuntimeError(f"the tick without telemetry gave {stale}")
