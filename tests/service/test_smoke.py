@@ -15,6 +15,23 @@ def test_health_and_coaches(client, tokens):
     assert ready["migrations"] == head_revision() and ready["model_version"] == 1
 
 
+def test_what_the_server_built_is_frozen_out_of_the_collector_while_it_runs(settings):
+    """Started, the app's long-lived objects are out of the garbage collector's full passes
+    (``gc.freeze``: the library's modules alone are ≈ 10⁵ objects, whose passes paused requests);
+    stopped, they are back in them, so a stopped app's cycles can be collected."""
+    import gc
+
+    from fastapi.testclient import TestClient
+
+    from trainclimate.service.app import create_app
+
+    gc.unfreeze()
+    with TestClient(create_app(settings)) as client:
+        assert client.get("/api/v1/health").status_code == 200
+        assert gc.get_freeze_count() > 10_000
+    assert gc.get_freeze_count() == 0
+
+
 def test_serve_json_prints_one_object_then_logs(db_url, servers):
     """``serve --json``: one JSON object on stdout (URL, token, database without its password,
     replica, model status), once it accepts connections."""
