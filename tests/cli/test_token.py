@@ -47,7 +47,7 @@ def test_serve_refuses_a_backfill_horizon_out_of_range(tmp_path, capsys):
     for days in ("0", "-1", "nan", "3651"):
         assert main(["serve", "--db", db, "--backfill-horizon-days", days]) == 2, days
         err = capsys.readouterr().err
-        assert err == "trainclimate: error: --backfill-horizon-days takes days in (0, 3650]\n"
+        assert err == "trainclimate: error: --backfill-horizon-days: must be in (0, 3650] [days]\n"
 
 
 def test_serve_refuses_forwarded_allow_ips_that_are_not_addresses(tmp_path, capsys):

@@ -382,8 +382,8 @@ def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["serve", "--speedup", "0"], "--speedup must be positive"),
-        (["serve", "--speedup", "nan"], "--speedup must be positive"),
+        (["serve", "--speedup", "0"], "--speedup: must be positive"),
+        (["serve", "--speedup", "nan"], "--speedup: must be positive"),
         (["serve", "--coach-params", "/x.json"], "--coach-params sets the demo fleet's coaches"),
         (
             ["serve", "--fleet", "demo", "--coach-params", "/x.json"],

@@ -12,6 +12,7 @@ import threading
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,31 +26,19 @@ from trainclimate.cli.common import (
     out_file,
 )
 
+if TYPE_CHECKING:
+    from trainclimate.service.settings import Settings
+
 
 def cmd_serve(args: argparse.Namespace) -> None:
     """``serve``: migrate, then run the API, the dashboard and the loops until Ctrl-C."""
     import uvicorn
     from sqlalchemy.engine import make_url
 
-    from trainclimate.analysis.guard import MIN_GUARD_DAYS
     from trainclimate.service import logs
     from trainclimate.service.app import create_app
-    from trainclimate.service.settings import (
-        MAX_AHEAD_LIMIT_MIN,
-        MAX_BACKFILL_HORIZON_DAYS,
-        REPLICA_NAME_MAX,
-        Settings,
-        trusted_proxies,
-    )
 
-    if not (np.isfinite(args.speedup) and args.speedup > 0):
-        raise UsageError("--speedup must be positive")
-    horizon = args.backfill_horizon_days
-    if horizon is not None and not 0 < horizon <= MAX_BACKFILL_HORIZON_DAYS:
-        raise UsageError(
-            f"--backfill-horizon-days takes days in (0, {MAX_BACKFILL_HORIZON_DAYS:g}]"
-        )
-    broker = mqtt_broker(args)
+    settings = serve_settings(args)
     if args.coach_params is not None:
         if args.fleet != "demo":
             raise UsageError("--coach-params sets the demo fleet's coaches: give --fleet demo")
@@ -59,50 +48,13 @@ def cmd_serve(args: argparse.Namespace) -> None:
         # a bad file is a one-line error before anything starts
         load_params(args.coach_params)
         validity.validated_range_of_file(args.coach_params)
-    if args.max_ahead_min is not None and not 0 < args.max_ahead_min <= MAX_AHEAD_LIMIT_MIN:
-        raise UsageError(f"--max-ahead-min takes minutes in (0, {MAX_AHEAD_LIMIT_MIN:g}]")
-    if args.guard_days is not None and args.guard_days < MIN_GUARD_DAYS:
-        raise UsageError(f"--guard-days must be at least {MIN_GUARD_DAYS}")
-    if args.replica_name is not None and not (
-        0 < len(args.replica_name) <= REPLICA_NAME_MAX and args.replica_name.isprintable()
-    ):
-        raise UsageError(f"--replica-name must be 1 to {REPLICA_NAME_MAX} printable characters")
-    proxies = None
-    if args.forwarded_allow_ips is not None:
-        try:
-            proxies = trusted_proxies(args.forwarded_allow_ips)
-        except ValueError as exc:
-            raise UsageError(f"--forwarded-allow-ips: {exc}") from None
-    settings = Settings(
-        **({"replica_name": args.replica_name} if args.replica_name else {}),
-        database_url=db_url(args),
-        fleet=args.fleet,
-        speedup=args.speedup,
-        predictor_path=args.predictor,
-        demo_coach_params=args.coach_params,
-        **({"backfill_horizon_days": horizon} if horizon is not None else {}),
-        **({"forwarded_allow_ips": proxies} if proxies is not None else {}),
-        **({"guard_days": args.guard_days} if args.guard_days is not None else {}),
-        **({"max_ahead_min": args.max_ahead_min} if args.max_ahead_min is not None else {}),
-        **(
-            {
-                "mqtt_url": args.mqtt,
-                "mqtt_username": broker.username,
-                "mqtt_password": broker.password,
-                "mqtt_ca_file": broker.ca_file,
-                "mqtt_prefix": broker.prefix,
-                "mqtt_client_id": args.mqtt_client_id,
-                "mqtt_dynsec": args.mqtt_dynsec,
-            }
-            if broker is not None
-            else {}
-        ),
-    )
     _check_dynsec(args, settings)
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
     migrated_database(settings.database_url)  # else one line, not a traceback
     lines = [f"trainclimate: serving on {url} (database {settings.database_url.split('://')[0]})"]
-    if broker is not None:
+    broker = None
+    if settings.mqtt_url is not None:
+        broker = settings.broker(settings.mqtt_username, settings.mqtt_password)
         lines.append(f"trainclimate: MQTT feed on {broker.address}, topics {broker.prefix}/…")
     token = None
     if args.new_token:
@@ -143,7 +95,103 @@ def cmd_serve(args: argparse.Namespace) -> None:
     server.run()
 
 
-def _check_dynsec(args: argparse.Namespace, settings) -> None:
+#: The ``serve`` options that set a setting (:class:`~trainclimate.service.settings.Settings`):
+#: field → option (``--mqtt-password-file``: the password read from that file).
+SERVE_OPTIONS = {
+    "database_url": "--db",
+    "fleet": "--fleet",
+    "speedup": "--speedup",
+    "demo_coach_params": "--coach-params",
+    "predictor_path": "--predictor",
+    "backfill_horizon_days": "--backfill-horizon-days",
+    "max_ahead_min": "--max-ahead-min",
+    "guard_days": "--guard-days",
+    "forwarded_allow_ips": "--forwarded-allow-ips",
+    "replica_name": "--replica-name",
+    "mqtt_url": "--mqtt",
+    "mqtt_username": "--mqtt-username",
+    "mqtt_password": "--mqtt-password-file",
+    "mqtt_ca_file": "--mqtt-ca",
+    "mqtt_prefix": "--mqtt-prefix",
+    "mqtt_client_id": "--mqtt-client-id",
+    "mqtt_dynsec": "--mqtt-dynsec",
+}
+
+
+def serve_settings(args: argparse.Namespace) -> Settings:
+    """The settings of ``serve``: its options over the environment (``TRAINCLIMATE_*``) over the
+    defaults. ``--db`` (else ``$TRAINCLIMATE_DATABASE_URL``), ``--fleet``, ``--speedup``,
+    ``--coach-params`` and ``--predictor`` always set theirs; the other options only when given,
+    and the broker's options only with ``--mqtt``. A value the settings refuse is a
+    :class:`UsageError` naming its option, or its environment variable."""
+    from pydantic import ValidationError
+
+    from trainclimate.service.settings import Settings, env_var, problem
+
+    given: dict[str, Any] = {
+        "database_url": db_url(args),
+        "fleet": args.fleet,
+        "speedup": args.speedup,
+        "demo_coach_params": args.coach_params,
+        "predictor_path": args.predictor,
+    }
+    for name in (
+        "backfill_horizon_days",
+        "max_ahead_min",
+        "guard_days",
+        "forwarded_allow_ips",
+        "replica_name",
+    ):
+        if getattr(args, name) is not None:
+            given[name] = getattr(args, name)
+    if args.mqtt is not None:
+        given |= {
+            "mqtt_url": args.mqtt,
+            "mqtt_username": args.mqtt_username,
+            "mqtt_ca_file": args.mqtt_ca,
+            "mqtt_prefix": args.mqtt_prefix,
+            "mqtt_client_id": args.mqtt_client_id,
+            "mqtt_dynsec": args.mqtt_dynsec,
+        }
+        if args.mqtt_password_file:  # else $TRAINCLIMATE_MQTT_PASSWORD, else the URL's
+            given["mqtt_password"] = read_password(args.mqtt_password_file)
+    try:
+        return Settings(**given)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        if not error["loc"]:
+            raise UsageError(problem(error)) from None
+        name = str(error["loc"][0])
+        where = SERVE_OPTIONS[name] if name in given and name in SERVE_OPTIONS else env_var(name)
+        raise UsageError(f"{where}: {problem(error)}") from None
+
+
+def setting_help(name: str, *, env: bool = True, more: str = "") -> str:
+    """The help of the ``serve`` option that sets setting ``name``: its description, then its
+    default where it is a fixed value, its environment variable with ``env`` (where the option
+    leaves it in force) and ``more``, in parentheses (the description's own, if it ends with
+    them); ``%`` escaped for argparse."""
+    from pydantic_core import PydanticUndefined
+
+    from trainclimate.service.settings import Settings, env_var
+
+    field = Settings.model_fields[name]
+    notes = []
+    if field.default not in (None, PydanticUndefined) and not isinstance(field.default, bool):
+        value = field.default
+        notes.append(f"default {value:g}" if isinstance(value, float) else f"default {value}")
+    if env:
+        notes.append(f"${env_var(name)}")
+    if more:
+        notes.append(more)
+    text = str(field.description)
+    if notes:  # in the description's closing parenthesis, if it has one
+        text = f"{text[:-1]}; " if text.endswith(")") else f"{text} ("
+        text += "; ".join(notes) + ")"
+    return text.replace("%", "%%")
+
+
+def _check_dynsec(args: argparse.Namespace, settings: Settings) -> None:
     """``--mqtt-dynsec`` needs ``--mqtt`` and the plugin admin's credentials."""
     if not args.mqtt_dynsec:
         return
@@ -256,6 +304,15 @@ def cmd_token_create(args: argparse.Namespace) -> None:
     emit(args, data, lambda d: d["token"])
 
 
+def read_password(file: str) -> str:
+    """The password in ``file`` (``--mqtt-password-file``), stripped; unreadable: a
+    :class:`UsageError`."""
+    try:
+        return Path(file).read_text().strip()
+    except OSError as exc:
+        raise UsageError(f"--mqtt-password-file: {exc.strerror}: {file}") from None
+
+
 def mqtt_broker(args: argparse.Namespace):
     """The broker of ``--mqtt`` and its options (None without ``--mqtt``); the password from
     ``--mqtt-password-file``, else ``$TRAINCLIMATE_MQTT_PASSWORD``, else the URL."""
@@ -265,11 +322,7 @@ def mqtt_broker(args: argparse.Namespace):
         return None
     password = os.environ.get("TRAINCLIMATE_MQTT_PASSWORD")
     if args.mqtt_password_file:
-        try:
-            password = Path(args.mqtt_password_file).read_text().strip()
-        except OSError as exc:
-            file = args.mqtt_password_file
-            raise UsageError(f"--mqtt-password-file: {exc.strerror}: {file}") from None
+        password = read_password(args.mqtt_password_file)
     try:
         return Broker.from_url(
             args.mqtt,
@@ -283,18 +336,21 @@ def mqtt_broker(args: argparse.Namespace):
 
 
 def add_mqtt_options(p: argparse.ArgumentParser, what: str) -> None:
-    """``--mqtt URL`` and the broker's options."""
-    from trainclimate.service.settings import MQTT_PREFIX
+    """``--mqtt URL`` (``what``: its help) and the broker's options, their help the
+    settings' (:func:`setting_help`)."""
+    from trainclimate.service.adapters import MQTT_PREFIX
 
     p.add_argument("--mqtt", default=None, metavar="URL", help=what)
-    p.add_argument("--mqtt-username", default=None, help="the broker's user name")
+    p.add_argument("--mqtt-username", default=None, help=setting_help("mqtt_username", env=False))
     p.add_argument(
         "--mqtt-password-file",
         default=None,
         help="a file holding the broker password (or $TRAINCLIMATE_MQTT_PASSWORD)",
     )
-    p.add_argument("--mqtt-ca", default=None, help="CA bundle for a TLS broker (implies TLS)")
-    p.add_argument("--mqtt-prefix", default=MQTT_PREFIX, help="the topics' prefix")
+    p.add_argument("--mqtt-ca", default=None, help=setting_help("mqtt_ca_file", env=False))
+    p.add_argument(
+        "--mqtt-prefix", default=MQTT_PREFIX, help=setting_help("mqtt_prefix", env=False)
+    )
 
 
 def cmd_gateway(args: argparse.Namespace) -> None:
@@ -349,27 +405,25 @@ def cmd_gateway(args: argparse.Namespace) -> None:
 
 def register(sub) -> None:
     """Add ``serve``, ``token create`` and ``gateway`` to ``sub``."""
-    from trainclimate.analysis.guard import GUARD_DAYS
-    from trainclimate.service.settings import BACKFILL_HORIZON_DAYS
-    from trainclimate.service.settings import MAX_AHEAD_MIN as MAX_AHEAD_MIN_DEFAULT
+    from trainclimate.service.settings import Settings
 
     p = add_command(sub, "serve", cmd_serve, "run the service (API, dashboard, control loop)")
+    p.add_argument("--db", default=None, help=setting_help("database_url"))
     p.add_argument(
-        "--db",
-        default=None,
-        help="database URL (default: $TRAINCLIMATE_DATABASE_URL, then a SQLite file)",
+        "--fleet", choices=("demo",), default=None, help=setting_help("fleet", env=False)
     )
-    p.add_argument("--fleet", choices=("demo",), default=None, help="add the simulated demo fleet")
-    p.add_argument("--speedup", type=float, default=1.0, help="demo clock × real time")
     p.add_argument(
-        "--coach-params",
-        default=None,
-        help="coach parameter file (coach-params, calibrate --out) for every demo coach "
-        "(default: each scenario's coach)",
+        "--speedup",
+        type=float,
+        default=Settings.model_fields["speedup"].default,
+        help=setting_help("speedup", env=False),
+    )
+    p.add_argument(
+        "--coach-params", default=None, help=setting_help("demo_coach_params", env=False)
     )
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
-    p.add_argument("--predictor", default=None, help="model file (default: the cached model)")
+    p.add_argument("--predictor", default=None, help=setting_help("predictor_path", env=False))
     p.add_argument("--log-level", default="warning")
     p.add_argument(
         "--log-format",
@@ -384,57 +438,37 @@ def register(sub) -> None:
         default=None,
         help="create a token with this role at start and print it with the dashboard's URL",
     )
-    add_mqtt_options(
-        p, "take telemetry from and publish setpoints to this broker, mqtt[s]://HOST[:PORT]"
-    )
+    add_mqtt_options(p, setting_help("mqtt_url", env=False))
     p.add_argument(
         "--mqtt-client-id",
-        default="trainclimate-service",
-        help="the service's client id: its persistent session on the broker",
+        default=Settings.model_fields["mqtt_client_id"].default,
+        help=setting_help("mqtt_client_id", env=False),
     )
     p.add_argument(
         "--backfill-horizon-days",
         type=float,
         default=None,
-        help="refuse live telemetry rows older than their coach's newest row less this many "
-        f"days (default {BACKFILL_HORIZON_DAYS:g}; $TRAINCLIMATE_BACKFILL_HORIZON_DAYS)",
+        help=setting_help("backfill_horizon_days"),
     )
-    p.add_argument(
-        "--max-ahead-min",
-        type=float,
-        default=None,
-        help="refuse live telemetry rows stamped more than this many minutes ahead of the "
-        f"server's clock (default {MAX_AHEAD_MIN_DEFAULT:g}; $TRAINCLIMATE_MAX_AHEAD_MIN)",
-    )
-    p.add_argument(
-        "--guard-days",
-        type=int,
-        default=None,
-        help="hand a pair back to T_rule once its trial's 95 %% interval says the layer costs "
-        f"energy on this many consecutive service days (default {GUARD_DAYS}; "
-        "$TRAINCLIMATE_GUARD_DAYS)",
-    )
+    p.add_argument("--max-ahead-min", type=float, default=None, help=setting_help("max_ahead_min"))
+    p.add_argument("--guard-days", type=int, default=None, help=setting_help("guard_days"))
     p.add_argument(
         "--mqtt-dynsec",
         action="store_true",
-        help="give each gateway token its own broker client (Mosquitto's dynamic security "
-        "plugin), deleted when the token is revoked; the plugin admin's credentials from "
-        "$TRAINCLIMATE_MQTT_DYNSEC_USERNAME and $TRAINCLIMATE_MQTT_DYNSEC_PASSWORD",
+        help=setting_help(
+            "mqtt_dynsec",
+            env=False,
+            more="the plugin admin's credentials from $TRAINCLIMATE_MQTT_DYNSEC_USERNAME and "
+            "$TRAINCLIMATE_MQTT_DYNSEC_PASSWORD",
+        ),
     )
     p.add_argument(
         "--forwarded-allow-ips",
         default=None,
         metavar="IPS",
-        help="the reverse proxies whose X-Forwarded-For names the client, comma-separated IP "
-        "addresses or networks (default none: the header is ignored; "
-        "$TRAINCLIMATE_FORWARDED_ALLOW_IPS)",
+        help=setting_help("forwarded_allow_ips"),
     )
-    p.add_argument(
-        "--replica-name",
-        default=None,
-        help="this process's name in the setpoints it decides (default: HOST:PID); replicas "
-        "sharing one PostgreSQL database split the coaches",
-    )
+    p.add_argument("--replica-name", default=None, help=setting_help("replica_name"))
 
     tsub = add_group(sub, "token", "API tokens")
     p = add_command(tsub, "create", cmd_token_create, "create a token (shown once)")

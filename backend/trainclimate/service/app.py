@@ -38,7 +38,7 @@ from trainclimate import __version__
 from trainclimate.service import api, dashboard_files, docpages, metrics
 from trainclimate.service.adapters import demo
 from trainclimate.service.adapters.dynsec import BrokerClients, DynsecError
-from trainclimate.service.adapters.mqtt import Broker, MqttBridge
+from trainclimate.service.adapters.mqtt import MqttBridge
 from trainclimate.service.api import spec
 from trainclimate.service.api.hardening import (
     DATABASE_RETRY_AFTER_S,
@@ -159,24 +159,13 @@ async def lifespan(app: FastAPI):
         db.dispose()
 
 
-def mqtt_broker(settings: Settings, username: str | None, password: str | None) -> Broker:
-    """The broker of ``--mqtt URL``, as ``username`` with ``password``."""
-    return Broker.from_url(
-        settings.mqtt_url,
-        username=username,
-        password=password,
-        ca_file=settings.mqtt_ca_file,
-        prefix=settings.mqtt_prefix,
-    )
-
-
 def mqtt_bridge(db: Database, settings: Settings, backfill: Backfill) -> MqttBridge | None:
     """With ``--mqtt URL``: the MQTT feed's bridge (not yet started); its setpoints are valid for
     as long as the HTTP pull's, and it takes rows within the same ``backfill`` horizon as
     ``POST /telemetry``."""
     if settings.mqtt_url is None:
         return None
-    broker = mqtt_broker(settings, settings.mqtt_username, settings.mqtt_password)
+    broker = settings.broker(settings.mqtt_username, settings.mqtt_password)
     valid_for = settings.stale_periods * timedelta(minutes=settings.sampling_min)
     return MqttBridge(
         db, broker, client_id=settings.mqtt_client_id, valid_for=valid_for, backfill=backfill
@@ -187,7 +176,7 @@ def broker_clients(settings: Settings) -> BrokerClients | None:
     """With ``--mqtt-dynsec``: the gateway tokens' broker clients, kept as the plugin's admin."""
     if not settings.mqtt_dynsec:
         return None
-    admin = mqtt_broker(settings, settings.mqtt_dynsec_username, settings.mqtt_dynsec_password)
+    admin = settings.broker(settings.mqtt_dynsec_username, settings.mqtt_dynsec_password)
     return BrokerClients(admin)
 
 

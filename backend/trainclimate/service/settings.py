@@ -4,22 +4,26 @@
 from __future__ import annotations
 
 import ipaddress
+import math
 import os
+import re
 import socket
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-from pydantic import Field, field_validator
+from pydantic import Field, ValidationInfo, field_validator
+from pydantic_core import ErrorDetails
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from trainclimate import resources
 from trainclimate.analysis.guard import GUARD_DAYS, MIN_GUARD_DAYS
 from trainclimate.control.controller import STALE_PERIODS
 from trainclimate.paths import home
+from trainclimate.service.adapters import MQTT_PREFIX
 from trainclimate.service.store.db import IDLE_IN_TRANSACTION_S, LOCK_TIMEOUT_S, WORKER_THREADS
 
-#: The MQTT topics' prefix (see :mod:`trainclimate.service.adapters.mqtt`).
-MQTT_PREFIX = "trainclimate/v1"
+if TYPE_CHECKING:
+    from trainclimate.service.adapters.mqtt import Broker
 
 
 #: A loop of the service counts as running for at least this long after its last completed
@@ -70,105 +74,193 @@ def default_database_url() -> str:
 
 
 class Settings(BaseSettings):
-    """``database_url`` (``--db``; env ``TRAINCLIMATE_DATABASE_URL``; default a SQLite file);
-    ``fleet`` ``demo`` to add the simulated demo fleet (``demo_coach_params``: a coach parameter
-    file for all its coaches, e.g. a calibrated twin); ``speedup`` how many times faster than
-    real time the demo fleet's clock runs; ``sampling_min`` the controller's period;
-    ``stale_periods`` after how many periods without telemetry a coach is stale;
-    ``drift_factor`` how many times its validation MAE the active model's online MAE may reach
-    before the model health flags drift;
-    ``cors_origins`` other origins allowed to call the API (default none: the dashboard is served
-    by the same origin); ``predictor_path`` a model file (default: the cached default model);
-    ``max_body_bytes`` the largest request body accepted (larger: 413; the default fits the
-    largest valid telemetry batch, :data:`MAX_BODY_BYTES`); ``backfill_horizon_days`` how far
-    back the live feed's rows are taken: a row older than its coach's newest less this many
-    days is refused (:class:`~trainclimate.service.store.commands.Backfill`); after
-    ``auth_failures_burst`` failed authentications within ``auth_failures_window_s`` seconds,
-    a client address's requests whose token fails answer 429 (see
-    :mod:`trainclimate.service.api.hardening`); ``forwarded_allow_ips``
-    (``--forwarded-allow-ips``; env ``TRAINCLIMATE_FORWARDED_ALLOW_IPS``, comma-separated;
-    default none) the reverse proxies whose ``X-Forwarded-For`` names the client
-    (:func:`trusted_proxies`): the address the throttle counts; from any other peer the header
-    is ignored; ``worker_threads`` the threads running the API's requests (anyio's limit), as
-    many requests admitted at once, and the database pool
-    sized to them (:mod:`trainclimate.service.store.db`); a request beyond them waits up to
-    ``overload_wait_s`` seconds for its turn, else answers 503; ``read_cache_size`` the answers
-    kept, a view per coach, a comparison per train and range, the fleet summary's figures per
-    train and range (least recently used go first; :mod:`trainclimate.service.store.cache`; at least
-    the fleet's coaches and trains; 0: none);
-    ``mqtt_url`` (``--mqtt``) a broker to take
-    telemetry from and publish setpoints to, with its ``mqtt_username``, ``mqtt_password``
-    (env ``TRAINCLIMATE_MQTT_PASSWORD``), ``mqtt_ca_file``, topic ``mqtt_prefix`` and the
-    service's ``mqtt_client_id`` (its persistent session: see
-    :mod:`trainclimate.service.adapters.mqtt`); ``mqtt_dynsec`` (``--mqtt-dynsec``) gives each
-    gateway token a broker client of its own through Mosquitto's dynamic security plugin, as its
-    admin ``mqtt_dynsec_username`` with ``mqtt_dynsec_password`` (env
-    ``TRAINCLIMATE_MQTT_DYNSEC_USERNAME``, ``…_PASSWORD``; see
-    :mod:`trainclimate.service.adapters.dynsec`); ``replica_name`` (``--replica-name``,
-    default ``host:pid``) names this process in the setpoints it decides (replicas sharing one
-    PostgreSQL database split the coaches); ``loop_ready_s`` how long after its last completed
-    iteration a loop of this replica still counts as running for ``/api/v1/ready`` (default: two
-    periods of its fleet's clock in wall time, at least :data:`LOOP_READY_MIN_S`);
-    ``guard_days`` (``--guard-days``) on how many consecutive service days a pair's trial must
-    say the layer costs energy (95 % interval below 0) before its guard hands the pair back to
-    T_rule (:mod:`trainclimate.service.store.guard`; at least 1); ``metrics_refresh_s`` how often
-    at most the metrics' figures that need a query (the model's online MAE, the live coaches) are
-    refreshed (:mod:`trainclimate.service.metrics`); ``max_ahead_min``
-    (``--max-ahead-min``) how far ahead of the server's clock a live row may be stamped
-    (further: refused, reason ``ahead_of_clock``; default :data:`MAX_AHEAD_MIN`);
-    ``db_lock_timeout_s`` and ``db_idle_in_transaction_s`` the PostgreSQL sessions'
-    ``lock_timeout`` and ``idle_in_transaction_session_timeout`` (0: none; see
-    :mod:`trainclimate.service.store.db`); ``ready_timeout_s`` how long ``/api/v1/ready`` waits
-    for its database check before it answers 503."""
+    """The service's settings: each field's ``description`` says what it does (the ``serve``
+    options that set some take their help from it); its environment variable is
+    ``TRAINCLIMATE_<NAME>`` (:func:`env_var`). They act in :mod:`.store.db` (the pool, the
+    PostgreSQL timeouts), :mod:`.api.hardening` (the body limit, the throttle, the trusted
+    proxies, the overload wait), :mod:`.store.cache`, :mod:`.store.commands` (the live feed's
+    horizons), :mod:`.store.guard`, :mod:`.metrics`, :mod:`.adapters.mqtt` (:meth:`broker`) and
+    :mod:`.adapters.dynsec`."""
 
     model_config = SettingsConfigDict(env_prefix="TRAINCLIMATE_", extra="ignore")
 
-    database_url: str = Field(default_factory=default_database_url)
-    fleet: str | None = None
-    speedup: float = 1.0
-    demo_coach_params: Path | None = None
-    sampling_min: float = 5.0
-    stale_periods: int = STALE_PERIODS
-    drift_factor: float = Field(default=1.5, gt=1.0)
-    cors_origins: list[str] = Field(default_factory=list)
-    predictor_path: Path | None = None
-    scheduler_interval_s: float = 0.5
-    frontend_dir: Path = Field(default_factory=resources.frontend_dir)
-    max_body_bytes: int = Field(default=MAX_BODY_BYTES, gt=0)
+    database_url: str = Field(
+        default_factory=default_database_url,
+        description="the database URL, sqlite:///FILE or postgresql://USER@HOST:PORT/NAME "
+        "(default: a SQLite file under $TRAINCLIMATE_HOME)",
+    )
+    fleet: str | None = Field(
+        default=None, description="'demo' adds the simulated demo fleet (default: none)"
+    )
+    speedup: float = Field(
+        default=1.0,
+        description="how many times faster than real time the demo fleet's clock runs",
+    )
+    demo_coach_params: Path | None = Field(
+        default=None,
+        description="a coach parameter file (coach-params, calibrate --out) for every coach of "
+        "the demo fleet, e.g. a calibrated twin (default: each scenario's coach)",
+    )
+    sampling_min: float = Field(default=5.0, description="the controller's period [min]")
+    stale_periods: int = Field(
+        default=STALE_PERIODS,
+        description="after how many of the controller's periods without telemetry a coach is stale",
+    )
+    drift_factor: float = Field(
+        default=1.5,
+        gt=1.0,
+        description="how many times its validation MAE the active model's online MAE may reach "
+        "before the model health flags drift",
+    )
+    cors_origins: list[str] = Field(
+        default_factory=list,
+        description="other origins allowed to call the API (default none: the dashboard is "
+        "served by the same origin)",
+    )
+    predictor_path: Path | None = Field(
+        default=None,
+        description="a model file (predictor fit) registered if the database has none "
+        "(default: the cached model, else one prepared at start)",
+    )
+    scheduler_interval_s: float = Field(
+        default=0.5, description="the pause between two iterations of the live fleet's loop [s]"
+    )
+    frontend_dir: Path = Field(
+        default_factory=resources.frontend_dir,
+        description="the dashboard's built files (default: those of the package)",
+    )
+    max_body_bytes: int = Field(
+        default=MAX_BODY_BYTES,
+        gt=0,
+        description="the largest request body accepted (larger: 413; the default fits the "
+        "largest valid telemetry batch) [bytes]",
+    )
     backfill_horizon_days: float = Field(
-        default=BACKFILL_HORIZON_DAYS, gt=0, le=MAX_BACKFILL_HORIZON_DAYS
+        default=BACKFILL_HORIZON_DAYS,
+        gt=0,
+        le=MAX_BACKFILL_HORIZON_DAYS,
+        description="how far back the live feed's rows are taken: a row older than its coach's "
+        "newest row less this many days is refused [days]",
     )
-    auth_failures_burst: int = Field(default=20, gt=0)
-    auth_failures_window_s: float = Field(default=60.0, gt=0)
-    forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(default_factory=list)
-    worker_threads: int = Field(default=WORKER_THREADS, gt=0)
-    overload_wait_s: float = Field(default=1.0, ge=0)
-    read_cache_size: int = Field(default=8192, ge=0)
-    mqtt_url: str | None = None
-    mqtt_username: str | None = None
-    mqtt_password: str | None = None
-    mqtt_ca_file: Path | None = None
-    mqtt_prefix: str = MQTT_PREFIX
-    mqtt_client_id: str = "trainclimate-service"
-    mqtt_dynsec: bool = False
-    mqtt_dynsec_username: str | None = None
-    mqtt_dynsec_password: str | None = None
+    auth_failures_burst: int = Field(
+        default=20,
+        gt=0,
+        description="after this many failed authentications from one client address within "
+        "auth_failures_window_s, its requests whose token fails answer 429",
+    )
+    auth_failures_window_s: float = Field(
+        default=60.0, gt=0, description="the window of auth_failures_burst [s]"
+    )
+    forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="the reverse proxies whose X-Forwarded-For names the client (the address "
+        "the authentication throttle counts), comma-separated IP addresses or networks "
+        "(default none: the header is ignored)",
+    )
+    worker_threads: int = Field(
+        default=WORKER_THREADS,
+        gt=0,
+        description="the threads running the API's requests, as many requests admitted at once, "
+        "and the database pool sized to them",
+    )
+    overload_wait_s: float = Field(
+        default=1.0,
+        ge=0,
+        description="how long a request beyond worker_threads waits for its turn before it "
+        "answers 503 [s]",
+    )
+    read_cache_size: int = Field(
+        default=8192,
+        ge=0,
+        description="the read answers kept (a view per coach, a comparison and the fleet "
+        "summary's figures per train and range; least recently used go first; at least the "
+        "fleet's coaches and trains; 0: none)",
+    )
+    mqtt_username: str | None = Field(
+        default=None, description="the broker's user name (default: the URL's)"
+    )
+    mqtt_password: str | None = Field(
+        default=None, description="the broker's password (default: the URL's)"
+    )
+    mqtt_ca_file: Path | None = Field(
+        default=None, description="a CA bundle for a TLS broker (implies TLS)"
+    )
+    mqtt_prefix: str = Field(default=MQTT_PREFIX, description="the MQTT topics' prefix")
+    # after the CA file and the prefix, which its check reads
+    mqtt_url: str | None = Field(
+        default=None,
+        description="a broker to take telemetry from and publish setpoints to, "
+        "mqtt[s]://[USER[:PASSWORD]@]HOST[:PORT] (default: none)",
+    )
+    mqtt_client_id: str = Field(
+        default="trainclimate-service",
+        description="the service's client id: its persistent session on the broker",
+    )
+    mqtt_dynsec: bool = Field(
+        default=False,
+        description="give each gateway token its own broker client (Mosquitto's dynamic "
+        "security plugin), deleted when the token is revoked",
+    )
+    mqtt_dynsec_username: str | None = Field(
+        default=None, description="the dynamic security plugin's admin user (with mqtt_dynsec)"
+    )
+    mqtt_dynsec_password: str | None = Field(
+        default=None, description="the dynamic security plugin admin's password"
+    )
     replica_name: str = Field(
-        default_factory=default_replica_name, min_length=1, max_length=REPLICA_NAME_MAX
+        default_factory=default_replica_name,
+        min_length=1,
+        max_length=REPLICA_NAME_MAX,
+        description="this process's name in the setpoints it decides (default: HOST:PID); "
+        "replicas sharing one PostgreSQL database split the coaches",
     )
-    loop_ready_s: float | None = Field(default=None, gt=0)
-    guard_days: int = Field(default=GUARD_DAYS, ge=MIN_GUARD_DAYS)
-    metrics_refresh_s: float = Field(default=60.0, gt=0)
-    max_ahead_min: float = Field(default=MAX_AHEAD_MIN, gt=0, le=MAX_AHEAD_LIMIT_MIN)
-    db_lock_timeout_s: float = Field(default=LOCK_TIMEOUT_S, ge=0)
-    db_idle_in_transaction_s: float = Field(default=IDLE_IN_TRANSACTION_S, ge=0)
-    ready_timeout_s: float = Field(default=READY_TIMEOUT_S, gt=0)
+    loop_ready_s: float | None = Field(
+        default=None,
+        gt=0,
+        description="how long after its last completed iteration a loop of this replica still "
+        "counts as running for /api/v1/ready (default: two periods of its fleet's clock in "
+        f"wall time, at least {LOOP_READY_MIN_S:g} s) [s]",
+    )
+    guard_days: int = Field(
+        default=GUARD_DAYS,
+        ge=MIN_GUARD_DAYS,
+        description="hand a pair back to T_rule once its trial's 95 % interval says the layer "
+        "costs energy on this many consecutive service days",
+    )
+    metrics_refresh_s: float = Field(
+        default=60.0,
+        gt=0,
+        description="how often at most the metrics' figures that need a query (the model's "
+        "online MAE, the live coaches) are refreshed [s]",
+    )
+    max_ahead_min: float = Field(
+        default=MAX_AHEAD_MIN,
+        gt=0,
+        le=MAX_AHEAD_LIMIT_MIN,
+        description="refuse live telemetry rows stamped further than this ahead of the server's "
+        "clock (reason ahead_of_clock) [min]",
+    )
+    db_lock_timeout_s: float = Field(
+        default=LOCK_TIMEOUT_S,
+        ge=0,
+        description="the PostgreSQL sessions' lock_timeout (0: none) [s]",
+    )
+    db_idle_in_transaction_s: float = Field(
+        default=IDLE_IN_TRANSACTION_S,
+        ge=0,
+        description="the PostgreSQL sessions' idle_in_transaction_session_timeout (0: none) [s]",
+    )
+    ready_timeout_s: float = Field(
+        default=READY_TIMEOUT_S,
+        gt=0,
+        description="how long /api/v1/ready waits for its database check before it answers 503 [s]",
+    )
 
     @field_validator("fleet")
     @classmethod
     def _fleet(cls, value: str | None) -> str | None:
         if value not in (None, "demo"):
-            raise ValueError("fleet must be 'demo' or empty")
+            raise ValueError("must be 'demo' or empty")
         return value
 
     @field_validator("forwarded_allow_ips", mode="before")
@@ -176,9 +268,98 @@ class Settings(BaseSettings):
     def _proxies(cls, value: str | list[str]) -> list[str]:
         return trusted_proxies(value)
 
-    @field_validator("speedup", "sampling_min", "scheduler_interval_s")
+    @field_validator("sampling_min", "scheduler_interval_s")
     @classmethod
     def _positive(cls, value: float) -> float:
         if not value > 0:
             raise ValueError("must be positive")
         return value
+
+    @field_validator("speedup")
+    @classmethod
+    def _speedup(cls, value: float) -> float:
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError("must be positive")
+        return value
+
+    @field_validator("replica_name", mode="before")
+    @classmethod
+    def _replica_name(cls, value: object) -> object:
+        if isinstance(value, str) and not (
+            0 < len(value) <= REPLICA_NAME_MAX and value.isprintable()
+        ):
+            raise ValueError(f"must be 1 to {REPLICA_NAME_MAX} printable characters")
+        return value
+
+    @field_validator("mqtt_url")
+    @classmethod
+    def _mqtt_url(cls, value: str | None, info: ValidationInfo) -> str | None:
+        """A broker URL that :class:`~trainclimate.service.adapters.mqtt.Broker` takes, with the
+        CA file and the topics' prefix (a :class:`~.adapters.mqtt.BrokerError` names the fault)."""
+        if value is not None:
+            from trainclimate.service.adapters.mqtt import Broker
+
+            prefix = info.data.get("mqtt_prefix", MQTT_PREFIX)
+            Broker.from_url(value, ca_file=info.data.get("mqtt_ca_file"), prefix=prefix)
+        return value
+
+    def broker(self, username: str | None, password: str | None) -> Broker:
+        """The broker of ``mqtt_url`` (with ``mqtt_ca_file`` and ``mqtt_prefix``), as
+        ``username`` with ``password`` (None: the URL's); a :class:`ValueError` without
+        ``mqtt_url``."""
+        from trainclimate.service.adapters.mqtt import Broker
+
+        if self.mqtt_url is None:
+            raise ValueError("no MQTT broker: mqtt_url is not set")
+        return Broker.from_url(
+            self.mqtt_url,
+            username=username,
+            password=password,
+            ca_file=self.mqtt_ca_file,
+            prefix=self.mqtt_prefix,
+        )
+
+
+def env_var(name: str) -> str:
+    """The environment variable of setting ``name``: ``TRAINCLIMATE_<NAME>``."""
+    return f"TRAINCLIMATE_{name.upper()}"
+
+
+def allowed(name: str) -> str:
+    """What the bounds of setting ``name`` allow, in words, with its unit: ``in (0, 3650]
+    [days]``, ``at least 1``, ``positive [bytes]``; empty without bounds."""
+    field = Settings.model_fields[name]
+    bounds = {
+        key: getattr(item, key)
+        for item in field.metadata
+        for key in ("gt", "ge", "le")
+        if hasattr(item, key)
+    }
+    if "gt" in bounds:
+        low = f"({bounds['gt']:g}"
+        text = "positive" if bounds["gt"] == 0 else f"above {bounds['gt']:g}"
+    elif "ge" in bounds:
+        low = f"[{bounds['ge']:g}"
+        text = f"at least {bounds['ge']:g}"
+    else:
+        return ""
+    if "le" in bounds:
+        text = f"in {low}, {bounds['le']:g}]"
+    unit = re.search(r"\[[^\]]+\]$", field.description or "")
+    return f"{text} {unit.group()}" if unit else text
+
+
+#: pydantic's errors of a field's bounds (``gt``, ``ge``, ``le``).
+BOUND_ERRORS = frozenset({"greater_than", "greater_than_equal", "less_than_equal"})
+
+
+def problem(error: ErrorDetails) -> str:
+    """One of a :class:`Settings` validation error's ``errors()`` in a line, without the
+    setting's name: a validator's own words (``must be positive``), what the field's constraints
+    allow (``must be in (0, 3650] [days]``), else pydantic's message."""
+    name = error["loc"][0] if error["loc"] else None
+    if error["type"] == "value_error" and "error" in error.get("ctx", {}):
+        return str(error["ctx"]["error"])
+    if error["type"] in BOUND_ERRORS and name in Settings.model_fields and allowed(str(name)):
+        return f"must be {allowed(str(name))}"
+    return error["msg"]

@@ -13,3 +13,7 @@
 They build on the store and the scheduler; nothing in the store, the scheduler or the API imports
 them (the app starts the demo fleet, the MQTT feed and the broker clients, the CLI the gateway).
 """
+
+#: The MQTT topics' prefix (:mod:`.mqtt`; the settings' default, ``mqtt_prefix``). Here, not in
+#: :mod:`.mqtt`, so that the settings read it without importing the feed, which reads them.
+MQTT_PREFIX = "trainclimate/v1"
