@@ -268,16 +268,9 @@ class Settings(BaseSettings):
     def _proxies(cls, value: str | list[str]) -> list[str]:
         return trusted_proxies(value)
 
-    @field_validator("sampling_min", "scheduler_interval_s")
+    @field_validator("speedup", "sampling_min", "scheduler_interval_s")
     @classmethod
     def _positive(cls, value: float) -> float:
-        if not value > 0:
-            raise ValueError("must be positive")
-        return value
-
-    @field_validator("speedup")
-    @classmethod
-    def _speedup(cls, value: float) -> float:
         if not (math.isfinite(value) and value > 0):
             raise ValueError("must be positive")
         return value
