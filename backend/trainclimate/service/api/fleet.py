@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from datetime import timedelta
-from typing import Annotated, cast
+from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
 from pydantic import AwareDatetime
@@ -43,9 +43,7 @@ def get_fleet_summary(
         queries.checked_range(end, None, timedelta(hours=hours))  # the API's bounds
     live = queries.live_clocks(s)
     views = [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
-    # the summary still takes the views as plain dicts
-    untyped = cast(list[dict], views)
-    return fleet_summary.summary(s, untyped, hours, end, cache=request.app.state.read_cache)
+    return fleet_summary.summary(s, views, hours, end, cache=request.app.state.read_cache)
 
 
 @router.get(

@@ -46,7 +46,7 @@ def insert_rows(session: Session, coach_id: str, rows: list[TelemetryRecord]) ->
     insert = [{**r, "coach_id": coach_id} for r in fresh]
     table = cast(Table, Telemetry.__table__)
     stored = set(insert_new_keys(session, table, insert, ["coach_id", "time"], "time"))
-    rollups.add_rows(session, {coach_id: [r for r in insert if r["time"] in stored]})
+    rollups.add_rows(session, {coach_id: [r for r in fresh if r["time"] in stored]})
     return len(stored)
 
 
