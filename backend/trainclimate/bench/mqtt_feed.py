@@ -69,10 +69,11 @@ class MqttFeed:
         self._acked[(id(client), mid)] = time.perf_counter()
 
     def _row(self, t, coach: str) -> dict:
+        from trainclimate.service.store.records import TelemetryRecord
         from trainclimate.service.store.telemetry import to_wire
 
         deck = 21.5 + self.rng.uniform(-0.3, 0.3)
-        row = {
+        row: TelemetryRecord = {
             "time": t,
             "t_room_up_c": deck + 0.2,
             "t_room_mid_c": deck,

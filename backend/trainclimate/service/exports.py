@@ -15,9 +15,11 @@ import re
 from collections.abc import Iterable, Sequence
 from datetime import UTC, datetime, timedelta
 from enum import Enum
-from typing import Any
+from typing import Any, Final
 
 from starlette.responses import Response
+
+from trainclimate.service.store.records import TimeSeries
 
 #: The CSV's media type (RFC 4180 with UTF-8 text).
 MEDIA_TYPE = "text/csv; charset=utf-8"
@@ -159,13 +161,24 @@ def fleet_csv(summary: dict) -> str:
     return write(TRAIN_COLUMNS, (row(t) for t in summary["trains"]))
 
 
-def telemetry_csv(ts: dict) -> str:
+def telemetry_csv(ts: TimeSeries) -> str:
     """A coach's telemetry (:func:`.store.queries.timeseries`), one row a minute in
     :data:`TELEMETRY_COLUMNS`: the minute's end (UTC, fleet clock), the decks' temperatures
     (°C), setpoints (°C), ambient (°C), irradiance (W/m²), power (kW), occupancy (%), speed
     (km/h), HVAC mode, link and the setpoint's source."""
-    flat: tuple[str, ...] = ("t_ref_c", "t_rule_c", "t_amb_c", "ghi_w_m2", "power_kw")
-    flat += ("floor_power_kw", "occupancy_pct", "speed_kmh", "mode", "connected", "source")
+    flat: Final = (
+        "t_ref_c",
+        "t_rule_c",
+        "t_amb_c",
+        "ghi_w_m2",
+        "power_kw",
+        "floor_power_kw",
+        "occupancy_pct",
+        "speed_kmh",
+        "mode",
+        "connected",
+        "source",
+    )
 
     def row(i: int) -> list:
         decks = list(ts["t_room_c"][i] or [None, None, None])

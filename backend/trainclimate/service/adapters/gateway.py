@@ -46,6 +46,7 @@ from trainclimate.coach.rule import MODE_REGULAR
 from trainclimate.coach.setpoint import apply_setpoint
 from trainclimate.service.adapters.mqtt import Broker
 from trainclimate.service.api.schemas import MAX_BATCH_ROWS
+from trainclimate.service.store.records import TelemetryRecord
 from trainclimate.service.store.telemetry import rows_from_simulation, to_wire
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
@@ -101,7 +102,7 @@ class Batch:
     through: datetime
 
 
-def first_batch(rows: list[dict], max_bytes: int, max_rows: int) -> Batch:
+def first_batch(rows: list[TelemetryRecord], max_bytes: int, max_rows: int) -> Batch:
     """The oldest of ``rows`` (sorted by time) whose JSON fits in ``max_bytes`` and
     ``max_rows``, at least one."""
     texts: list[str] = []
@@ -326,7 +327,7 @@ class Gateway:
         self.sim = FleetSimulator([params[0]] * len(self.ids), env, seed=sc.seed)
         self.t_ref = np.full(len(self.ids), np.nan)
         self.valid_until: list[pd.Timestamp | None] = [None] * len(self.ids)
-        self.buffer: dict[str, list[dict]] = {cid: [] for cid in self.ids}
+        self.buffer: dict[str, list[TelemetryRecord]] = {cid: [] for cid in self.ids}
         self.batch_bytes = BATCH_BYTES
         self.registered = False
         self.stats = GatewayStats()

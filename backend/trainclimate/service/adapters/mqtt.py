@@ -83,6 +83,7 @@ from trainclimate.service.store.queries import (
     newest_setpoint,
     setpoint_view,
 )
+from trainclimate.service.store.records import SetpointView, TelemetryRecord
 from trainclimate.service.store.telemetry import from_wire
 from trainclimate.service.store.tokens import COACH_ID, authenticate
 
@@ -224,11 +225,11 @@ class MessageError(Exception):
 @dataclass(frozen=True)
 class Batch:
     """A telemetry message as the service takes it: the sender's ``token``, the batch ``id``
-    (None: the sender wants no confirmation) and the stored-row dicts."""
+    (None: the sender wants no confirmation) and its rows as stored."""
 
     token: str
     id: str | None
-    rows: list[dict]
+    rows: list[TelemetryRecord]
 
     @property
     def through(self) -> datetime:
@@ -457,7 +458,7 @@ class MqttBridge:
         for view in views:
             self._publish(view)
 
-    def _publish(self, view: dict) -> None:
+    def _publish(self, view: SetpointView) -> None:
         payload = json.dumps(view, default=lambda t: t.isoformat())
         info = self.client.publish(
             self.broker.topic(view["coach_id"], "setpoint"), payload, qos=1, retain=True

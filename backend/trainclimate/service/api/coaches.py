@@ -23,14 +23,14 @@ from trainclimate.service.api.deps import (
     period,
     settings,
 )
-from trainclimate.service.store import commands, liveness, queries
+from trainclimate.service.store import commands, liveness, queries, records
 from trainclimate.service.store.models import Coach, utcnow
 
 router = APIRouter()
 
 
 @router.get("/coaches", response_model=list[schemas.CoachOut], tags=["coaches"], responses=AUTH)
-def list_coaches(request: Request, s: DB, _: Viewer) -> list:
+def list_coaches(request: Request, s: DB, _: Viewer) -> list[records.CoachView]:
     """Every coach with its train, layer, status (ok, warm-up, stale, disconnected, fallback,
     override, inactive, not-regular, preparing, no-data), latest readings, whether its decks are
     within the comfort band now, and its setpoint (and whether the coach receives it)."""
@@ -51,7 +51,7 @@ def register_coach(
     response: Response,
     s: DB,
     who: GatewayOrOperatorCoach,
-) -> dict:
+) -> records.CoachView:
     """Register a live coach (and its train); an existing coach is returned as it is (200). A
     coach's train is fixed when it is registered: another train for an existing coach is 409,
     whatever the role. A gateway token may register the coaches of its scope into its own trains
@@ -69,7 +69,7 @@ def register_coach(
     tags=["coaches"],
     responses={**AUTH, **NOT_FOUND},
 )
-def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
+def get_coach(coach_id: str, request: Request, s: DB, _: Viewer) -> records.CoachView:
     """One coach, as in the list."""
     [(coach, state)] = queries.coach_states(s, coach_id)
     return current_view(request, s, coach, state, queries.live_clocks(s))
@@ -77,12 +77,12 @@ def get_coach(coach_id: str, request: Request, s: DB, _: Viewer):
 
 def current_view(
     request: Request, s: Session, coach: Coach, state: tuple, clocks: liveness.Clocks
-) -> dict:
+) -> records.CoachView:
     """The coach's view as the fleet list and the fleet summary show it: from the read cache
     while its state is unchanged, with a live coach's silence judged now on its own clock
     (``clocks``: :func:`.queries.live_clocks`; :func:`.queries.with_liveness`)."""
     stale_periods = settings(request).stale_periods
-    view = request.app.state.read_cache.get(
+    view: records.CoachView = request.app.state.read_cache.get(
         ("coach", coach.id),
         state,
         lambda: queries.coach_view(s, coach, period(request), stale_periods),
@@ -103,7 +103,7 @@ def coach_timeseries(
     _: Viewer,
     start: Annotated[AwareDatetime | None, Query(description="ISO 8601 with offset")] = None,
     end: Annotated[AwareDatetime | None, Query(description="default: the coach's clock")] = None,
-) -> dict:
+) -> records.TimeSeries:
     """The coach's telemetry, default the last 24 h of its clock."""
     coach = queries.coach_or_404(s, coach_id)
     start, end = queries.time_range(s, coach, start, end)
@@ -136,7 +136,9 @@ def coach_timeseries_csv(
     tags=["live feed"],
     responses={**AUTH, **NOT_FOUND},
 )
-def coach_setpoint(coach_id: str, request: Request, s: DB, _: GatewayOrViewer) -> dict:
+def coach_setpoint(
+    coach_id: str, request: Request, s: DB, _: GatewayOrViewer
+) -> records.SetpointView | records.NoSetpoint:
     """The setpoint the coach's gateway should apply now (the live feed's pull); a gateway token
     may pull it for the coaches of its scope."""
     coach = queries.coach_or_404(s, coach_id)
@@ -155,7 +157,7 @@ def coach_setpoints(
     _: Viewer,
     start: AwareDatetime | None = None,
     end: AwareDatetime | None = None,
-) -> dict:
+) -> records.SetpointHistory:
     """Issued setpoints with their source, reason, solve time and predicted trajectory."""
     coach = queries.coach_or_404(s, coach_id)
     start, end = queries.time_range(s, coach, start, end)
@@ -174,7 +176,7 @@ def set_controller(
     request: Request,
     s: DB,
     who: Operator,
-) -> dict:
+) -> records.CoachView:
     """Switch the DDPC layer on or off for a coach; audited."""
     coach = commands.set_controller(s, who, coach_id, body.active, body.reason)
     request.app.state.scheduler.forget(coach.id)

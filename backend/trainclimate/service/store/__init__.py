@@ -7,6 +7,8 @@
 - :mod:`.telemetry` — storing 1-minute telemetry rows and turning them into the controller's
   samples; the rows' wire format and the rows of a simulation;
 - :mod:`.queries` — what the API reads (coach views, time series, setpoints, pair comparisons);
+- :mod:`.records` — the typed dicts that cross the store's seams: a telemetry row as stored, the
+  views the API reads;
 - :mod:`.comfort` — whether a coach's decks are within the comfort band now (its newest row);
 - :mod:`.fleet_summary` — the fleet at a glance: every train's savings and comfort summed in the
   database, pooled, and the coaches that need attention;

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from collections import Counter
 
+from trainclimate.service.store.records import CoachView
+
 #: A coach whose decks have been outside the comfort band this long, without a break, needs
 #: attention. [min]
 VIOLATION_ATTENTION_MIN = 30.0
@@ -19,7 +21,7 @@ GUARD_REASON = "costing_energy"
 
 
 def attention(
-    views: list[dict], violating_min: dict[str, float], guards: dict[str, dict] | None = None
+    views: list[CoachView], violating_min: dict[str, float], guards: dict[str, dict] | None = None
 ) -> list[dict]:
     """The coaches that need an operator's attention, from their views (as the fleet list shows
     them), the trains whose guard handed the layer back to T_rule and the minutes each coach has
@@ -32,7 +34,7 @@ def attention(
 
     Parameters
     ----------
-    views : list of dict
+    views : list of CoachView
         The coaches' views (:func:`.queries.coach_view` with :func:`.queries.with_liveness`).
     violating_min : dict
         Coach id → how long its decks have been outside the comfort band without a break. [min]
@@ -104,13 +106,13 @@ def attention(
     return sorted(out, key=lambda e: (KINDS.index(e["kind"]), e["coach_id"]))
 
 
-def _disconnected(view: dict) -> str:
+def _disconnected(view: CoachView) -> str:
     """What a ``disconnected`` coach's HVAC does, in words, from its view."""
     t_rule = view.get("t_rule_c")
     holds = f"T_rule {t_rule:.1f} °C" if t_rule is not None else "its T_rule"
     return f"link to the HVAC lost: it holds {holds}, not the T_ref issued"
 
 
-def coaches_by_status(views: list[dict]) -> dict[str, int]:
+def coaches_by_status(views: list[CoachView]) -> dict[str, int]:
     """Status → how many coaches have it (as the fleet list shows them)."""
     return dict(sorted(Counter(v["status"] for v in views).items()))

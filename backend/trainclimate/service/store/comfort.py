@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from trainclimate.service.store.records import ComfortNow
+
 #: The decks, in the order of a view's ``t_room_c``.
 DECK_NAMES = ("up", "mid", "low")
 
@@ -22,7 +24,7 @@ def comfort_now(
     t_rule_c: float | None,
     mode: str | None,
     band_k: float,
-) -> dict | None:
+) -> ComfortNow | None:
     """The comfort of a coach's newest telemetry row.
 
     Parameters
@@ -39,7 +41,7 @@ def comfort_now(
 
     Returns
     -------
-    dict or None
+    ComfortNow or None
         ``in_band`` (bool: every deck with a reading within T_rule ± ``band_k``),
         ``worst_excess_k`` (how far the worst deck lies outside the band, 0 when all are
         within, K) and ``decks_out`` (the names of the decks outside, of :data:`DECK_NAMES`);

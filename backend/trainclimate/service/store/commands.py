@@ -32,6 +32,7 @@ from trainclimate.service.store.queries import (
     coach_or_404,
     fleet_clock,
 )
+from trainclimate.service.store.records import TelemetryRecord
 from trainclimate.service.store.telemetry import insert_rows
 from trainclimate.service.store.tokens import (
     GATEWAY,
@@ -155,7 +156,11 @@ class Backfill:
             self._refused[reason] = self._refused.get(reason, 0) + rows
 
     def check(
-        self, session: Session, coach_id: str, rows: list[dict], now: datetime | None = None
+        self,
+        session: Session,
+        coach_id: str,
+        rows: list[TelemetryRecord],
+        now: datetime | None = None,
     ) -> None:
         """:class:`AheadOfClockError` if any of ``rows`` (a batch of ``coach_id``, not empty)
         is stamped more than ``max_ahead`` after ``now`` (the server's clock, default the
@@ -192,7 +197,7 @@ class Backfill:
 
 
 def ingest(
-    session: Session, coach_id: str, rows: list[dict], backfill: Backfill | None = None
+    session: Session, coach_id: str, rows: list[TelemetryRecord], backfill: Backfill | None = None
 ) -> tuple[int, int]:
     """Store a batch of telemetry, advance the coach's own clock and note the arrival
     (:mod:`.liveness`). Returns (stored, duplicates). With ``backfill``, a batch with a row

@@ -47,6 +47,7 @@ from trainclimate.service.store.models import (
     Train,
 )
 from trainclimate.service.store.pair_trial import COUNTS, SUMS, energy_columns
+from trainclimate.service.store.records import CoachView
 
 
 def _coach_times(session: Session, coaches: list) -> dict[str, tuple]:
@@ -119,7 +120,7 @@ def pair_results(
 
 def summary(
     session: Session,
-    views: list[dict],
+    views: list[CoachView],
     hours: float,
     end: datetime | None = None,
     window_min: float = 30.0,

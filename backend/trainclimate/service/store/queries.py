@@ -8,7 +8,9 @@ its answer is kept under in :class:`~trainclimate.service.store.cache.ReadCache`
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from datetime import UTC, datetime, timedelta
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -27,6 +29,14 @@ from trainclimate.service.store.models import (
     Setpoint,
     Telemetry,
     Train,
+)
+from trainclimate.service.store.records import (
+    CoachView,
+    NoSetpoint,
+    Replica,
+    SetpointHistory,
+    SetpointView,
+    TimeSeries,
 )
 from trainclimate.service.store.telemetry import load_frame
 
@@ -114,7 +124,7 @@ def newest_setpoint(session: Session, coach: Coach) -> Setpoint | None:
     )
 
 
-def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
+def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> CoachView:
     """A coach with its newest setpoint, telemetry and override, its status and its comfort now.
 
     Parameters
@@ -129,7 +139,7 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
 
     Returns
     -------
-    dict
+    CoachView
         The fields of the API's ``CoachOut``. ``status`` is the first that applies of: ``no-data``
         (no setpoint and no telemetry), ``stale`` (no telemetry in time), ``disconnected`` (the
         newest row says the link to the HVAC is down: the HVAC holds T_rule, whatever was
@@ -160,8 +170,11 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
             .limit(1)
         )
     # a live coach's silence is judged on the wall clock (with_liveness), the demo's on its clock
-    behind = coach.fleet != liveness.LIVE and clock is not None
-    unseen = row is None or (behind and row.time < clock - stale_periods * period)
+    unseen = row is None or (
+        coach.fleet != liveness.LIVE
+        and clock is not None
+        and row.time < clock - stale_periods * period
+    )
     if setpoint is None and row is None:
         status = "no-data"
     elif unseen:
@@ -188,7 +201,11 @@ def coach_view(session: Session, coach: Coach, period: timedelta, stale_periods:
         else (setpoint.reason if setpoint else None),
         # the setpoint's T_rule, else the newest row's (a tick before any row has none)
         "t_rule_c": next(
-            (v for v in (setpoint and setpoint.t_rule_c, row and row.t_rule_c) if v is not None),
+            (
+                v
+                for v in (setpoint.t_rule_c if setpoint else None, row.t_rule_c if row else None)
+                if v is not None
+            ),
             None,
         ),
         "t_ref_c": t_ref,
@@ -212,13 +229,13 @@ def last_seen(session: Session, coach: Coach) -> datetime | None:
 
 
 def with_liveness(
-    view: dict,
+    view: CoachView,
     clock: CoachLiveness | None,
     now: datetime,
     period: timedelta,
     stale_periods: int,
     prior: float = 1.0,
-) -> dict:
+) -> CoachView:
     """The :func:`coach_view` ``view`` with a live coach's status judged by arrivals (wall time
     ``now``; ``clock`` its liveness row, :mod:`.liveness`): ``stale`` when nothing has arrived
     from it for ``stale_periods`` periods at its clock's pace (``prior`` until measured, the
@@ -304,13 +321,13 @@ def checked_range(
     return start, end
 
 
-def _none(values) -> list:
+def _none(values: Iterable[float | None]) -> list[float | None]:
     return [
         None if v is None or (isinstance(v, float) and not np.isfinite(v)) else v for v in values
     ]
 
 
-def timeseries(session: Session, coach: Coach, start: datetime, end: datetime) -> dict:
+def timeseries(session: Session, coach: Coach, start: datetime, end: datetime) -> TimeSeries:
     """The coach's telemetry in (start, end] with the source of the setpoint in force."""
     frame = load_frame(session, coach.id, start, end)
     ticks = session.execute(
@@ -355,7 +372,9 @@ def timeseries(session: Session, coach: Coach, start: datetime, end: datetime) -
     }
 
 
-def setpoint_history(session: Session, coach: Coach, start: datetime, end: datetime) -> dict:
+def setpoint_history(
+    session: Session, coach: Coach, start: datetime, end: datetime
+) -> SetpointHistory:
     """The coach's setpoints with ticks in (start, end], oldest first, one list per field."""
     rows = session.scalars(
         select(Setpoint)
@@ -373,19 +392,28 @@ def setpoint_history(session: Session, coach: Coach, start: datetime, end: datet
     }
 
 
-def current_setpoint(session: Session, coach: Coach, period: timedelta, stale_periods: int) -> dict:
+def current_setpoint(
+    session: Session, coach: Coach, period: timedelta, stale_periods: int
+) -> SetpointView | NoSetpoint:
     """The newest setpoint, valid until ``stale_periods`` periods after its tick — if it still
     is on the coach's clock (:func:`expired`); else, as before any, all None: the gateway keeps
     its HVAC's T_rule."""
     sp = newest_setpoint(session, coach)
     view = None if sp is None else setpoint_view(coach.id, sp, stale_periods * period)
     if view is None or expired(view, fleet_clock(session, coach)):
-        empty = ("tick", "t_ref_c", "t_rule_c", "source", "reason", "valid_until")
-        return {"coach_id": coach.id, **dict.fromkeys(empty)}
+        return {
+            "coach_id": coach.id,
+            "tick": None,
+            "t_ref_c": None,
+            "t_rule_c": None,
+            "source": None,
+            "reason": None,
+            "valid_until": None,
+        }
     return view
 
 
-def expired(view: dict, clock: datetime | None) -> bool:
+def expired(view: SetpointView, clock: datetime | None) -> bool:
     """Whether the setpoint ``view`` (:func:`setpoint_view`) is no longer valid at ``clock``
     (its coach's clock now; None: unknown, taken as valid): a setpoint decided by a replica
     that was paused, published or served after its validity, would hold the coach at a stale
@@ -393,11 +421,11 @@ def expired(view: dict, clock: datetime | None) -> bool:
     return clock is not None and clock >= view["valid_until"]
 
 
-def setpoint_view(coach_id: str, sp, valid_for: timedelta) -> dict:
+def setpoint_view(coach_id: str, sp: Setpoint | dict, valid_for: timedelta) -> SetpointView:
     """What a coach's gateway is told of setpoint ``sp`` (a :class:`Setpoint` or its row as a
     dict), valid for ``valid_for`` after its tick — by ``GET /coaches/{id}/setpoint`` and on the
     coach's MQTT setpoint topic."""
-    get = sp.get if isinstance(sp, dict) else lambda name: getattr(sp, name)
+    get: Callable[[str], Any] = sp.get if isinstance(sp, dict) else lambda name: getattr(sp, name)
     return {
         "coach_id": coach_id,
         "tick": get("tick"),
@@ -491,7 +519,7 @@ def _epoch_us(t: datetime) -> int:
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 
-def replicas(session: Session, since: datetime) -> list[dict]:
+def replicas(session: Session, since: datetime) -> list[Replica]:
     """The service replicas that decided setpoints since ``since`` (by when the setpoints were
     made, wall time): per replica its ``coaches`` (sorted ids), ``ticks`` and the first and last
     time it was seen; busiest first. Setpoints from before replicas were recorded count under
@@ -507,7 +535,7 @@ def replicas(session: Session, since: datetime) -> list[dict]:
         .where(Setpoint.created_at >= since)
         .group_by(Setpoint.replica, Setpoint.coach_id)
     ).all()
-    out: dict[str, dict] = {}
+    out: dict[str, Replica] = {}
     for replica, coach_id, ticks, first, last in rows:
         r = out.setdefault(
             replica or "unknown",

@@ -46,6 +46,7 @@ from trainclimate.coach.setpoint import COMFORT_BAND_K
 from trainclimate.service.store import binary_copy
 from trainclimate.service.store.models import CoachFeed, Telemetry, UTCDateTime, WindowRollup
 from trainclimate.service.store.pair_trial import SUMS, SUMS_INDEX
+from trainclimate.service.store.records import TelemetryRecord
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 from trainclimate.service.store.upsert import accumulate, keep_latest
 
@@ -65,7 +66,7 @@ def _table(model) -> Table:
     return cast(Table, model.__table__)
 
 
-def _excess(deck, rule, t_max_k: float) -> float:
+def _excess(deck: float | None, rule: float | None, t_max_k: float) -> float:
     """max(0, |T_room − T_rule| − T_max) of one deck (paper, Eq. (4)); 0 if either is unknown.
     [K]"""
     if deck is None or rule is None:
@@ -73,7 +74,12 @@ def _excess(deck, rule, t_max_k: float) -> float:
     return max(0.0, abs(deck - rule) - t_max_k)
 
 
-def increments(rows: list[dict], t_max_k: float = COMFORT_BAND_K) -> list[dict]:
+def _decks(row: TelemetryRecord) -> tuple[float | None, float | None, float | None]:
+    """A row's deck temperatures, in the order of :data:`DECKS`. [°C]"""
+    return row["t_room_up_c"], row["t_room_mid_c"], row["t_room_low_c"]
+
+
+def increments(rows: list[TelemetryRecord], t_max_k: float = COMFORT_BAND_K) -> list[dict]:
     """What one coach's new telemetry ``rows`` add to its windows: per window its ``window``
     index, the bits of :data:`MASKS` and the sums of :data:`TOTALS` (energy [kWh], discomfort
     [K·h]). Rows off the minute grid add nothing (the comparison counts the grid's minutes)."""
@@ -98,24 +104,24 @@ def increments(rows: list[dict], t_max_k: float = COMFORT_BAND_K) -> list[dict]:
         acc["energy_kwh"] += (power or 0.0) / 60.0
         acc["hvac_kwh"] += ((power or 0.0) - (r.get("floor_power_kw") or 0.0)) / 60.0
         if connected and power is not None and regular:
-            for deck, name in zip(DECKS, DISCOMFORT, strict=True):
-                acc[name] += _excess(r.get(deck), r.get("t_rule_c"), t_max_k) / 60.0
+            for deck, name in zip(_decks(r), DISCOMFORT, strict=True):
+                acc[name] += _excess(deck, r.get("t_rule_c"), t_max_k) / 60.0
     return [out[w] for w in sorted(out)]
 
 
-def comfort_state(rows: list[dict], t_max_k: float = COMFORT_BAND_K) -> dict:
+def comfort_state(rows: list[TelemetryRecord], t_max_k: float = COMFORT_BAND_K) -> dict:
     """One coach's ``newest`` row time among ``rows`` and ``last_ok``, its newest within
     comfort (every deck within T_rule ± T_max, or not in regular mode; None if none is)."""
     ok = [
         r["time"]
         for r in rows
         if r.get("mode", "regular") != "regular"
-        or not any(_excess(r.get(d), r.get("t_rule_c"), t_max_k) > 0 for d in DECKS)
+        or not any(_excess(d, r.get("t_rule_c"), t_max_k) > 0 for d in _decks(r))
     ]
     return {"newest": max(r["time"] for r in rows), "last_ok": max(ok, default=None)}
 
 
-def add_rows(session: Session, rows_by_coach: dict[str, list[dict]]) -> None:
+def add_rows(session: Session, rows_by_coach: dict[str, list[TelemetryRecord]]) -> None:
     """Add newly stored telemetry (coach id → its rows, each stored for the first time) to the
     coaches' window rollups and feed states (:class:`~.models.CoachFeed`), in the caller's
     transaction, coach by coach and window by window (two writers take the rows' locks in one

@@ -10,16 +10,19 @@ controller needs has arrived, and the samples follow the training data's convent
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
+from typing import Any, Final, cast
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import case, select
+from sqlalchemy import Row, Table, case, select
 from sqlalchemy.orm import Session
 
 from trainclimate.service.store import binary_copy, rollups
 from trainclimate.service.store.models import Telemetry
+from trainclimate.service.store.records import TelemetryRecord
 from trainclimate.service.store.upsert import insert_new_keys
 
 Y_COLS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
@@ -27,19 +30,22 @@ D_COLS = ("t_amb_c", "q_gt_w_m2", "q_gs_w_m2", "occupancy_pct", "speed_kmh")
 VALUE_COLS = (*Y_COLS, "t_ref_c", "t_rule_c", *D_COLS, "ghi_w_m2", "power_kw", "floor_power_kw")
 
 
-def insert_rows(session: Session, coach_id: str, rows: list[dict]) -> int:
+def insert_rows(session: Session, coach_id: str, rows: list[TelemetryRecord]) -> int:
     """Insert telemetry rows of one coach, skipping times already stored (a gateway that resends
     a batch after a lost connection changes nothing, also when both copies arrive at once) and
     repeated in the batch (the first is kept), and add those stored to the coach's window
     rollups (:mod:`.rollups`). Returns how many were new. Inserted in time order, so two writers
     of overlapping batches take the rows' locks in the same order and cannot deadlock."""
-    fresh, seen = [], set()
+    fresh: list[TelemetryRecord] = []
+    seen: set[datetime] = set()
     for r in rows:
         if r["time"] not in seen:
             seen.add(r["time"])
-            fresh.append({**r, "coach_id": coach_id})
+            fresh.append(r)
     fresh.sort(key=lambda r: r["time"])
-    stored = set(insert_new_keys(session, Telemetry.__table__, fresh, ["coach_id", "time"], "time"))
+    insert = [{**r, "coach_id": coach_id} for r in fresh]
+    table = cast(Table, Telemetry.__table__)
+    stored = set(insert_new_keys(session, table, insert, ["coach_id", "time"], "time"))
     rollups.add_rows(session, {coach_id: [r for r in fresh if r["time"] in stored]})
     return len(stored)
 
@@ -47,7 +53,9 @@ def insert_rows(session: Session, coach_id: str, rows: list[dict]) -> int:
 FRAME_COLS = ("time", *VALUE_COLS, "mode", "connected")
 
 
-def _select(session: Session, coach_ids: list[str], start: datetime, end: datetime) -> list:
+def _select(
+    session: Session, coach_ids: list[str], start: datetime, end: datetime
+) -> Sequence[Row]:
     """The rows (coach_id, *FRAME_COLS) of ``coach_ids`` with start < time ≤ end, by coach and
     time."""
     cols = [Telemetry.coach_id, *(getattr(Telemetry, c) for c in FRAME_COLS)]
@@ -243,7 +251,7 @@ def _means(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 
 #: The fields of a ``POST /api/v1/telemetry`` row besides ``time`` and ``t_room_c``.
-WIRE_FIELDS = (
+WIRE_FIELDS: Final = (
     "t_ref_c",
     "t_rule_c",
     "t_amb_c",
@@ -259,7 +267,7 @@ WIRE_FIELDS = (
 )
 
 
-def to_wire(row: dict) -> dict:
+def to_wire(row: TelemetryRecord) -> dict[str, Any]:
     """A stored row (one value per column) as a row of ``POST /api/v1/telemetry``: the time in
     ISO 8601 with its offset and the decks as ``t_room_c`` [up, mid, low]; a field the row does
     not have (a feed without the floor heating's share) is left out."""
@@ -270,22 +278,24 @@ def to_wire(row: dict) -> dict:
     }
 
 
-def from_wire(row: dict) -> dict:
+def from_wire(row: Mapping[str, Any]) -> TelemetryRecord:
     """A validated row of ``POST /api/v1/telemetry`` (or of an MQTT telemetry message) as a
     stored row: the inverse of :func:`to_wire`."""
     up, mid, low = row["t_room_c"]
-    return {
+    stored: TelemetryRecord = {
         "time": row["time"],
         "t_room_up_c": up,
         "t_room_mid_c": mid,
         "t_room_low_c": low,
-        **{k: row.get(k) for k in WIRE_FIELDS},
     }
+    for k in WIRE_FIELDS:
+        stored[k] = row.get(k)
+    return stored
 
 
 def rows_from_simulation(
     sim, k0: int, k1: int, coach_ids: list[str], disconnected: np.ndarray | None = None
-) -> dict[str, list[dict]]:
+) -> dict[str, list[TelemetryRecord]]:
     """Telemetry rows of a :class:`~trainclimate.sim.simulator.FleetSimulator`'s steps [k0, k1),
     one per coach and minute (the minute up to the row's time), as a logger would report them:
     the sensors' mean, the applied T_ref and T_rule, the weather, occupancy, speed, the power and
@@ -296,7 +306,7 @@ def rows_from_simulation(
 
     r, env = sim.result(), sim.env
     per_min = round(60.0 / sim.dt_s)
-    out: dict[str, list[dict]] = {cid: [] for cid in coach_ids}
+    out: dict[str, list[TelemetryRecord]] = {cid: [] for cid in coach_ids}
     for a in range(k0, k1, per_min):
         b = min(a + per_min, k1)
         stamp = (env.time[a] + pd.Timedelta(seconds=(b - a) * sim.dt_s)).to_pydatetime()
@@ -305,7 +315,11 @@ def rows_from_simulation(
         # the minute's power only: the total over all steps so far would grow with the day
         power_kw = sum(v[sl] for v in r.power_w.values()).mean(axis=0) / 1e3
         floor_kw = r.power_w["floor_wall"][sl].mean(axis=0) / 1e3
-        up = np.ones(len(coach_ids), bool) if disconnected is None else ~disconnected[sl].any(0)
+        up = (
+            np.ones(len(coach_ids), bool)
+            if disconnected is None
+            else ~np.any(disconnected[sl], axis=0)
+        )
         for c, cid in enumerate(coach_ids):
             modes = env.mode[sl, c]
             mode = "regular" if np.all(modes == MODE_REGULAR) else MODE_NAMES[int(modes[-1])]
