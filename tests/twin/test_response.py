@@ -88,7 +88,7 @@ def test_a_twin_with_a_wrong_response_is_warned_of(logged):
     assert s["response_error_pct"] > 2 * response.MAX_RESPONSE_ERROR_PCT
     assert s["response_twin_kwh"] > 1.3 * s["response_logged_kwh"]
     (w,) = response.warnings(s)
-    assert "energy response to the 3 held-out setpoint changes" in w
+    assert "energy response to the 3 held-out setpoint change(s)" in w
     assert f"{s['response_error_pct']:.0f} % off" in w
 
 
@@ -104,11 +104,16 @@ def test_no_setpoint_change_leaves_the_response_untested():
 
 
 def test_a_change_in_the_warm_up_is_found_but_not_scored(logged):
-    rep = replay([_winter_trajectory([(30, 90, 1.0), *THREE[1:]])])
-    rep = dataclasses.replace(rep, p_kw=logged[0].p_kw)
-    s = response.score(rep, logged[1])
-    assert (s["changes"], s["scored"]) == (3, 2)
+    # the last two changes as before, so the power logged and simulated for them holds
+    rep, truth, wrong = logged
+    rep = dataclasses.replace(replay([_winter_trajectory([(30, 90, 1.0), *THREE[1:]])]), p_kw=truth)
+    s = response.score(rep, truth)
+    assert (s["changes"], s["scored"], s["minutes"]) == (3, 2, 2 * (60 + response.SETTLE_MIN))
     train = {**s, "scored": 9, "response_error_pct": 12.0}
     (w,) = response.warnings(s, train)
     assert "2 scored setpoint change(s) (3 found; 3 needed)" in w
-    assert "on 9 scored change(s) of the training days its response is 12 % off" in w
+    assert w.endswith("; on the 9 scored changes of the training days its response is 12 % off")
+    # too few and too far off: both said
+    untested, off = response.warnings(response.score(rep, wrong))
+    assert untested.startswith("the twin's response to a setpoint change is untested")
+    assert "energy response to the 2 held-out setpoint change(s)" in off

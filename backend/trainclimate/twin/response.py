@@ -152,27 +152,28 @@ def score(rep: Replay, p: np.ndarray) -> dict:
 
 
 def warnings(held_out: dict, train: dict | None = None) -> list[str]:
-    """What :func:`score` on the held-out days (``held_out``) leaves to warn of: fewer than
-    :data:`MIN_CHANGES` scored changes (the response untested; ``train``, the training days'
-    score, quoted if given), or a response error beyond :data:`MAX_RESPONSE_ERROR_PCT`."""
-    error = held_out["response_error_pct"]
-    if held_out["scored"] < MIN_CHANGES:
-        on = [
-            f"on {d['scored']} scored change(s) of the {what} days its response is "
-            f"{d['response_error_pct']:.0f} % off"
-            for what, d in (("held-out", held_out), ("training", train))
-            if d is not None and d["response_error_pct"] is not None
-        ]
-        return [
+    """What :func:`score` on the held-out days (``held_out``) leaves to warn of, each on its
+    own: fewer than :data:`MIN_CHANGES` scored changes (the response untested; the training
+    days' score ``train`` quoted if given), and a response error beyond
+    :data:`MAX_RESPONSE_ERROR_PCT`."""
+    out = []
+    scored, error = held_out["scored"], held_out["response_error_pct"]
+    if scored < MIN_CHANGES:
+        on_train = (
+            f"; on the {train['scored']} scored changes of the training days its response is "
+            f"{train['response_error_pct']:.0f} % off"
+            if train is not None and train["response_error_pct"] is not None
+            else ""
+        )
+        out.append(
             "the twin's response to a setpoint change is untested: the held-out days hold "
-            f"{held_out['scored']} scored setpoint change(s) ({held_out['changes']} found; "
-            f"{MIN_CHANGES} needed), and the savings it predicts rest on it"
-            + "".join(f"; {o}" for o in on)
-        ]
+            f"{scored} scored setpoint change(s) ({held_out['changes']} found; {MIN_CHANGES} "
+            f"needed), and the savings it predicts rest on it{on_train}"
+        )
     if error is not None and error > MAX_RESPONSE_ERROR_PCT:
-        return [
-            f"the twin's energy response to the {held_out['scored']} held-out setpoint changes "
-            f"is {error:.0f} % off (beyond {MAX_RESPONSE_ERROR_PCT:g} %): the savings it "
-            "predicts rest on it"
-        ]
-    return []
+        out.append(
+            f"the twin's energy response to the {scored} held-out setpoint change(s) is "
+            f"{error:.0f} % off (beyond {MAX_RESPONSE_ERROR_PCT:g} %): the savings it predicts "
+            "rest on it"
+        )
+    return out
