@@ -1,6 +1,6 @@
-"""The twin's response to setpoint changes on the held-out days: the changes found in the logged
-T_ref itself, and the twin's metered energy and energy response over the minutes they affect
-(docs/model.md, "Calibration", "The response to setpoint changes").
+"""The twin's response to setpoint changes: the changes found in the logged T_ref itself, and the
+twin's metered energy and energy response over the minutes they affect, scored on the held-out
+days and the training days (docs/model.md, "Calibration", "The response to setpoint changes").
 
 The layer's savings rest on how the coach's energy responds when T_ref moves. Logs hold that
 response only where the setpoint was moved by hand (a driver's change); the rule's own T_ref
@@ -56,7 +56,7 @@ MAX_RESPONSE_ERROR_PCT = 15.0
 @dataclass(frozen=True)
 class Change:
     """A setpoint change in replay column ``column``: its first step at minute ``start``, its
-    end (the step back, or the trajectory's last minute + 1) at ``end``, its window
+    end (the step back, or the end of the T_ref searched) at ``end``, its window
     ``[start, stop)`` and ``size`` its largest departure, the steps' sum (K, signed)."""
 
     column: int
