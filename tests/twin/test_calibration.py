@@ -264,6 +264,9 @@ def test_calibrate_writes_a_coach_params_file_the_simulator_takes(capsys, winter
     assert record["validated_t_amb_c"] == coach["validated_t_amb_c"]
     assert record["fitted"] == coach["fitted"] and record["warnings"] == coach["warnings"]
     assert set(coach["holdout"]) >= {"t_room_mae_c", "power_mae_kw", "energy_error_pct"}
+    response = coach["holdout"]["setpoint_response"]
+    assert set(response) >= {"changes", "scored", "minutes", "response_error_pct"}
+    assert response["minutes"] <= coach["holdout"]["minutes"]
     assert coach["fitted"]["envelope_scale"]["value"] == pytest.approx(1.2, rel=0.05)
     assert load_params(out).to_dict() == coach["params"]
     result = call_json(

@@ -79,11 +79,14 @@ def cmd_calibrate(args: argparse.Namespace) -> None:
             )
             h = c["holdout"]
             energy = "–" if h["energy_error_pct"] is None else f"{h['energy_error_pct']:+.1f} %"
+            r = h["setpoint_response"]
+            moved = "–" if r["response_error_pct"] is None else f"{r['response_error_pct']:.0f} %"
             held = "".join(f"; {n['param']} held: {n['reason']}" for n in c["not_identified"])
             validated = c["validated_t_amb_c"]
             lines.append(
                 f"{c['coach']}: {fitted}{held}; held out: T_room MAE {h['t_room_mae_c']:.3f} K, "
-                f"energy {energy}; validated for T_amb "
+                f"energy {energy}, response to {r['scored']} setpoint changes {moved} off; "
+                "validated for T_amb "
                 + ("nowhere" if validated is None else "{:g} to {:g} °C".format(*validated))
             )
             lines += [f"  warning: {w}" for w in c["warnings"]]

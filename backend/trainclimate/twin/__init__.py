@@ -10,6 +10,7 @@ Modules: ``knobs`` (the calibrated quantities and how they change a coach's para
 ``fit`` (the least-squares problem and its Jacobian's standard errors and correlations),
 ``bootstrap`` (95 % intervals from re-fits on training days resampled whole), ``validation``
 (the held-out days, the twin's errors on them per ambient band, the range they validate),
+``response`` (the setpoint changes in the logged T_ref, and the twin's energy response to them),
 ``calibration`` (``calibrate``: one coach's twin, from the above) and ``validity`` (the twin's
 coach-params file with the calibration's record, and the warning of weather outside its
 validated range).

@@ -6,7 +6,8 @@ then chosen to minimise the simulation error — deck temperatures and electrica
 with scipy's bounded ``least_squares`` from several starts (:mod:`~trainclimate.twin.fit`), on
 the coach's training days; a knob the data do not identify is held at its base value. The
 intervals come from a bootstrap over whole days (:mod:`~trainclimate.twin.bootstrap`), and the
-twin is judged on held-out days (:mod:`~trainclimate.twin.validation`; docs/model.md,
+twin is judged on held-out days (:mod:`~trainclimate.twin.validation`), there also on its
+response to the logged setpoint changes (:mod:`~trainclimate.twin.response`; docs/model.md,
 "Calibration").
 """
 
@@ -20,6 +21,7 @@ from scipy.stats import qmc
 
 from trainclimate.data.trajectory import Trajectory
 from trainclimate.sim.params import CoachParams
+from trainclimate.twin import response
 from trainclimate.twin.bootstrap import BOOTSTRAP_REPLICATES, fit_intervals, interval_warnings
 from trainclimate.twin.fit import (
     STALLED_SHARE,
@@ -57,13 +59,13 @@ HOLD_CORRELATION = 0.9
 class Calibration:
     """One coach's fit: the parameters, the values fitted with their standard errors and
     bootstrap intervals, the knobs held at their base value and why, the twin's errors on the
-    training and held-out days (and per ambient band), the ambient range it is validated for,
-    and warnings."""
+    training and held-out days (and per ambient band, and on the setpoint changes), the ambient
+    range it is validated for, and warnings."""
 
     coach: str
     params: CoachParams
     fitted: dict[str, dict]
-    train: dict[str, float]
+    train: dict
     holdout: dict
     starts: int
     not_identified: list[dict[str, str]] = dataclasses.field(default_factory=list)
@@ -253,7 +255,7 @@ def calibrate(
         )
     params = problem.params_at(best.x)
     y, p = simulate(rep, [params])
-    on_train = errors(rep, y, p)
+    on_train = {**errors(rep, y, p), "setpoint_response": response.score(rep, p)}
     fitted = {
         n: {"value": float(v), "std": float(s), "unit": CALIBRATED[n].unit}
         for n, v, s in zip(names, values, std, strict=True)
@@ -263,9 +265,16 @@ def calibrate(
     if holdout:
         rep_h = replay(holdout)
         y, p = simulate(rep_h, [params])
-        on_holdout = {**errors(rep_h, y, p), "bands": band_errors(rep_h, y, p)}
+        on_holdout = {
+            **errors(rep_h, y, p),
+            "bands": band_errors(rep_h, y, p),
+            "setpoint_response": response.score(rep_h, p),
+        }
         validated, warned = validated_range(t_amb_minutes(rep)[rep.scored], on_holdout["bands"])
         warnings += warned
+        warnings += response.warnings(
+            on_holdout["setpoint_response"], on_train["setpoint_response"]
+        )
     replicas = None
     if bootstrap > 0:
         replicas = fit_intervals(
