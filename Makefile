@@ -18,9 +18,10 @@ $(STAMP): requirements.lock pyproject.toml npm/package-lock.json
 
 install: $(STAMP)
 
+# every test (what CI and the README run); the 25 slowest are listed, to keep the suite's length in view
 test: $(STAMP)
 	$(BIN)/ruff check backend tests migrations
-	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -n 2 -q --durations=25
 
 # lint and the fast tests (no browser, service processes or long simulations): a few minutes
 check: lint
