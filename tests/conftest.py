@@ -3,14 +3,21 @@ touch the user's cache. Every test runs with ``$TRAINCLIMATE_HOME`` in a tempora
 ``trainclimate.data.cache.default_dataset`` and ``quick_dataset`` replaced by a failure; tests that
 need data build a small dataset themselves.
 
+The tests' small predictor, fitted once a session for every directory (:mod:`helpers.training`
+says on what): ``training_trajectories``, ``small_predictor`` and ``small_predictor_file``.
+
 And the ``slow`` marker of whole files and of the tests that start service processes: ``make
 check`` runs ``-m "not slow"``, ``make test`` everything."""
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
+from helpers import training
 from trainclimate.data import cache
+from trainclimate.predict import TransientPredictor
+from trainclimate.predict.artifact import save_predictor
 
 
 @pytest.fixture(autouse=True, scope="session")
@@ -23,6 +30,26 @@ def _no_default_dataset(tmp_path_factory):
         mp.setattr(cache, "default_dataset", refuse)
         mp.setattr(cache, "quick_dataset", refuse)
         yield
+
+
+@pytest.fixture(scope="session")
+def training_trajectories() -> list[SimpleNamespace]:
+    """The small predictor's 5-min training trajectories (:func:`helpers.training.trajectories`)."""
+    return training.trajectories()
+
+
+@pytest.fixture(scope="session")
+def small_predictor(training_trajectories) -> TransientPredictor:
+    """The Transient Predictor at the controller's setting (5 min, ρ = 12, T = 6), fitted on
+    :func:`training_trajectories` in ≈ 1.5–3 s; never the default predictor (the guard above
+    forbids the default dataset). Shared by the session: no test may change it."""
+    return TransientPredictor(training.RHO, training.HORIZON).fit(training_trajectories)
+
+
+@pytest.fixture(scope="session")
+def small_predictor_file(small_predictor, tmp_path_factory) -> Path:
+    """:func:`small_predictor` saved, for the commands and the service that read a model file."""
+    return save_predictor(small_predictor, tmp_path_factory.mktemp("model") / "transient.npz")
 
 
 #: Test files marked ``slow`` whole (paths under tests/): those driving a real browser, service

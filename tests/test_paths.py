@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cli_support import call
+from helpers.cli import call
 from trainclimate.paths import StorageError, home, sqlite_file, writable_dir, writable_file
 from trainclimate.service.store.db import migrate
 

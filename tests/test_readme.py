@@ -23,8 +23,8 @@ from pathlib import Path
 
 import pytest
 
-from service_processes import free_port
-from service_support import wait_for
+from helpers.processes import free_port
+from helpers.service import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = Path(sys.executable).with_name("trainclimate")

@@ -1,8 +1,7 @@
-"""Shared data of the paired-experiment tests: a fitted predictor and short pair runs.
+"""Shared data of the paired-experiment tests: short pair runs of the small predictor.
 
-The predictor is the controller tests' (:func:`support.small_predictor`: a Transient Predictor at
-5 min, ρ = 12, T = 6, fitted in ≈ 1.5 s on a short simulation of re-seeded scenario days). Never the
-default predictor: tests/conftest.py forbids the default dataset.
+The predictor is tests/conftest.py's ``small_predictor`` (a Transient Predictor at 5 min, ρ = 12,
+T = 6, fitted in ≈ 1.5 s on a short simulation of re-seeded scenario days), never the default one.
 
 Each pair run is done once per session (≈ 0.2 s per simulated hour) with the experiment module's
 simulator and closed loop wrapped, so a test also sees the tick log and the coaches' parameters
@@ -15,22 +14,10 @@ from types import SimpleNamespace
 
 import pytest
 
-from support import small_predictor
 from trainclimate.analysis import experiment
 from trainclimate.analysis.experiment import Event, ExperimentSetup, run_pair
 from trainclimate.control.closed_loop import ClosedLoop
-from trainclimate.predict.artifact import save_predictor
 from trainclimate.sim.simulator import FleetSimulator
-
-
-@pytest.fixture(scope="session")
-def predictor():
-    return small_predictor()
-
-
-@pytest.fixture(scope="session")
-def predictor_file(predictor, tmp_path_factory):
-    return save_predictor(predictor, tmp_path_factory.mktemp("model") / "transient.npz")
 
 
 def recorded_pair(name: str, predictor, **kwargs) -> SimpleNamespace:
@@ -57,23 +44,23 @@ def recorded_pair(name: str, predictor, **kwargs) -> SimpleNamespace:
 
 
 @pytest.fixture(scope="session")
-def heating_3h(predictor):
+def heating_3h(small_predictor):
     """parked-heating-nov, 07:00–10:00 local: the layer on at 08:00 (after its 1-h lead-in),
     counted from 08:45, two windows; its override (13:30) lies outside."""
-    return recorded_pair("parked-heating-nov", predictor, hours=3.0)
+    return recorded_pair("parked-heating-nov", small_predictor, hours=3.0)
 
 
 @pytest.fixture(scope="session")
-def cooling_energy_3h(predictor):
+def cooling_energy_3h(small_predictor):
     """parked-cooling-aug-energy, 09:00–12:00 local, the energy-favouring weights."""
-    return recorded_pair("parked-cooling-aug-energy", predictor, hours=3.0)
+    return recorded_pair("parked-cooling-aug-energy", small_predictor, hours=3.0)
 
 
 @pytest.fixture(scope="session")
-def heating_override(predictor):
+def heating_override(small_predictor):
     """parked-heating-nov, 07:00–15:00 local, with the scenario's own command override
     (activated coach, 13:30–14:00 local): counted from 08:45, twelve windows."""
-    return recorded_pair("parked-heating-nov", predictor, hours=8.0)
+    return recorded_pair("parked-heating-nov", small_predictor, hours=8.0)
 
 
 #: A short run with a connection loss on each coach (local times; the run 07:00–10:30, the layer
@@ -87,11 +74,11 @@ LOSS_SETUP = ExperimentSetup(
 
 
 @pytest.fixture(scope="session")
-def heating_loss(predictor):
-    return recorded_pair("parked-heating-nov", predictor, hours=3.5, setup=LOSS_SETUP)
+def heating_loss(small_predictor):
+    return recorded_pair("parked-heating-nov", small_predictor, hours=3.5, setup=LOSS_SETUP)
 
 
 @pytest.fixture(scope="session")
-def record_pair(predictor):
+def record_pair(small_predictor):
     """:func:`recorded_pair` with the session's predictor (conftest is not importable)."""
-    return lambda name, **kwargs: recorded_pair(name, predictor, **kwargs)
+    return lambda name, **kwargs: recorded_pair(name, small_predictor, **kwargs)

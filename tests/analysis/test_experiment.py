@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from support import twin_file
+from helpers.twin import twin_file
 from trainclimate.analysis.experiment import (
     ACTIVATED,
     DEACTIVATED,
@@ -353,8 +353,8 @@ def run_cli(capsys, predictor_file, *argv):
     )
 
 
-def test_experiment_run_prints_the_contract_keys(capsys, predictor_file, heating_3h):
-    code, out, err = run_cli(capsys, predictor_file, "--hours", "3", "--json")
+def test_experiment_run_prints_the_contract_keys(capsys, small_predictor_file, heating_3h):
+    code, out, err = run_cli(capsys, small_predictor_file, "--hours", "3", "--json")
     assert code == 0, err
     assert len(out.strip().splitlines()) == 1
     data = json.loads(out)
@@ -375,15 +375,17 @@ def test_experiment_run_prints_the_contract_keys(capsys, predictor_file, heating
     # the layer's default objective, and the paper's on request
     assert data["controller_settings"]["objective"] == "states"
     code, out, err = run_cli(
-        capsys, predictor_file, "--hours", "3", "--objective", "paper", "--json"
+        capsys, small_predictor_file, "--hours", "3", "--objective", "paper", "--json"
     )
     assert code == 0, err
     assert json.loads(out)["controller_settings"]["objective"] == "paper"
 
 
-def test_experiment_run_writes_the_report(capsys, predictor_file, tmp_path):
+def test_experiment_run_writes_the_report(capsys, small_predictor_file, tmp_path):
     html = tmp_path / "reports" / "nov.html"
-    code, out, err = run_cli(capsys, predictor_file, "--hours", "2", "--html", str(html), "--json")
+    code, out, err = run_cli(
+        capsys, small_predictor_file, "--hours", "2", "--html", str(html), "--json"
+    )
     assert code == 0, err
     data = json.loads(out)
     assert data["html"] == str(html.resolve()) and html.exists()
@@ -391,7 +393,7 @@ def test_experiment_run_writes_the_report(capsys, predictor_file, tmp_path):
     # 2 h: counted from 07:45 UTC to 08:00 UTC, no complete window, no savings yet
     assert data["savings_pct"] is None and data["edge_savings_pct"] is None
     assert data["savings_30min_pct"] == [] and data["excluded_minutes"] == 0.0
-    code, out, err = run_cli(capsys, predictor_file, "--hours", "2")
+    code, out, err = run_cli(capsys, small_predictor_file, "--hours", "2")
     assert code == 0, err
     assert out.startswith(
         "parked-heating-nov: savings – on the hvac meter, – with the floor heating (band-edge "
@@ -411,26 +413,26 @@ def test_experiment_run_writes_the_report(capsys, predictor_file, tmp_path):
         (("--forecast", "oracle"), "--forecast"),
     ],
 )
-def test_bad_arguments_exit_2_with_one_line(capsys, predictor_file, argv, needle):
-    code, out, err = run_cli(capsys, predictor_file, "--hours", "1", *argv, "--json")
+def test_bad_arguments_exit_2_with_one_line(capsys, small_predictor_file, argv, needle):
+    code, out, err = run_cli(capsys, small_predictor_file, "--hours", "1", *argv, "--json")
     assert code == 2 and out == ""
     assert len(err.strip().splitlines()) == 1 and needle in err
 
 
 def test_experiment_run_warns_when_the_scenario_leaves_the_twins_range(
-    capsys, predictor_file, tmp_path
+    capsys, small_predictor_file, tmp_path
 ):
     args = ["--hours", "0.5", "--json"]
     summer = twin_file(tmp_path / "summer.json", [18.0, 33.0])
-    code, out, err = run_cli(capsys, predictor_file, *args, "--coach-params", str(summer))
+    code, out, err = run_cli(capsys, small_predictor_file, *args, "--coach-params", str(summer))
     assert code == 0, err
     [warning] = json.loads(out)["warnings"]
     assert warning.startswith("scenario parked-heating-nov: T_amb ")
     assert f"trainclimate: warning: {warning}" in err
     winter = twin_file(tmp_path / "winter.json", [-15.0, 15.0])
-    code, out, err = run_cli(capsys, predictor_file, *args, "--coach-params", str(winter))
+    code, out, err = run_cli(capsys, small_predictor_file, *args, "--coach-params", str(winter))
     assert code == 0 and json.loads(out)["warnings"] == [] and "warning" not in err
     bad = twin_file(tmp_path / "bad.json", [15.0, "x"])
-    code, out, err = run_cli(capsys, predictor_file, *args, "--coach-params", str(bad))
+    code, out, err = run_cli(capsys, small_predictor_file, *args, "--coach-params", str(bad))
     assert code == 2 and out == "" and "validated_t_amb_c must be" in err
     assert len(err.strip().splitlines()) == 1

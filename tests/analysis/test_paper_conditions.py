@@ -181,8 +181,8 @@ def test_the_violation_from_the_sensors_is_the_same_maths_on_their_readings(octo
 
 
 # --- the ablation --------------------------------------------------------------------------------
-def test_the_ablation_adds_the_conditions_in_order(predictor, october, october_ambient_only):
-    row = ablate("parked-cooling-oct", predictor)
+def test_the_ablation_adds_the_conditions_in_order(small_predictor, october, october_ambient_only):
+    row = ablate("parked-cooling-oct", small_predictor)
     steps = row["steps"]
     assert list(steps) == list(STEPS)
     first = october_ambient_only.pair  # the earlier events differ: only its savings are compared
@@ -209,12 +209,12 @@ def test_the_ablation_adds_the_conditions_in_order(predictor, october, october_a
 
 
 def test_experiment_summary_ablation_writes_the_table(
-    capsys, predictor_file, tmp_path, monkeypatch
+    capsys, small_predictor_file, tmp_path, monkeypatch
 ):
     monkeypatch.setattr(
         ablation, "EXPERIMENTS", {"parked-heating-nov": EXPERIMENTS["parked-heating-nov"]}
     )
-    argv = ["experiment", "summary", "--ablation", "--predictor", str(predictor_file)]
+    argv = ["experiment", "summary", "--ablation", "--predictor", str(small_predictor_file)]
     assert main([*argv, "--out", str(tmp_path), "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["steps"] == list(STEPS)

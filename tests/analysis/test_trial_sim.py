@@ -51,11 +51,11 @@ KEYS = (
 
 
 @pytest.fixture(scope="module")
-def trial(predictor):
+def trial(small_predictor):
     """Six days of alternate and fixed side by side (≈ 60 s of one core)."""
     runs = simulate_trial(
         "parked-heating-nov",
-        predictor,
+        small_predictor,
         days=DAYS,
         plans=("alternate", "fixed"),
         coach_spread=0.1,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from service_support import PG_SKIP, PG_URL
+from helpers.service import PG_SKIP, PG_URL
 from trainclimate.bench import replicas
 from trainclimate.cli import main
 

@@ -3,15 +3,15 @@ predictor in place of the default model): the figures it reports and how they ar
 
 import pytest
 
-from support import small_predictor
 from trainclimate.bench import study
 from trainclimate.predict import default
 
 
 @pytest.mark.slow  # two LocalClusters and a profiled chunk: ≈ 30 s
-def test_the_study_benchmark_reports_scaling_memory_profile_and_fleet_year(monkeypatch):
-    model = small_predictor()
-    monkeypatch.setattr(default, "default_predictor", lambda *args, **kwargs: model)
+def test_the_study_benchmark_reports_scaling_memory_profile_and_fleet_year(
+    monkeypatch, small_predictor
+):
+    monkeypatch.setattr(default, "default_predictor", lambda *args, **kwargs: small_predictor)
     d = study.run(coaches=4, days=1, chunk_coaches=2)
     assert (d["coach_days"], d["chunk"]) == (4, [2, 1])
     assert d["same_totals"] is True

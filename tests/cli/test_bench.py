@@ -1,6 +1,6 @@
 """``bench`` as users call it."""
 
-from cli_support import call_json
+from helpers.cli import call_json
 
 
 def test_bench_simulator_keys(capsys):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from service_support import PG_SKIP, PG_URL
+from helpers.service import PG_SKIP, PG_URL
 from trainclimate.cli import main
 
 COMMANDS = [

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from cli_support import call, call_json
+from helpers.cli import call, call_json
 from trainclimate.data.trajectory import read_trajectories
 
 

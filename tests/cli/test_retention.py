@@ -12,9 +12,9 @@ from datetime import datetime, timedelta
 import pytest
 from sqlalchemy import func, select
 
-from cli_support import call
-from service_processes import CLI
-from service_support import flat_row
+from helpers.cli import call
+from helpers.processes import CLI
+from helpers.service import flat_row
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import Coach, Telemetry, Train, WindowRollup, utcnow
 from trainclimate.service.store.telemetry import insert_rows

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cli_support import SIMULATE_KEYS, call, call_json
+from helpers.cli import SIMULATE_KEYS, call, call_json
 from trainclimate.sim.params import CoachParams
 
 

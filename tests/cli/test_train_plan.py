@@ -9,7 +9,7 @@ from datetime import UTC, datetime
 import pytest
 from sqlalchemy import select
 
-from cli_support import call, call_json
+from helpers.cli import call, call_json
 from trainclimate.cli import train
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import AuditLog, Coach, Telemetry, Train

@@ -1,5 +1,5 @@
-"""Shared data of the controller tests: a Transient Predictor fitted on simulated coaches
-(:mod:`support` says how), its variants and a sampler.
+"""Shared data of the controller tests: a variant of the small predictor (tests/conftest.py fits
+it) and a sampler.
 
 (The suite-wide guard in tests/conftest.py keeps every test away from the default dataset.)
 """
@@ -10,33 +10,15 @@ import copy
 
 import pytest
 
-from support import HORIZON, RHO, tick_samples, training_trajectories
-from trainclimate.predict import TransientPredictor
-from trainclimate.predict.artifact import save_predictor
+from helpers.training import tick_samples
 
 
 @pytest.fixture(scope="session")
-def trajectories():
-    return training_trajectories()
-
-
-@pytest.fixture(scope="session")
-def predictor(trajectories):
-    """The Transient Predictor at the controller's setting (5 min, ρ = 12, T = 6)."""
-    return TransientPredictor(RHO, HORIZON).fit(trajectories)
-
-
-@pytest.fixture(scope="session")
-def predictor_10min(predictor):
+def predictor_10min(small_predictor):
     """The same Ĥ, declared for 10-min samples (incompatible with a 5-min controller)."""
-    other = copy.copy(predictor)
+    other = copy.copy(small_predictor)
     other.sampling_min = 10.0
     return other
-
-
-@pytest.fixture(scope="session")
-def predictor_file(predictor, tmp_path_factory):
-    return save_predictor(predictor, tmp_path_factory.mktemp("model") / "transient.npz")
 
 
 @pytest.fixture(scope="session")

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from cli_support import SIMULATE_KEYS
+from helpers.cli import SIMULATE_KEYS
 from trainclimate.cli import main
 
 
@@ -23,9 +23,9 @@ def simulate(capsys, *argv):
     return json.loads(out)
 
 
-def test_ddpc_with_a_model_file(capsys, predictor_file):
+def test_ddpc_with_a_model_file(capsys, small_predictor_file):
     data = simulate(
-        capsys, "--hours", "2", "--controller", "ddpc", "--predictor", str(predictor_file)
+        capsys, "--hours", "2", "--controller", "ddpc", "--predictor", str(small_predictor_file)
     )
     for key in SIMULATE_KEYS:
         assert key in data
@@ -49,19 +49,19 @@ def test_edge_needs_no_model(capsys):
 
 
 @pytest.mark.parametrize("forecast", ["persistence", "noisy"])
-def test_other_forecasts_run(capsys, predictor_file, forecast):
+def test_other_forecasts_run(capsys, small_predictor_file, forecast):
     data = simulate(
-        capsys, "--hours", "1.5", "--controller", "ddpc", "--predictor", str(predictor_file),
+        capsys, "--hours", "1.5", "--controller", "ddpc", "--predictor", str(small_predictor_file),
         "--forecast", forecast,
     )  # fmt: skip
     assert data["controller_ticks"]["reasons"] == {"ok": 6, "warmup": 11}
     assert data["avg_hourly_violation_k"] < 0.2
 
 
-def test_human_summary(capsys, predictor_file):
+def test_human_summary(capsys, small_predictor_file):
     code, out, _ = call(
         capsys, "simulate", "--scenario", "parked-heating-nov", "--hours", "1",
-        "--controller", "ddpc", "--predictor", str(predictor_file),
+        "--controller", "ddpc", "--predictor", str(small_predictor_file),
     )  # fmt: skip
     assert code == 0
     assert out.startswith("parked-heating-nov (ddpc, 1 coach(es), 1.0 h)")

@@ -31,8 +31,8 @@ def run(name, kind, predictor=None, *, hours=3.0, start=None, settings=None, for
 
 
 @pytest.fixture(scope="module")
-def heating(predictor):
-    return {kind: run("parked-heating-nov", kind, predictor) for kind in ("ddpc", "rule")}
+def heating(small_predictor):
+    return {kind: run("parked-heating-nov", kind, small_predictor) for kind in ("ddpc", "rule")}
 
 
 def test_heating_warms_up_then_controls(heating):
@@ -77,10 +77,10 @@ def test_rule_loop_is_the_rule(heating):
 
 
 @pytest.fixture(scope="module")
-def cooling(predictor):
+def cooling(small_predictor):
     # Aug 22 from 11:00: lead-in until noon, then two hours of DDPC in the midday sun
     return {
-        kind: run("parked-cooling-aug-energy", kind, predictor, start="11:00")
+        kind: run("parked-cooling-aug-energy", kind, small_predictor, start="11:00")
         for kind in ("ddpc", "rule")
     }
 
@@ -107,12 +107,12 @@ def test_cooling_saves_energy_and_keeps_comfort(cooling):
     assert coach_kpis(cooling["ddpc"][0], 0)["avg_hourly_violation_k"] < 0.1  # measured 0.011
 
 
-def test_conservative_bound_keeps_t_ref_closer_to_the_rule(predictor):
+def test_conservative_bound_keeps_t_ref_closer_to_the_rule(small_predictor):
     """The conservative experiment's tighter bound T_max = 0.5 K holds T_ref near T_rule + 0.5
     (measured: T_rule + 0.41 … 0.51 K from the 3rd DDPC tick on, violation 0.014 K)."""
     settings = OCPSettings(t_max=0.5)
     result, loop = run(
-        "parked-cooling-aug-conservative", "ddpc", predictor, hours=2.0, start="11:00",
+        "parked-cooling-aug-conservative", "ddpc", small_predictor, hours=2.0, start="11:00",
         settings=settings,
     )  # fmt: skip
     ddpc = loop.log.results[RHO - 1 :]
@@ -121,7 +121,7 @@ def test_conservative_bound_keeps_t_ref_closer_to_the_rule(predictor):
     assert coach_kpis(result, 0, t_max_k=0.5)["avg_hourly_violation_k"] < 0.1
 
 
-def test_loop_and_controllers_are_checked(predictor):
+def test_loop_and_controllers_are_checked(small_predictor):
     env, params = scenarios.build(scenarios.get("parked-heating-nov"), hours=0.5, n_coaches=2)
     sim = FleetSimulator(params, env)
     with pytest.raises(ValueError, match="1 controllers for 2 coaches"):
@@ -135,20 +135,20 @@ def test_loop_and_controllers_are_checked(predictor):
     with pytest.raises(ValueError, match="needs a prediction model"):
         build_controllers("ddpc", 2)
     with pytest.raises(ValueError, match="unknown controller 'pid'"):
-        build_controllers("pid", 2, predictor)
-    ddpc = build_controllers("ddpc", 2, predictor)
+        build_controllers("pid", 2, small_predictor)
+    ddpc = build_controllers("ddpc", 2, small_predictor)
     assert ddpc[0].model is ddpc[1].model and ddpc[0] is not ddpc[1]
     assert build_controllers("rule", 2) == [None, None]
 
 
-def test_a_coach_switched_off_runs_on_the_rule_and_acts_at_once_when_switched_on(predictor):
+def test_a_coach_switched_off_runs_on_the_rule_and_acts_at_once_when_switched_on(small_predictor):
     """The layer off for the first 90 min: T_ref = T_rule and no controller step; its telemetry
     is still gathered, so at the switch (tick 18) the lead-in is complete and it acts at once."""
     env, params = scenarios.build(scenarios.get("parked-heating-nov"), hours=2.5)
     sim = FleetSimulator(params, env, seed=1)
     active = np.ones((len(env.time), 1), bool)
     active[:540] = False  # 90 min of 10-s steps
-    loop = ClosedLoop(sim, build_controllers("ddpc", 1, predictor), active=active)
+    loop = ClosedLoop(sim, build_controllers("ddpc", 1, small_predictor), active=active)
     sim.run(loop)
     result = sim.result()
     np.testing.assert_array_equal(result.t_ref_c[:540], result.t_rule_c[:540])

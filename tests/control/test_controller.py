@@ -45,10 +45,10 @@ def window(trajectories, index: int, start: int, m: int = RHO + 1) -> dict:
 
 
 @pytest.fixture
-def inputs(trajectories):
+def inputs(training_trajectories):
     """Valid inputs; u(t−1) 1.3 K above T_rule, so a fallback's expected output is exact:
     T_rule + 0.8 (one ΔT_max = 0.5 K step back toward T_rule)."""
-    inp = window(trajectories, 4, 30)  # a parked coach, cold November morning
+    inp = window(training_trajectories, 4, 30)  # a parked coach, cold November morning
     inp["u_prev"] = float(inp["t_rule"][0] + 1.3)
     inp["u"][-1] = inp["u_prev"]
     return inp
@@ -64,8 +64,8 @@ def check_fallback(result, inp, reason, source="fallback"):
     assert result.t_ref_c == pytest.approx(rule0 + 0.8, abs=1e-12)
 
 
-def test_valid_inputs_give_the_ddpc_optimum(predictor, model, inputs):
-    ctrl = DDPCController(predictor, model=model)
+def test_valid_inputs_give_the_ddpc_optimum(small_predictor, model, inputs):
+    ctrl = DDPCController(small_predictor, model=model)
     result = ctrl.step(**inputs)
     assert (result.source, result.reason) == ("ddpc", "ok")
     assert result.solver_status == "solved"
@@ -77,29 +77,29 @@ def test_valid_inputs_give_the_ddpc_optimum(predictor, model, inputs):
     assert result.step_time_s > 0 and np.isfinite(result.extra["objective"])
 
 
-def test_warmup(predictor, model, inputs):
+def test_warmup(small_predictor, model, inputs):
     short = {**inputs}
     for key in ("sample_times_s", "y", "d"):
         short[key] = inputs[key][-(RHO - 1) :]
     short["u"] = inputs["u"][-(RHO - 2) :]
-    result = DDPCController(predictor, model=model).step(**short)
+    result = DDPCController(small_predictor, model=model).step(**short)
     check_fallback(result, inputs, "warmup", source="rule")
 
 
-def test_stale_sample(predictor, model, inputs):
-    ctrl = DDPCController(predictor, model=model)
+def test_stale_sample(small_predictor, model, inputs):
+    ctrl = DDPCController(small_predictor, model=model)
     # one period late is still fresh; two periods is stale
     assert ctrl.step(**{**inputs, "now_s": NOW + PERIOD}).reason == "ok"
     check_fallback(ctrl.step(**{**inputs, "now_s": NOW + 2 * PERIOD}), inputs, "stale")
 
 
-def test_missing_sample(predictor, model, inputs):
+def test_missing_sample(small_predictor, model, inputs):
     gap = {**inputs}
     keep = np.r_[0:6, 7 : RHO + 1]  # sample 6 of the last ρ + 1 lost: ρ samples with a gap
     gap["sample_times_s"] = inputs["sample_times_s"][keep]
     gap["y"], gap["d"] = inputs["y"][keep], inputs["d"][keep]
     gap["u"] = inputs["u"][keep[:-1]]
-    result = DDPCController(predictor, model=model).step(**gap)
+    result = DDPCController(small_predictor, model=model).step(**gap)
     check_fallback(result, inputs, "missing_samples")
 
 
@@ -128,13 +128,13 @@ def _set(inp, key, index, value):
         pytest.param(lambda i: _set(i, "u", 2, 40.0), id="u-out-of-range"),
     ],
 )
-def test_invalid_data(predictor, model, inputs, corrupt):
-    result = DDPCController(predictor, model=model).step(**corrupt(inputs))
+def test_invalid_data(small_predictor, model, inputs, corrupt):
+    result = DDPCController(small_predictor, model=model).step(**corrupt(inputs))
     check_fallback(result, inputs, "invalid_data")
 
 
-def test_nan_u_prev_falls_back_to_t_rule(predictor, model, inputs):
-    result = DDPCController(predictor, model=model).step(**{**inputs, "u_prev": float("nan")})
+def test_nan_u_prev_falls_back_to_t_rule(small_predictor, model, inputs):
+    result = DDPCController(small_predictor, model=model).step(**{**inputs, "u_prev": float("nan")})
     assert (result.reason, result.source) == ("invalid_data", "fallback")
     assert result.t_ref_c == inputs["t_rule"][0]
 
@@ -147,16 +147,16 @@ def test_nan_u_prev_falls_back_to_t_rule(predictor, model, inputs):
         pytest.param(lambda r: np.append(r, r[-1]), id="too-long"),
     ],
 )
-def test_invalid_rule(predictor, model, inputs, t_rule):
-    result = DDPCController(predictor, model=model).step(
+def test_invalid_rule(small_predictor, model, inputs, t_rule):
+    result = DDPCController(small_predictor, model=model).step(
         **{**inputs, "t_rule": t_rule(inputs["t_rule"])}
     )
     check_fallback(result, inputs, "invalid_rule")
 
 
-def test_no_current_rule_holds_the_last_setpoint(predictor, model, inputs):
+def test_no_current_rule_holds_the_last_setpoint(small_predictor, model, inputs):
     for bad in (np.full(T + 1, np.nan), [], None, "warm"):
-        result = DDPCController(predictor, model=model).step(**{**inputs, "t_rule": bad})
+        result = DDPCController(small_predictor, model=model).step(**{**inputs, "t_rule": bad})
         assert (result.reason, result.source) == ("invalid_rule", "fallback")
         assert result.t_ref_c == inputs["u_prev"]
 
@@ -174,37 +174,39 @@ def test_incompatible_predictor(predictor_10min, model, inputs):
     assert "10-min" in result.detail and "every 5 min" in result.detail
 
 
-def test_incompatible_coach_model(predictor, inputs):
-    result = DDPCController(predictor, model=CoachModel(dt_s=600.0)).step(**inputs)
+def test_incompatible_coach_model(small_predictor, inputs):
+    result = DDPCController(small_predictor, model=CoachModel(dt_s=600.0)).step(**inputs)
     check_fallback(result, inputs, "incompatible_predictor")
 
 
-def test_infeasible(predictor, model, inputs):
+def test_infeasible(small_predictor, model, inputs):
     """u(t−1) 3 K above T_rule: no u(0|t) meets both the rate limit and the band. OSQP says
     'primal infeasible'; the fallback obeys the band (the driver's limit) and so steps back
     2 × ΔT_max here: T_rule + 2."""
     inp = {**inputs, "u_prev": float(inputs["t_rule"][0] + 3.0)}
     inp["u"] = inputs["u"].copy()
     inp["u"][-1] = inp["u_prev"]
-    result = DDPCController(predictor, model=model).step(**inp)
+    result = DDPCController(small_predictor, model=model).step(**inp)
     assert (result.reason, result.source) == ("infeasible", "fallback")
     assert result.solver_status == "primal infeasible"
     assert result.t_ref_c == pytest.approx(inputs["t_rule"][0] + 2.0, abs=1e-12)
 
 
-def test_infeasible_step_does_not_spoil_the_next(predictor, model, inputs, trajectories):
-    ctrl = DDPCController(predictor, model=model)
+def test_infeasible_step_does_not_spoil_the_next(
+    small_predictor, model, inputs, training_trajectories
+):
+    ctrl = DDPCController(small_predictor, model=model)
     inp = {**inputs, "u_prev": float(inputs["t_rule"][0] + 3.0)}
     assert ctrl.step(**inp).reason == "infeasible"
-    nxt = window(trajectories, 4, 31)
+    nxt = window(training_trajectories, 4, 31)
     nxt["now_s"] = NOW + PERIOD
     nxt["sample_times_s"] = nxt["sample_times_s"] + PERIOD
     assert ctrl.step(**nxt).reason == "ok"
 
 
-def test_solver_timeout(predictor, model, inputs):
+def test_solver_timeout(small_predictor, model, inputs):
     """OSQP stops at its time limit with status 'run time limit reached'."""
-    ctrl = DDPCController(predictor, OCPSettings(time_limit_s=1e-9), model=model)
+    ctrl = DDPCController(small_predictor, OCPSettings(time_limit_s=1e-9), model=model)
     result = ctrl.step(**inputs)
     assert result.solver_status == "run time limit reached"
     check_fallback(result, inputs, "solver_timeout")
@@ -218,15 +220,15 @@ def _fake_solve(status, solve_time_s=0.0):
     return solve
 
 
-def test_solved_too_late_is_a_timeout(predictor, model, inputs, monkeypatch):
-    ctrl = DDPCController(predictor, model=model)
+def test_solved_too_late_is_a_timeout(small_predictor, model, inputs, monkeypatch):
+    ctrl = DDPCController(small_predictor, model=model)
     monkeypatch.setattr(ctrl.problem, "solve", _fake_solve("solved", solve_time_s=0.2))
     check_fallback(ctrl.step(**inputs), inputs, "solver_timeout")
 
 
 @pytest.mark.parametrize("status", ["maximum iterations reached", "solved inaccurate", "unsolved"])
-def test_solver_failed(predictor, model, inputs, monkeypatch, status):
-    ctrl = DDPCController(predictor, model=model)
+def test_solver_failed(small_predictor, model, inputs, monkeypatch, status):
+    ctrl = DDPCController(small_predictor, model=model)
     monkeypatch.setattr(ctrl.problem, "solve", _fake_solve(status))
     result = ctrl.step(**inputs)
     check_fallback(result, inputs, "solver_failed")
@@ -234,8 +236,8 @@ def test_solver_failed(predictor, model, inputs, monkeypatch, status):
 
 
 @pytest.mark.parametrize("target", ["estimator", "t_opt", "solve"])
-def test_unexpected_error(predictor, model, inputs, monkeypatch, target):
-    ctrl = DDPCController(predictor, model=model)
+def test_unexpected_error(small_predictor, model, inputs, monkeypatch, target):
+    ctrl = DDPCController(small_predictor, model=model)
 
     def boom(*args, **kwargs):
         raise RuntimeError("boom")
@@ -252,17 +254,17 @@ def test_unexpected_error(predictor, model, inputs, monkeypatch, target):
 
 
 @pytest.mark.parametrize("u_prev", [None, "warm", [1.0, 2.0]])
-def test_garbage_u_prev_never_raises(predictor, model, inputs, u_prev):
-    result = DDPCController(predictor, model=model).step(**{**inputs, "u_prev": u_prev})
+def test_garbage_u_prev_never_raises(small_predictor, model, inputs, u_prev):
+    result = DDPCController(small_predictor, model=model).step(**{**inputs, "u_prev": u_prev})
     assert result.source == "fallback"
     assert result.t_ref_c == inputs["t_rule"][0]  # nothing to limit the rate from
 
 
-def test_warmup_tick_by_tick(predictor, model, trajectories):
+def test_warmup_tick_by_tick(small_predictor, model, training_trajectories):
     """Samples arrive one tick at a time, each output applied over the next interval: ticks
     1 … ρ−1 are the lead-in (T_ref = T_rule), tick ρ is the first DDPC step."""
-    traj = trajectories[4]
-    ctrl = DDPCController(predictor, model=model)
+    traj = training_trajectories[4]
+    ctrl = DDPCController(small_predictor, model=model)
     results, applied = [], []
     for i in range(1, RHO + 4):
         keep = slice(max(0, i - (RHO + 1)), i)
@@ -353,13 +355,13 @@ def corrupted(inp: dict, kind: str, where: int) -> dict:
     conservative=st.booleans(),
 )
 def test_output_is_always_in_the_band_and_rate_limited(
-    predictor, model, trajectories, index, start, summer, room, amb, u_prev, kind, where,
-    conservative,
+    small_predictor, model, training_trajectories, index, start, summer, room, amb, u_prev, kind,
+    where, conservative,
 ):  # fmt: skip
     """Whatever the inputs: T_ref within T_rule ± 2 K and within ΔT_max of u(t−1) (for any u(t−1)
     within ΔT_max of the band), no exception."""
     s = OCPSettings(t_max=0.5, du_max=0.3) if conservative else OCPSettings()
-    inp = window(trajectories, index, start)
+    inp = window(training_trajectories, index, start)
     shift = (amb + (16.0 if summer else 0.0)) - inp["d"][-1, 0]
     inp["d"][:, 0] += shift
     inp["d_future"][:, 0] += shift
@@ -369,7 +371,7 @@ def test_output_is_always_in_the_band_and_rate_limited(
     inp["u_prev"] = float(inp["t_rule"][0] + u_prev / 2.5 * (s.u_band + s.du_max))
     inp["u"][-1] = inp["u_prev"]
     inp = corrupted(inp, kind, where)
-    result = DDPCController(predictor, s, model=model).step(**inp)
+    result = DDPCController(small_predictor, s, model=model).step(**inp)
     event(f"{kind} -> {result.reason}")
     rule0 = inp["t_rule"][0]
     assert abs(result.t_ref_c - rule0) <= s.u_band + 1e-9

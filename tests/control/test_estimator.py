@@ -105,8 +105,8 @@ def test_a_bad_start_is_forgotten(model, sampler):
     assert rmse(errs[-PER_HOUR:, CHASSIS]) < 0.5
 
 
-def test_run_is_reset_plus_updates(model, sampler, trajectories):
-    traj = trajectories[4]
+def test_run_is_reset_plus_updates(model, sampler, training_trajectories):
+    traj = training_trajectories[4]
     a, b = StateEstimator(model), StateEstimator(model)
     a.run(traj.y[:12], traj.d[:12])
     b.reset(traj.y[0], traj.d[0, 0])

@@ -76,14 +76,14 @@ def random_instance(rng, trajectories, s: OCPSettings) -> dict:
 
 
 @pytest.fixture(scope="module")
-def solved(predictor, trajectories):
+def solved(small_predictor, training_trajectories):
     """(settings, instance, fast solution, reference solution) for 320 random instances."""
     rng = np.random.default_rng(20240815)
     out = []
     for s in SETTINGS:
-        fast, ref = DDPCProblem(predictor, s), ReferenceProblem(predictor, s)
+        fast, ref = DDPCProblem(small_predictor, s), ReferenceProblem(small_predictor, s)
         for _ in range(PER_SETTING):
-            inst = random_instance(rng, trajectories, s)
+            inst = random_instance(rng, training_trajectories, s)
             out.append((s, inst, fast.solve(**inst), ref.solve(**inst)))
     return out
 
@@ -157,12 +157,14 @@ def precise_optimum(predictor, s: OCPSettings, inst: dict) -> np.ndarray:
     return np.asarray(u.value)
 
 
-def test_fast_path_is_accurate_where_the_two_differ_most(predictor, solved):
+def test_fast_path_is_accurate_where_the_two_differ_most(small_predictor, solved):
     """Where OSQP and Clarabel differ most, a tight independent solve sides with OSQP
     (measured: OSQP within 1e-8 K of it, Clarabel up to 8e-5 K off)."""
     worst = sorted(solved, key=lambda row: -np.max(np.abs(row[2].u - row[3].u)))[:5]
     for s, inst, fast, _ in worst:
-        np.testing.assert_allclose(fast.u, precise_optimum(predictor, s, inst), atol=1e-6, rtol=0)
+        np.testing.assert_allclose(
+            fast.u, precise_optimum(small_predictor, s, inst), atol=1e-6, rtol=0
+        )
 
 
 def test_the_instances_exercise_every_constraint(solved):
@@ -179,10 +181,10 @@ def test_the_instances_exercise_every_constraint(solved):
     assert min(slack, rate, edge_start) > n // 10 and band > n // 50
 
 
-def test_rebuilt_reference_agrees(predictor, solved):
+def test_rebuilt_reference_agrees(small_predictor, solved):
     """The naive path (cvxpy build and compile at every solve) gives the same optimum."""
     for s in SETTINGS:
-        naive = ReferenceProblem(predictor, s, rebuild=True)
+        naive = ReferenceProblem(small_predictor, s, rebuild=True)
         for _, inst, _, ref in [row for row in solved if row[0] is s][:8]:
             sol = naive.solve(**inst)
             assert sol.status == "solved"
@@ -217,40 +219,42 @@ def test_solution_satisfies_the_constraints(solved):
         np.testing.assert_allclose(eps, need, atol=1e-5)
 
 
-def test_outputs_follow_the_prediction_model(predictor, solved):
+def test_outputs_follow_the_prediction_model(small_predictor, solved):
     for _, inst, fast, _ in solved:
-        np.testing.assert_allclose(fast.y, by_hand(predictor, inst, fast.u), atol=1e-9, rtol=0)
+        np.testing.assert_allclose(
+            fast.y, by_hand(small_predictor, inst, fast.u), atol=1e-9, rtol=0
+        )
         # and the predictor's own API says the same
         u_past = np.concatenate([inst["u_past"].ravel(), [fast.u[0]]])
-        pred = predictor.predict(
+        pred = small_predictor.predict(
             inst["y_past"], u_past, inst["d_past"], fast.u[1:], inst["d_future"]
         )
         np.testing.assert_allclose(fast.y, pred, atol=1e-9, rtol=0)
 
 
-def test_optimum_heads_for_t_opt_when_nothing_binds(predictor, trajectories):
+def test_optimum_heads_for_t_opt_when_nothing_binds(small_predictor, training_trajectories):
     """With T_opt at the band's lower edge and u(t−1) = T_rule, the plan moves down at the rate
     limit first: u(0|t) = u(t−1) − ΔT_max."""
     rng = np.random.default_rng(3)
-    inst = random_instance(rng, trajectories, OCPSettings())
+    inst = random_instance(rng, training_trajectories, OCPSettings())
     inst["t_rule"] = np.full(T + 1, 22.0)
     inst["t_opt"] = np.full(T + 1, 21.0)
     inst["y_past"] += 22.0 - inst["y_past"][-1].mean()
     inst["u_prev"] = 22.0
     inst["u_past"][-1] = 22.0
-    sol = DDPCProblem(predictor, OCPSettings(sigma=1.0, gamma=0.01)).solve(**inst)
+    sol = DDPCProblem(small_predictor, OCPSettings(sigma=1.0, gamma=0.01)).solve(**inst)
     assert sol.solved
     assert sol.u[0] == pytest.approx(21.5, abs=1e-5)
     assert np.all(sol.u <= 22.0 + 1e-6)
 
 
-def test_infeasible_problem_is_reported_by_both(predictor, trajectories):
+def test_infeasible_problem_is_reported_by_both(small_predictor, training_trajectories):
     """u(t−1) 3 K above T_rule: the rate limit and the ±2 K band cannot both hold."""
     rng = np.random.default_rng(4)
-    inst = random_instance(rng, trajectories, OCPSettings())
+    inst = random_instance(rng, training_trajectories, OCPSettings())
     inst["u_prev"] = float(inst["t_rule"][0] + 3.0)
-    fast = DDPCProblem(predictor).solve(**inst)
-    ref = ReferenceProblem(predictor).solve(**inst)
+    fast = DDPCProblem(small_predictor).solve(**inst)
+    ref = ReferenceProblem(small_predictor).solve(**inst)
     assert fast.status == "primal infeasible"
     assert ref.status == "infeasible"
     assert not fast.solved and not ref.solved
@@ -258,11 +262,13 @@ def test_infeasible_problem_is_reported_by_both(predictor, trajectories):
     assert np.all(np.isnan(fast.u)) and np.all(np.isnan(ref.u))
     # and the next, feasible, solve of the same (warm-started) problem is fine again
     inst["u_prev"] = float(inst["t_rule"][0])
-    prob = DDPCProblem(predictor)
+    prob = DDPCProblem(small_predictor)
     prob.solve(**{**inst, "u_prev": inst["u_prev"] + 3.0})
     again = prob.solve(**inst)
     assert again.solved
-    assert again.objective == pytest.approx(ReferenceProblem(predictor).solve(**inst).objective)
+    assert again.objective == pytest.approx(
+        ReferenceProblem(small_predictor).solve(**inst).objective
+    )
 
 
 @pytest.mark.parametrize(
@@ -277,10 +283,10 @@ def test_infeasible_problem_is_reported_by_both(predictor, trajectories):
         ({"t_opt": np.full(T + 1, np.nan)}, "t_opt holds NaN"),
     ],
 )
-def test_bad_data_raises(predictor, trajectories, change, message):
-    inst = random_instance(np.random.default_rng(5), trajectories, OCPSettings())
+def test_bad_data_raises(small_predictor, training_trajectories, change, message):
+    inst = random_instance(np.random.default_rng(5), training_trajectories, OCPSettings())
     inst.update(change)
-    for problem in (DDPCProblem(predictor), ReferenceProblem(predictor)):
+    for problem in (DDPCProblem(small_predictor), ReferenceProblem(small_predictor)):
         with pytest.raises(ValueError, match=message):
             problem.solve(**inst)
 
@@ -304,17 +310,17 @@ def margin_gap(inst: dict, sol) -> float:
 
 
 def test_the_margin_objective_agrees_with_its_reference_and_keeps_t_ref_near_the_room(
-    predictor, trajectories
+    small_predictor, training_trajectories
 ):
     """The margin objective: OSQP and the cvxpy reference agree, and its optimum holds T_ref
     within the margin of the mean predicted room where the paper's does not (80 instances)."""
     rng = np.random.default_rng(7)
     s = OCPSettings(objective="margin", time_limit_s=10.0)  # a loaded machine decides nothing
-    fast, ref = DDPCProblem(predictor, s), ReferenceProblem(predictor, s)
-    paper = DDPCProblem(predictor, OCPSettings(time_limit_s=10.0))
+    fast, ref = DDPCProblem(small_predictor, s), ReferenceProblem(small_predictor, s)
+    paper = DDPCProblem(small_predictor, OCPSettings(time_limit_s=10.0))
     closer = 0
     for _ in range(80):
-        inst = random_instance(rng, trajectories, s)
+        inst = random_instance(rng, training_trajectories, s)
         a, b, p = fast.solve(**inst), ref.solve(**inst), paper.solve(**inst)
         assert a.solved and b.solved and p.solved
         assert a.objective == pytest.approx(b.objective, rel=1e-4, abs=1e-8)
@@ -353,18 +359,18 @@ def state_cap(s: OCPSettings, inst: dict) -> np.ndarray:
 
 
 def test_the_states_objective_agrees_with_its_reference_and_keeps_the_units_state(
-    predictor, trajectories
+    small_predictor, training_trajectories
 ):
     """The states objective: OSQP and the cvxpy reference agree on 80 instances, its optimum
     keeps u(0…T) under the state rule's top, and the rule binds where the paper's optimum
     would have raised T_ref past the coldest deck between the ambient thresholds."""
     rng = np.random.default_rng(11)
     s = OCPSettings(objective="states", time_limit_s=10.0)
-    fast, ref = DDPCProblem(predictor, s), ReferenceProblem(predictor, s)
-    paper = DDPCProblem(predictor, OCPSettings(time_limit_s=10.0))
+    fast, ref = DDPCProblem(small_predictor, s), ReferenceProblem(small_predictor, s)
+    paper = DDPCProblem(small_predictor, OCPSettings(time_limit_s=10.0))
     bound = 0
     for i in range(80):
-        inst = random_instance(rng, trajectories, s)
+        inst = random_instance(rng, training_trajectories, s)
         if i % 2:  # half of them between the ambient thresholds, where the decks pick the state
             t_amb = inst["t_rule"][0] - rng.uniform(s.cool_above_k + 0.5, s.heat_below_k - 0.5)
             inst["d_future"][:, 0] += t_amb - inst["d_past"][-1, 0]
@@ -394,7 +400,7 @@ def october_instance(trajectories, t_amb: float) -> dict:
 
 
 def test_the_states_objective_raises_t_ref_only_where_the_unit_keeps_cooling(
-    predictor, trajectories
+    small_predictor, training_trajectories
 ):
     """Between the ambient thresholds (T_amb 19 °C) the paper's optimum raises T_ref above the
     coldest deck, where the unit would go mixed and heat it; the states objective holds T_ref at
@@ -402,13 +408,13 @@ def test_the_states_objective_raises_t_ref_only_where_the_unit_keeps_cooling(
     decks ask, and the states objective raises T_ref as the paper's does."""
     s = OCPSettings(objective="states", time_limit_s=10.0)
     states, paper = (
-        DDPCProblem(predictor, s),
-        DDPCProblem(predictor, OCPSettings(time_limit_s=10.0)),
+        DDPCProblem(small_predictor, s),
+        DDPCProblem(small_predictor, OCPSettings(time_limit_s=10.0)),
     )
-    october = october_instance(trajectories, 19.0)
+    october = october_instance(training_trajectories, 19.0)
     assert paper.solve(**october).u[0] > 21.6 + 0.1
     assert states.solve(**october).u[0] == pytest.approx(22.0, abs=1e-3)
-    august = october_instance(trajectories, 30.0)
+    august = october_instance(training_trajectories, 30.0)
     raised = states.solve(**august).u[0]
     assert raised > 22.2
     assert raised == pytest.approx(paper.solve(**august).u[0], abs=1e-3)

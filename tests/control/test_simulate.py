@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from support import small_predictor
 from trainclimate.control.simulate import run_simulation
 from trainclimate.sim.scenarios import ScenarioError
 
@@ -19,8 +18,8 @@ def test_rule_based_run_with_progress():
     assert [d for d, _ in seen] == sorted(d for d, _ in seen)
 
 
-def test_ddpc_run_keeps_the_band_and_reports_its_ticks():
-    run = run_simulation("parked-heating-nov", "ddpc", hours=2.0, predictor=small_predictor())
+def test_ddpc_run_keeps_the_band_and_reports_its_ticks(small_predictor):
+    run = run_simulation("parked-heating-nov", "ddpc", hours=2.0, predictor=small_predictor)
     assert run.ticks is not None and run.ticks["ticks"] > 0
     rule, ref = run.result.t_rule_c[:, 0], run.result.t_ref_c[:, 0]
     assert np.all(np.abs(ref - rule) <= 2.0 + 1e-9)

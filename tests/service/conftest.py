@@ -1,4 +1,6 @@
-"""Fixtures of the service tests: a database of each kind, the app, tokens, a small model.
+"""Fixtures of the service tests: a database of each kind (``db_url`` empty, ``app_database`` the
+app's, ``database_with_model`` with the small predictor registered), the app, tokens, the service
+as child processes (the small predictor's file, ``small_predictor_file``, is tests/conftest.py's).
 
 ``db_url`` runs a test on SQLite (a fresh file) and on PostgreSQL (a fresh database created on the
 server ``TRAINCLIMATE_TEST_PG_URL`` names, dropped afterwards); without that variable the
@@ -12,11 +14,9 @@ import os
 import pytest
 from fastapi.testclient import TestClient
 
-from service_processes import CLI, Server, free_port
-from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database
-from support import small_predictor
-from trainclimate.predict.artifact import save_predictor
-from trainclimate.service.app import create_app
+from helpers.processes import CLI, Server, free_port
+from helpers.service import PG_SKIP, PG_URL, drop_pg_database, pg_database
+from trainclimate.service.app import create_app, register_model_file
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
@@ -37,22 +37,20 @@ def db_url(request, tmp_path):
         drop_pg_database(name)
 
 
-@pytest.fixture(scope="session")
-def model_file(tmp_path_factory):
-    """A small Transient Predictor at the controller's setting, saved (never the default one)."""
-    return save_predictor(small_predictor(), tmp_path_factory.mktemp("model") / "transient.npz")
+@pytest.fixture
+def settings(db_url, small_predictor_file) -> Settings:
+    return Settings(
+        database_url=db_url, predictor_path=small_predictor_file, scheduler_interval_s=0.05
+    )
 
 
 @pytest.fixture
-def settings(db_url, model_file) -> Settings:
-    return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=0.05)
-
-
-@pytest.fixture
-def sleeping_settings(db_url, model_file) -> Settings:
+def sleeping_settings(db_url, small_predictor_file) -> Settings:
     """As :func:`settings`, but the app's live loop runs once at start and then sleeps for an
     hour: the setpoints are the test's, and no tick lands between two of its requests."""
-    return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=3600)
+    return Settings(
+        database_url=db_url, predictor_path=small_predictor_file, scheduler_interval_s=3600
+    )
 
 
 @pytest.fixture
@@ -76,6 +74,27 @@ def tokens(client, settings) -> dict[str, dict[str, str]]:
     return out
 
 
+@pytest.fixture
+def app_database(client, settings):
+    """The app's database (migrated by the app, the small predictor model version 1, active),
+    for writing a test's data beside the app."""
+    database = Database(settings.database_url)
+    yield database
+    database.dispose()
+
+
+@pytest.fixture
+def database_with_model(settings):
+    """The database of ``settings`` (SQLite or PostgreSQL), migrated, with the small predictor as
+    model version 1, and no app: for the scheduler and the stores on their own."""
+    migrate(settings.database_url)
+    database = Database(settings.database_url)
+    with database.transaction() as session:
+        register_model_file(session, settings)
+    yield database
+    database.dispose()
+
+
 # --- the service as child processes ------------------------------------------------------
 @pytest.fixture
 def proc_env(tmp_path) -> dict[str, str]:
@@ -87,7 +106,7 @@ def proc_env(tmp_path) -> dict[str, str]:
 
 
 @pytest.fixture
-def servers(tmp_path, model_file, proc_env):
+def servers(tmp_path, small_predictor_file, proc_env):
     """A factory of servers on ``db_url``; every one is stopped after the test."""
     made: list[Server] = []
 
@@ -101,7 +120,7 @@ def servers(tmp_path, model_file, proc_env):
             "--port",
             str(port),
             "--predictor",
-            str(model_file),
+            str(small_predictor_file),
             *extra,
         ]
         server = Server(args, env or proc_env, port, tmp_path / f"server-{port}.log")

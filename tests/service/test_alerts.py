@@ -15,8 +15,8 @@ import httpx
 import pytest
 import yaml
 
-from service_processes import CLI, free_port, token_cli
-from service_support import wait_for
+from helpers.processes import CLI, free_port, token_cli
+from helpers.service import wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 RULES = ROOT / "deploy" / "prometheus" / "alerts.yml"

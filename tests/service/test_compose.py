@@ -18,8 +18,8 @@ import httpx
 import pytest
 import yaml
 
-from service_processes import CLI, Mosquitto, Server, free_port
-from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database, wait_for
+from helpers.processes import CLI, Mosquitto, Server, free_port
+from helpers.service import PG_SKIP, PG_URL, drop_pg_database, pg_database, wait_for
 from trainclimate.cli import build_parser
 from trainclimate.predict import default as models
 from trainclimate.service.app import create_app
@@ -226,7 +226,7 @@ def image_home(tmp_path: Path, model_file: Path) -> Path:
     return home
 
 
-def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_env):
+def test_the_compose_setup_runs_as_local_processes(tmp_path, small_predictor_file, proc_env):
     """PostgreSQL (a fresh database on the test server) + the backend (the image's command, its
     environment and its home with the model its build made) + the token step + the three
     gateways as child processes: the backend registers the image's model, every minute of every
@@ -235,7 +235,7 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, model_file, proc_en
     if not PG_URL:
         pytest.skip(PG_SKIP)
     db_url, db_name = pg_database()
-    home = image_home(tmp_path, model_file)
+    home = image_home(tmp_path, small_predictor_file)
     image_env = {**dockerfile_env(), "TRAINCLIMATE_HOME": str(home)}
     env = {**proc_env, **image_env, "TRAINCLIMATE_DATABASE_URL": db_url}
     port = free_port()

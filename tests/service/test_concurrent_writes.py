@@ -11,8 +11,8 @@ from concurrent.futures import ThreadPoolExecutor
 import httpx
 from sqlalchemy import func, select
 
-from service_processes import token_cli
-from service_support import at, flat_rows
+from helpers.processes import token_cli
+from helpers.service import at, flat_rows
 from trainclimate.service.store import liveness
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import AuditLog, Coach, Telemetry, Train

@@ -28,8 +28,8 @@ from zoneinfo import ZoneInfo
 import httpx
 import pytest
 
-from service_processes import CLI, Server, demo_server, free_port, wait_for_ddpc
-from service_support import decided, flat_rows, post_rows, register, wait_for
+from helpers.processes import CLI, Server, demo_server, free_port, wait_for_ddpc
+from helpers.service import decided, flat_rows, post_rows, register, wait_for
 from trainclimate.service.adapters import demo
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
@@ -54,12 +54,14 @@ ARGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory, model_file):
+def server(tmp_path_factory, small_predictor_file):
     """The demo fleet at 600× on SQLite (a 5-min tick every 0.5 s), with a viewer and an
     operator token; running until its activated coaches have a completed prediction (the layer's
     first hour) and 20 DDPC setpoints."""
     # as `make demo` runs it: the operator token and the dashboard's URL printed at start
-    srv = demo_server(tmp_path_factory.mktemp("dashboard"), model_file, "--new-token", "operator")
+    srv = demo_server(
+        tmp_path_factory.mktemp("dashboard"), small_predictor_file, "--new-token", "operator"
+    )
     printed = srv.printed(r"dashboard: (\S+)\noperator token: (tc_\S+)")
     assert printed.group(1) == f"{srv.url}/#token={printed.group(2)}", srv.output()
     srv.signin_url = printed.group(1)
@@ -536,7 +538,7 @@ def seed_pair(srv, train: str, days: range, plan: str) -> None:
 
 
 @pytest.fixture(scope="module")
-def seeded(tmp_path_factory, model_file):
+def seeded(tmp_path_factory, small_predictor_file):
     """The service without a demo fleet, with one train seeded, ``P``: two hours in which the
     model was still being prepared (every window excluded as ``preparing``). ``seed_trial()``
     adds train ``X`` on a crossover plan over six service days (a 95 % interval) and ``F`` on a
@@ -546,7 +548,16 @@ def seeded(tmp_path_factory, model_file):
     env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
     env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
     port = free_port()
-    args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
+    args = [
+        *CLI,
+        "serve",
+        "--db",
+        db_url,
+        "--port",
+        str(port),
+        "--predictor",
+        str(small_predictor_file),
+    ]
     srv = Server(args, env, port, home / "server.log")
     srv.start()
     srv.db_url = db_url

@@ -28,8 +28,8 @@ from pathlib import Path
 import httpx
 import pytest
 
+from helpers.processes import demo_server, wait_for_ddpc
 from service import test_dashboard
-from service_processes import demo_server, wait_for_ddpc
 from trainclimate.service import dashboard_files
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
@@ -48,10 +48,10 @@ AXE_RUN = """(tags) => axe.run(document, { runOnly: { type: 'tag', values: tags 
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory, model_file):
+def server(tmp_path_factory, small_predictor_file):
     """The demo fleet at 600× on SQLite, with a viewer, an operator and an admin token, running
     until D1-A has 20 DDPC setpoints."""
-    srv = demo_server(tmp_path_factory.mktemp("dashboard-access"), Path(model_file))
+    srv = demo_server(tmp_path_factory.mktemp("dashboard-access"), Path(small_predictor_file))
     migrate(srv.db_url)
     db = Database(srv.db_url)
     with db.transaction() as s:

@@ -13,10 +13,10 @@ import os
 import httpx
 import pytest
 
+from helpers.processes import CLI, Server, free_port
+from helpers.service import at, flat_row, flat_rows, to_wire, wait_for
 from service import test_dashboard
 from service.test_dashboard import Watched
-from service_processes import CLI, Server, free_port
-from service_support import at, flat_row, flat_rows, to_wire, wait_for
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
 
@@ -25,7 +25,7 @@ browser = test_dashboard.browser
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory, model_file):
+def server(tmp_path_factory, small_predictor_file):
     """The service without a fleet, a viewer's and an operator's token, and train S: S-A
     (activated) whose newest row (T0 + 30 min) says the link is down, once its tick at T0 + 30
     is issued; S-B (deactivated) with its up deck 0.3 K above T_rule + 1 K in its newest row."""
@@ -34,7 +34,16 @@ def server(tmp_path_factory, model_file):
     env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
     env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
     port = free_port()
-    args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
+    args = [
+        *CLI,
+        "serve",
+        "--db",
+        db_url,
+        "--port",
+        str(port),
+        "--predictor",
+        str(small_predictor_file),
+    ]
     srv = Server(args, env, port, home / "server.log")
     srv.start()
     migrate(db_url)

@@ -15,8 +15,8 @@ import pytest
 import uvicorn
 from sqlalchemy import event
 
-from service_processes import free_port
-from service_support import API, flat_row, to_wire, wait_for
+from helpers.processes import free_port
+from helpers.service import API, flat_row, to_wire, wait_for
 from trainclimate.service.app import create_app
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token

@@ -21,9 +21,9 @@ from zoneinfo import ZoneInfo
 import httpx
 import pytest
 
+from helpers.processes import CLI, Server, free_port
 from service import test_dashboard
 from service.test_dashboard import Watched
-from service_processes import CLI, Server, free_port
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.tokens import create_token
 
@@ -40,7 +40,7 @@ def bearer(token: str) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory, model_file):
+def server(tmp_path_factory, small_predictor_file):
     """The service without a fleet. ``tokens``: a viewer's, an operator's and an admin's
     (``browser-ROLE``), and ``other_admin``: a second admin's (``admin-two``), from the store.
     ``short-lived`` (1 s: shorter than the API issues, so from the store too). Issued by the
@@ -53,7 +53,16 @@ def server(tmp_path_factory, model_file):
     env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
     env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
     port = free_port()
-    args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
+    args = [
+        *CLI,
+        "serve",
+        "--db",
+        db_url,
+        "--port",
+        str(port),
+        "--predictor",
+        str(small_predictor_file),
+    ]
     srv = Server(args, env, port, home / "server.log")
     srv.start()
     srv.db_url = db_url

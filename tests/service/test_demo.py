@@ -61,10 +61,10 @@ def demo_fleet(home: Path, model_file: Path) -> demo.DemoFleet:
 
 
 @pytest.fixture(scope="module")
-def afternoon(tmp_path_factory, model_file):
+def afternoon(tmp_path_factory, small_predictor_file):
     """The fleet run from 12:30 to 15:00 local: the activated coaches' layer has its hour of
     lead-in by 13:30 and issues DDPC setpoints from then on."""
-    fleet = demo_fleet(tmp_path_factory.mktemp("demo"), model_file)
+    fleet = demo_fleet(tmp_path_factory.mktemp("demo"), small_predictor_file)
     with fleet.db.transaction() as session:
         session.get(FleetClock, demo.FLEET).time = local("12:30")
     while fleet.advance() < local("15:00"):
@@ -85,11 +85,11 @@ def test_at_least_ten_trains_of_an_activated_and_a_deactivated_coach(afternoon):
     assert trains["D1"] == "parked outdoors in Zug (like Experiment 4)"
 
 
-def test_four_trains_run_a_crossover_trial_from_the_first_moment(tmp_path, model_file):
+def test_four_trains_run_a_crossover_trial_from_the_first_moment(tmp_path, small_predictor_file):
     """D2, D3, D7 alternate and D5 randomized, in force from the demo's start (audited as the
     demo); registering again adds nothing. Run across 03:00 of the second day, their coach B
     takes the layer at the 03:00 tick, and the days are recorded."""
-    fleet = demo_fleet(tmp_path, model_file)
+    fleet = demo_fleet(tmp_path, small_predictor_file)
     start = pd.Timestamp(demo.START_LOCAL, tz=demo.LOCAL_TZ).tz_convert("UTC")
     with fleet.db.transaction() as session:
         demo.register(session)  # a restart
@@ -185,9 +185,9 @@ def test_on_the_mild_day_heating_and_cooling_alternate(afternoon):
 
 
 def test_a_state_stored_by_a_fleet_of_another_size_starts_the_coaches_afresh(
-    tmp_path, model_file, caplog
+    tmp_path, small_predictor_file, caplog
 ):
-    fleet = demo_fleet(tmp_path, model_file)
+    fleet = demo_fleet(tmp_path, small_predictor_file)
     env, params = scenarios.build(scenarios.get("parked-heating-nov"), n_coaches=6, hours=1.0)
     with fleet.db.transaction() as session:
         session.get(FleetClock, demo.FLEET).state = FleetSimulator(params, env).snapshot()
@@ -202,13 +202,13 @@ def test_a_state_stored_by_a_fleet_of_another_size_starts_the_coaches_afresh(
     fleet.db.dispose()
 
 
-def test_the_demo_fleet_takes_a_calibrated_coachs_parameters(tmp_path, model_file):
+def test_the_demo_fleet_takes_a_calibrated_coachs_parameters(tmp_path, small_predictor_file):
     """Every demo coach simulated with the parameters given (e.g. ``calibrate --out``), not its
     scenario's: a coach with twice the envelope loses more heat on the same day."""
     from trainclimate.sim.params import CoachParams
     from trainclimate.twin.knobs import apply
 
-    fleet = demo_fleet(tmp_path, model_file)
+    fleet = demo_fleet(tmp_path, small_predictor_file)
     day = pd.Timestamp(demo.START_LOCAL.split()[0], tz=demo.LOCAL_TZ)
     own, _ = fleet._build_day(day)
     leaky = apply(CoachParams(), {"envelope_scale": 2.0})
@@ -232,10 +232,12 @@ def _unstacked(sim: FleetSimulator):
     ]
 
 
-def test_a_twin_validated_for_summer_is_warned_of_on_a_november_day(tmp_path, model_file, caplog):
+def test_a_twin_validated_for_summer_is_warned_of_on_a_november_day(
+    tmp_path, small_predictor_file, caplog
+):
     """The demo's cold November days leave a twin validated at 15–32 °C: each train's day is
     logged once as extrapolated; a twin validated for the cold is not."""
-    fleet = demo_fleet(tmp_path, model_file)
+    fleet = demo_fleet(tmp_path, small_predictor_file)
     day = pd.Timestamp(demo.START_LOCAL.split()[0], tz=demo.LOCAL_TZ)
     fleet.validated_t_amb_c = [-20.0, 25.0]
     with caplog.at_level("WARNING"):

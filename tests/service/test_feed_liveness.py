@@ -15,8 +15,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service_processes import CLI, token_cli
-from service_support import wait_for
+from helpers.processes import CLI, token_cli
+from helpers.service import wait_for
 
 SPEEDUP = 120.0
 #: Two periods of 5 min at 120× in wall time, and a margin for the polling. [s]

@@ -9,8 +9,8 @@ import itertools
 
 import pytest
 
-from service_processes import free_port, token_cli
-from service_support import SIM_MINUTES, at, rows_per_minute, sim_rows
+from helpers.processes import free_port, token_cli
+from helpers.service import SIM_MINUTES, at, rows_per_minute, sim_rows
 from trainclimate.service.adapters import gateway as gateway_module
 from trainclimate.service.adapters.gateway import (
     BACKOFF_S,

@@ -15,7 +15,7 @@ from datetime import UTC, datetime, timedelta
 import httpx
 import pytest
 
-from service_support import API, flat_row
+from helpers.service import API, flat_row
 from trainclimate.service import logs
 from trainclimate.service.api.observe import valid_request_id
 from trainclimate.service.app import register_model_file
@@ -180,7 +180,7 @@ def test_serve_log_format_json_writes_only_json_lines(servers, proc_env, tmp_pat
         lines = [json.loads(line) for line in server.output().splitlines() if line.strip()]
         return [x for x in lines if x["logger"] == "uvicorn.access" and "probe-7" in str(x)]
 
-    from service_support import wait_for
+    from helpers.service import wait_for
 
     [line] = wait_for(access, 15, "the access line")
     assert line["request_id"] == "probe-7" and line["replica"] == "json-1"

@@ -17,7 +17,7 @@ from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 from sqlalchemy import event, func, select
 
-from service_support import API, at, flat_rows, post_rows, register, wait_for
+from helpers.service import API, at, flat_rows, post_rows, register, wait_for
 from trainclimate.service.app import create_app
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.models import Coach, Setpoint, Train
@@ -59,11 +59,11 @@ def make_tokens(app, *roles: str) -> dict[str, dict[str, str]]:
 
 
 @pytest.fixture
-def demo(db_url, model_file):
+def demo(db_url, small_predictor_file):
     """The demo fleet served at 900× until its first DDPC setpoints, then its loops stopped."""
     settings = Settings(
         database_url=db_url,
-        predictor_path=model_file,
+        predictor_path=small_predictor_file,
         fleet="demo",
         speedup=900,
         scheduler_interval_s=0.05,
@@ -274,12 +274,12 @@ def test_a_scrape_runs_no_query_but_the_token_check_whatever_the_fleet(client):
     assert not [q for q in small + large if "setpoints" in q or "telemetry" in q]
 
 
-def test_the_mqtt_feed_s_state_and_counts(db_url, model_file, tmp_path):
+def test_the_mqtt_feed_s_state_and_counts(db_url, small_predictor_file, tmp_path):
     """A private Mosquitto configured as the compose broker: a batch stored, a malformed
     message dropped, then the broker killed — the metrics follow."""
     import json as jsonlib
 
-    from service_processes import Mosquitto
+    from helpers.processes import Mosquitto
     from trainclimate.service.adapters.mqtt import Broker
     from trainclimate.service.store import commands
     from trainclimate.service.store.telemetry import to_wire
@@ -289,7 +289,7 @@ def test_the_mqtt_feed_s_state_and_counts(db_url, model_file, tmp_path):
     mosquitto = Mosquitto(tmp_path / "mqtt", users)
     settings = Settings(
         database_url=db_url,
-        predictor_path=model_file,
+        predictor_path=small_predictor_file,
         scheduler_interval_s=0.05,
         replica_name=REPLICA,
         mqtt_url=mosquitto.url,

@@ -22,9 +22,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
 
-from cli_support import call
-from service_support import API
-from support import small_predictor
+from helpers.cli import call
+from helpers.service import API
 from trainclimate.data.trajectory import Trajectory
 from trainclimate.predict import TransientPredictor
 from trainclimate.predict.artifact import load_predictor_bytes, predictor_bytes
@@ -52,14 +51,14 @@ COLUMNS = ("time", "t_room_up_c", "t_room_mid_c", "t_room_low_c", "t_ref_c", "t_
 
 
 @pytest.fixture(scope="module")
-def demo_day(tmp_path_factory):
+def demo_day(tmp_path_factory, small_predictor):
     """A SQLite file: the demo fleet after one simulated day, the small predictor active."""
     path = tmp_path_factory.mktemp("demo") / "day.db"
     url = f"sqlite:///{path}"
     migrate(url)
     db = Database(url)
     with db.transaction() as s:
-        register_predictor(s, small_predictor(), "the tests' small predictor")
+        register_predictor(s, small_predictor, "the tests' small predictor")
         demo.register(s)
     fleet = demo.DemoFleet(db, Scheduler(db, Settings(database_url=url)), speedup=1.0)
     for _ in range(PERIODS):
@@ -69,7 +68,7 @@ def demo_day(tmp_path_factory):
 
 
 @pytest.fixture
-def db(demo_day, tmp_path):
+def demo_day_database(demo_day, tmp_path):
     path = tmp_path / "copy.db"
     shutil.copy(demo_day, path)
     database = Database(f"sqlite:///{path}")
@@ -131,16 +130,16 @@ def by_hand(db: Database, coach_id: str) -> list[Trajectory]:
     return out
 
 
-def test_retraining_recovers_the_model_fitted_offline_on_the_same_trajectories(db):
-    result = retrain(db, force=True)
+def test_retraining_recovers_the_model_fitted_offline_on_the_same_trajectories(demo_day_database):
+    result = retrain(demo_day_database, force=True)
     assert (result.version, result.state) == (2, "candidate")
     held = result.validation_coaches
     assert held == sorted(demo.coach_ids())[-5:]  # the last quarter of the 20 coaches
     training = [c for c in sorted(demo.coach_ids()) if c not in held]
-    mine = [t for c in training for t in by_hand(db, c)]
+    mine = [t for c in training for t in by_hand(demo_day_database, c)]
     offline = TransientPredictor(12, 6).fit(mine)
-    validation = [t for c in held for t in by_hand(db, c)]
-    with db.transaction() as s:
+    validation = [t for c in held for t in by_hand(demo_day_database, c)]
+    with demo_day_database.transaction() as s:
         model = s.scalar(select(PredictorModel).where(PredictorModel.version == 2))
         info, artifact = model.info, model.artifact
     registered = load_predictor_bytes(artifact)
@@ -163,18 +162,20 @@ def _windows(trajectories, depth):
     return validation_windows(trajectories, depth)
 
 
-def test_a_fit_worse_than_the_active_model_is_refused_unless_forced(db, capsys):
+def test_a_fit_worse_than_the_active_model_is_refused_unless_forced(demo_day_database, capsys):
     # the active model has seen the validation coaches too: a fit without them is worse on them
-    everything = [t for c in sorted(demo.coach_ids()) for t in by_hand(db, c)]
+    everything = [t for c in sorted(demo.coach_ids()) for t in by_hand(demo_day_database, c)]
     insider = TransientPredictor(12, 6).fit(everything)
-    with db.transaction() as s:
+    with demo_day_database.transaction() as s:
         s.execute(update(PredictorModel).values(artifact=predictor_bytes(insider)))
-    code, out, err = call(capsys, "model", "retrain", "--db", db.url, "--json")
+    code, out, err = call(capsys, "model", "retrain", "--db", demo_day_database.url, "--json")
     assert code == 2 and out == ""
     assert "worse than the active version 1" in err and len(err.splitlines()) == 1
-    with db.transaction() as s:
+    with demo_day_database.transaction() as s:
         assert s.scalar(select(PredictorModel.version).order_by(PredictorModel.version.desc())) == 1
-    code, out, err = call(capsys, "model", "retrain", "--db", db.url, "--force", "--json")
+    code, out, err = call(
+        capsys, "model", "retrain", "--db", demo_day_database.url, "--force", "--json"
+    )
     assert code == 0, err
     d = json.loads(out)
     assert (d["version"], d["state"], d["active_version"]) == (2, "candidate", 1)
@@ -193,10 +194,10 @@ def test_a_fit_worse_than_the_active_model_is_refused_unless_forced(db, capsys):
         (["--days", "0.05"], "too little data"),
     ],
 )
-def test_every_refusal_is_one_line_and_registers_nothing(db, capsys, argv, needle):
-    code, out, err = call(capsys, "model", "retrain", "--db", db.url, *argv)
+def test_every_refusal_is_one_line_and_registers_nothing(demo_day_database, capsys, argv, needle):
+    code, out, err = call(capsys, "model", "retrain", "--db", demo_day_database.url, *argv)
     assert code == 2 and out == "" and len(err.splitlines()) == 1 and needle in err, err
-    with db.transaction() as s:
+    with demo_day_database.transaction() as s:
         assert s.scalar(select(PredictorModel.version).order_by(PredictorModel.version.desc())) == 1
 
 
@@ -297,10 +298,10 @@ def test_shadow_predictions_never_change_an_issued_setpoint(demo_day, tmp_path):
 
 
 @pytest.fixture
-def app_on(db, tmp_path):
+def app_on(demo_day_database, tmp_path):
     """The service on the copy (no demo fleet: the test advances nothing) and tokens."""
-    settings = Settings(database_url=db.url, scheduler_interval_s=0.05)
-    with db.transaction() as s:
+    settings = Settings(database_url=demo_day_database.url, scheduler_interval_s=0.05)
+    with demo_day_database.transaction() as s:
         tokens = {
             role: {"Authorization": f"Bearer {create_token(s, role, f'test-{role}')[0]}"}
             for role in ("viewer", "operator", "admin")
@@ -308,13 +309,15 @@ def app_on(db, tmp_path):
     return settings, tokens
 
 
-def test_a_candidate_in_the_shadow_an_operator_cannot_promote_an_admin_can(db, app_on):
+def test_a_candidate_in_the_shadow_an_operator_cannot_promote_an_admin_can(
+    demo_day_database, app_on
+):
     settings, tokens = app_on
-    retrain(db, force=True)  # version 2, a candidate
-    fleet = demo.DemoFleet(db, Scheduler(db, settings), speedup=1.0)
+    retrain(demo_day_database, force=True)  # version 2, a candidate
+    fleet = demo.DemoFleet(demo_day_database, Scheduler(demo_day_database, settings), speedup=1.0)
     for _ in range(3):
         fleet.advance()
-    with db.transaction() as s:
+    with demo_day_database.transaction() as s:
         v2 = s.scalar(select(PredictorModel).where(PredictorModel.version == 2))
         assert s.query(ShadowPrediction).filter_by(model_id=v2.id).count() > 0
     with TestClient(create_app(settings)) as client:
@@ -333,7 +336,7 @@ def test_a_candidate_in_the_shadow_an_operator_cannot_promote_an_admin_can(db, a
         assert refused.status_code == 403
         done = client.post(url, params={"reason": "better on the shadow"}, headers=tokens["admin"])
         assert done.status_code == 200 and done.json()["state"] == "active"
-    with db.transaction() as s:
+    with demo_day_database.transaction() as s:
         entry = s.scalars(select(AuditLog).where(AuditLog.action == "model.activate")).one()
         assert (entry.user_name, entry.reason, entry.detail) == (
             "test-admin",
@@ -344,9 +347,9 @@ def test_a_candidate_in_the_shadow_an_operator_cannot_promote_an_admin_can(db, a
     with TestClient(create_app(settings)) as client:
         models = client.get(f"{API}/models", headers=tokens["viewer"]).json()
         assert [(m["version"], m["state"]) for m in models] == [(1, "retired"), (2, "active")]
-    fleet = demo.DemoFleet(db, Scheduler(db, settings), speedup=1.0)
+    fleet = demo.DemoFleet(demo_day_database, Scheduler(demo_day_database, settings), speedup=1.0)
     tick = fleet.advance()
-    with db.transaction() as s:
+    with demo_day_database.transaction() as s:
         used = set(s.scalars(select(Setpoint.model_id).where(Setpoint.tick == tick)))
         assert used - {None} == {v2.id}
         with pytest.raises(IntegrityError):  # the database itself refuses a second active one
@@ -354,7 +357,7 @@ def test_a_candidate_in_the_shadow_an_operator_cannot_promote_an_admin_can(db, a
             s.flush()
 
 
-def test_retraining_from_the_api_runs_in_the_background(db, app_on):
+def test_retraining_from_the_api_runs_in_the_background(demo_day_database, app_on):
     settings, tokens = app_on
     with TestClient(create_app(settings)) as client:
         body = {"reason": "a month of winter", "force": True}
@@ -378,7 +381,7 @@ def test_retraining_from_the_api_runs_in_the_background(db, app_on):
             time.sleep(0.2)
         assert status["state"] == "done", status
         assert status["result"]["version"] == 2 and status["requested_by"] == "test-admin"
-    with db.transaction() as s:
+    with demo_day_database.transaction() as s:
         assert s.scalars(select(AuditLog.action).where(AuditLog.action == "model.retrain")).all()
 
 

@@ -34,8 +34,8 @@ import pytest
 from sqlalchemy import func, select
 from sqlalchemy.exc import OperationalError
 
-from service_processes import CLI, Mosquitto, token_cli
-from service_support import T0, at, flat_row, flat_rows, rows_per_minute, wait_for
+from helpers.processes import CLI, Mosquitto, token_cli
+from helpers.service import T0, at, flat_row, flat_rows, rows_per_minute, wait_for
 from trainclimate.service.adapters import demo
 from trainclimate.service.adapters.dynsec import BrokerClients
 from trainclimate.service.adapters.mqtt import (
@@ -79,7 +79,7 @@ def broker() -> Broker:
 
 
 @pytest.fixture
-def db(db_url):
+def fleet_database(db_url):
     """A migrated database: live coaches 7-A (activated) and 7-B, and the demo fleet (D1-A …)."""
     migrate(db_url)
     database = Database(db_url)
@@ -99,9 +99,9 @@ def new_token(db: Database, role: str, coaches: list[str] | None = None) -> str:
 
 
 @pytest.fixture
-def gateway(db) -> str:
+def gateway(fleet_database) -> str:
     """A gateway token for 7-A and 7-B."""
-    return new_token(db, "gateway", ["7-A", "7-B"])
+    return new_token(fleet_database, "gateway", ["7-A", "7-B"])
 
 
 def batch(token: str, rows: list[dict], **extra) -> dict:
@@ -110,15 +110,19 @@ def batch(token: str, rows: list[dict], **extra) -> dict:
 
 
 @pytest.fixture
-def bridges(db, broker):
-    """A factory of bridges on ``db`` and ``broker`` sharing one client id (one persistent
-    session); all stopped, and the session removed from the broker, after the test."""
+def bridges(fleet_database, broker):
+    """A factory of bridges on ``fleet_database`` and ``broker`` sharing one client id (one
+    persistent session); all stopped, and the session removed from the broker, after the test."""
     client_id = f"test-service-{uuid.uuid4().hex[:10]}"
     made: list[MqttBridge] = []
 
     def make() -> MqttBridge:
         bridge = MqttBridge(
-            db, broker, client_id=client_id, valid_for=VALID_FOR, backfill=Backfill(HORIZON)
+            fleet_database,
+            broker,
+            client_id=client_id,
+            valid_for=VALID_FOR,
+            backfill=Backfill(HORIZON),
         )
         made.append(bridge)
         bridge.start()
@@ -241,7 +245,9 @@ def test_a_message_is_a_batch_with_its_token():
 
 # --- the bridge against the broker ----------------------------------------------------------
 @needs_broker
-def test_rows_are_stored_exactly_once_across_a_reconnection(db, bridges, publisher, gateway):
+def test_rows_are_stored_exactly_once_across_a_reconnection(
+    fleet_database, bridges, publisher, gateway
+):
     first = bridges()
     publisher.telemetry("7-A", batch(gateway, flat_rows(1, 2)))
     wait_for(lambda: first.status.rows_stored == 2, 10, "the first message")
@@ -255,14 +261,14 @@ def test_rows_are_stored_exactly_once_across_a_reconnection(db, bridges, publish
     publisher.telemetry("7-A", batch(gateway, [flat_row(at(4))]))  # resent while connected
     wait_for(lambda: second.status.messages == 3, 10, "the resent row")
     assert (second.status.rows_stored, second.status.duplicates) == (2, 3)
-    assert telemetry_times(db, "7-A") == [at(m) for m in (1, 2, 3, 4)]
+    assert telemetry_times(fleet_database, "7-A") == [at(m) for m in (1, 2, 3, 4)]
     assert second.status.connections == 1 and second.status.dropped == {}
 
 
 @needs_broker
-def test_bad_messages_are_counted_and_dropped(db, bridges, publisher, broker, caplog):
+def test_bad_messages_are_counted_and_dropped(fleet_database, bridges, publisher, broker, caplog):
     bridge = bridges()
-    operator = new_token(db, "operator")  # may send any coach's rows, as over HTTP
+    operator = new_token(fleet_database, "operator")  # may send any coach's rows, as over HTTP
     good = to_wire(flat_row(at(1)))
     publisher.telemetry("7-A", b"{not json")
     publisher.telemetry("7-A", good)  # a row without its gateway's token
@@ -284,8 +290,11 @@ def test_bad_messages_are_counted_and_dropped(db, bridges, publisher, broker, ca
         "not_live": 1,
         "bad_topic": 1,
     }
-    assert bridge.status.rows_stored == 1 and telemetry_times(db, "7-B") == [at(1)]
-    assert telemetry_times(db, "7-A") == [] and telemetry_times(db, "D1-A") == []
+    assert bridge.status.rows_stored == 1 and telemetry_times(fleet_database, "7-B") == [at(1)]
+    assert (
+        telemetry_times(fleet_database, "7-A") == []
+        and telemetry_times(fleet_database, "D1-A") == []
+    )
     assert bridge.status.connected
     dropped = [r.getMessage() for r in caplog.records if "dropped a message" in r.getMessage()]
     assert len(dropped) == 9 and any("(unknown_coach): no coach '99-Z'" in m for m in dropped)
@@ -294,7 +303,7 @@ def test_bad_messages_are_counted_and_dropped(db, bridges, publisher, broker, ca
 
 @needs_broker
 def test_a_token_is_checked_as_over_http_and_a_revoked_one_refused_at_once(
-    db, bridges, publisher, broker, gateway
+    fleet_database, bridges, publisher, broker, gateway
 ):
     """The token a message carries must be valid and for the topic's coach (a gateway token
     scoped to it, or an operator's): revoked, a gateway token of other coaches and a viewer's
@@ -309,19 +318,19 @@ def test_a_token_is_checked_as_over_http_and_a_revoked_one_refused_at_once(
             {"coach_id": "7-A", "id": "gw-1", "through": at(2).isoformat()}
             | {"rows": 2, "stored": 2, "duplicates": 0}
         ]
-        with db.transaction() as s:
+        with fleet_database.transaction() as s:
             token_id = s.scalar(
                 select(ApiToken.id).where(ApiToken.token_hash == hash_token(gateway))
             )
             commands.revoke_token(s, SYSTEM, token_id)
         publisher.telemetry("7-A", batch(gateway, flat_rows(3, 4), id="gw-2"))
-        other = new_token(db, "gateway", ["7-B"])
+        other = new_token(fleet_database, "gateway", ["7-B"])
         publisher.telemetry("7-A", batch(other, flat_rows(3, 4), id="gw-3"))
-        publisher.telemetry("7-A", batch(new_token(db, "viewer"), flat_rows(3, 4)))
+        publisher.telemetry("7-A", batch(new_token(fleet_database, "viewer"), flat_rows(3, 4)))
         publisher.telemetry("7-A", batch("tc_" + "x" * 43, flat_rows(3, 4)))  # unknown
         wait_for(lambda: bridge.status.messages == 5, 10, "five messages")
         assert bridge.status.dropped == {"revoked": 2, "forbidden": 2}
-        assert telemetry_times(db, "7-A") == [at(1), at(2)]
+        assert telemetry_times(fleet_database, "7-A") == [at(1), at(2)]
         assert [c["id"] for c in confirmations.got] == ["gw-1"]  # a refused batch: none
         assert bridge.status.confirmations_published == 1
     finally:
@@ -347,13 +356,17 @@ class Confirmations:
         self.client.loop_stop()
 
 
-def test_rows_outside_the_backfill_horizon_are_dropped_as_over_http(db, broker, gateway):
+def test_rows_outside_the_backfill_horizon_are_dropped_as_over_http(
+    fleet_database, broker, gateway
+):
     """The bridge's handling of a message, without a broker: a message with a row older than the
     coach's newest less the horizon is dropped whole (reason outside_horizon) and its rows are
     counted where the HTTP API counts its own; a topic whose coach id holds a NUL is no coach's
     (on PostgreSQL too, where such text fails)."""
     backfill = Backfill(HORIZON)
-    bridge = MqttBridge(db, broker, client_id="unused", valid_for=VALID_FOR, backfill=backfill)
+    bridge = MqttBridge(
+        fleet_database, broker, client_id="unused", valid_for=VALID_FOR, backfill=backfill
+    )
     topic = broker.topic("7-A", "telemetry")
     bridge.handle(topic, json.dumps(batch(gateway, flat_rows(1, 3))).encode())
     stray = [flat_row(T0 - timedelta(days=365)), flat_row(at(4))]
@@ -364,11 +377,11 @@ def test_rows_outside_the_backfill_horizon_are_dropped_as_over_http(db, broker, 
     assert bridge.status.rows_stored == 3
     assert bridge.status.dropped == {"outside_horizon": 1, "bad_topic": 1}
     assert backfill.refused == {"outside_horizon": 1}
-    assert telemetry_times(db, "7-A") == [at(1), at(2), at(3)]
+    assert telemetry_times(fleet_database, "7-A") == [at(1), at(2), at(3)]
 
 
 @needs_broker
-def test_setpoints_are_published_retained(db, bridges, broker):
+def test_setpoints_are_published_retained(fleet_database, bridges, broker):
     bridge = bridges()
     rows = [
         {"coach_id": "7-A", "tick": at(5), "t_ref_c": 21.4, "t_rule_c": 22.0}
@@ -396,11 +409,13 @@ def test_setpoints_are_published_retained(db, bridges, broker):
 
 
 @needs_broker
-def test_an_expired_setpoint_is_never_published(db, bridges, broker):
+def test_an_expired_setpoint_is_never_published(fleet_database, bridges, broker):
     """A replica paused between deciding a setpoint and publishing it resumes to find its
     coach's clock past the setpoint's validity: it is not published (counted), and the coach's
     retained setpoint stays whatever was valid; a setpoint still valid is published."""
-    with db.transaction() as s:  # 7-A's gateway has reported up to T0 + 20 min meanwhile
+    with (
+        fleet_database.transaction() as s
+    ):  # 7-A's gateway has reported up to T0 + 20 min meanwhile
         commands.ingest(s, "7-A", flat_rows(1, 20))
         commands.ingest(s, "7-B", flat_rows(1, 5))
     bridge = bridges()
@@ -419,8 +434,8 @@ def test_an_expired_setpoint_is_never_published(db, bridges, broker):
 
 
 @needs_broker
-def test_setpoints_issued_while_away_are_published_on_connection(db, bridges, broker):
-    with db.transaction() as s:
+def test_setpoints_issued_while_away_are_published_on_connection(fleet_database, bridges, broker):
+    with fleet_database.transaction() as s:
         s.execute(
             Setpoint.__table__.insert(),
             [
@@ -438,7 +453,9 @@ def test_setpoints_issued_while_away_are_published_on_connection(db, bridges, br
 
 
 @needs_broker
-def test_an_unavailable_database_delays_the_message_never_loses_it(db, bridges, publisher, gateway):
+def test_an_unavailable_database_delays_the_message_never_loses_it(
+    fleet_database, bridges, publisher, gateway
+):
     bridge = bridges()
     handle, calls = bridge.handle, []
 
@@ -453,7 +470,7 @@ def test_an_unavailable_database_delays_the_message_never_loses_it(db, bridges, 
     wait_for(lambda: bridge.status.rows_stored == 3, 10, "the retried message")
     assert len(calls) == 2 and bridge.status.database_retries == 1
     assert "database is locked" in bridge.status.last_error
-    with db.transaction() as s:
+    with fleet_database.transaction() as s:
         assert s.scalar(select(func.count()).select_from(Telemetry)) == 3
 
 
@@ -776,9 +793,9 @@ class GatewayClient:
 
 
 @pytest.mark.slow  # a `serve` process
-def test_serve_refuses_a_bad_broker_url(proc_env, model_file):
+def test_serve_refuses_a_bad_broker_url(proc_env, small_predictor_file):
     done = subprocess.run(
-        [*CLI, "serve", "--mqtt", "http://broker", "--predictor", str(model_file)],
+        [*CLI, "serve", "--mqtt", "http://broker", "--predictor", str(small_predictor_file)],
         env=proc_env,
         capture_output=True,
         text=True,
@@ -789,7 +806,7 @@ def test_serve_refuses_a_bad_broker_url(proc_env, model_file):
 
 
 # --- the broker's ACL (deploy/mosquitto, as the compose demo runs it) -----------------------
-def test_the_acl_lets_a_gateway_use_only_its_own_coaches(db, tmp_path):
+def test_the_acl_lets_a_gateway_use_only_its_own_coaches(fleet_database, tmp_path):
     """On a broker configured as the compose demo's (no anonymous users; the ACL), the gateway
     of train 126 publishes its coaches' telemetry and reads their setpoints and confirmations;
     what it publishes for another coach never reaches the service, it cannot read other
@@ -797,19 +814,25 @@ def test_the_acl_lets_a_gateway_use_only_its_own_coaches(db, tmp_path):
     users = {"trainclimate-service": "service-pw", "gateway-126": "gateway-pw"}
     mosquitto = Mosquitto(tmp_path / "broker", users)
     try:
-        with db.transaction() as s:
+        with fleet_database.transaction() as s:
             for coach in ("126-A", "125-A"):
                 commands.register_coach(s, SYSTEM, coach, coach[:3], False)
         service = Broker.from_url(
             mosquitto.url, username="trainclimate-service", password="service-pw"
         )
         bridge = MqttBridge(
-            db, service, client_id="acl-service", valid_for=VALID_FOR, backfill=Backfill(HORIZON)
+            fleet_database,
+            service,
+            client_id="acl-service",
+            valid_for=VALID_FOR,
+            backfill=Backfill(HORIZON),
         )
         bridge.start()
         wait_for(lambda: bridge.status.connected, 10, "the service's connection")
         gateway = Broker.from_url(mosquitto.url, username="gateway-126", password="gateway-pw")
-        token = new_token(db, "operator")  # the broker's ACL alone keeps it to its coaches
+        token = new_token(
+            fleet_database, "operator"
+        )  # the broker's ACL alone keeps it to its coaches
         confirmations = Confirmations(gateway, ["126-A"])
         publisher = Publisher(gateway)
         publisher.telemetry("125-A", batch(token, [flat_row(at(1))]))  # another train's: denied
@@ -819,7 +842,10 @@ def test_the_acl_lets_a_gateway_use_only_its_own_coaches(db, tmp_path):
         publisher.close()
         confirmations.close()
         assert bridge.status.messages == 1  # the other never reached the service
-        assert telemetry_times(db, "126-A") == [at(1)] and telemetry_times(db, "125-A") == []
+        assert (
+            telemetry_times(fleet_database, "126-A") == [at(1)]
+            and telemetry_times(fleet_database, "125-A") == []
+        )
         rows = [
             {"coach_id": c, "tick": at(5), "t_ref_c": 22.0, "t_rule_c": 22.0}
             | {"source": "rule", "reason": "inactive"}

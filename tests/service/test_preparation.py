@@ -13,7 +13,7 @@ import threading
 import pytest
 from fastapi.testclient import TestClient
 
-from service_support import (
+from helpers.service import (
     API,
     at,
     post_rows,
@@ -32,10 +32,10 @@ from trainclimate.service.store.tokens import create_token
 
 
 @pytest.fixture
-def gate(monkeypatch, model_file):
+def gate(monkeypatch, small_predictor_file):
     """``go``: let the preparation finish; ``fail``: make it raise instead."""
     go, state = threading.Event(), {"fail": False}
-    predictor = load_predictor(model_file)
+    predictor = load_predictor(small_predictor_file)
 
     def startup_predictor(progress=None):
         progress("generate", 12, 48)

@@ -27,9 +27,9 @@ import pandas as pd
 import pytest
 from sqlalchemy import select
 
-from service_processes import CLI, free_port, token_cli
-from service_support import wait_for
-from support import RHO
+from helpers.processes import CLI, free_port, token_cli
+from helpers.service import wait_for
+from helpers.training import RHO
 from trainclimate.service.adapters import demo
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import Coach, FleetClock, Setpoint, Telemetry
@@ -295,7 +295,7 @@ def test_gateway_keeps_telemetry_while_the_server_is_down(db_url, servers, proc_
 
 
 # --- kill -9 the demo fleet mid-run -----------------------------------------------------------
-def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
+def test_demo_fleet_survives_kill_9(db_url, servers, small_predictor_file):
     """``serve --fleet demo --speedup 3000`` killed with SIGKILL twice and restarted on the same
     database each time, then stopped: per demo coach, the setpoint ticks run every 5 min without
     a gap from the first to the last (none lost) and none twice, the telemetry minutes are
@@ -411,9 +411,9 @@ def test_demo_fleet_survives_kill_9(db_url, servers, model_file):
         "serve-no-database",
     ],
 )
-def test_cli_refuses_bad_arguments(args, message, proc_env, tmp_path, model_file):
+def test_cli_refuses_bad_arguments(args, message, proc_env, tmp_path, small_predictor_file):
     if args[0] == "serve":
-        args = [*args, "--predictor", str(model_file), "--port", str(free_port())]
+        args = [*args, "--predictor", str(small_predictor_file), "--port", str(free_port())]
     if args[0] == "token":
         args = [*args, "--db", f"sqlite:///{tmp_path / 'never.db'}"]
     done = subprocess.run([*CLI, *args], env=proc_env, capture_output=True, text=True, timeout=60)

@@ -12,8 +12,8 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from sqlalchemy import func, select
 
-from service_processes import CLI, token_cli
-from service_support import wait_for
+from helpers.processes import CLI, token_cli
+from helpers.service import wait_for
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import Setpoint, Telemetry
 from trainclimate.sim import scenarios

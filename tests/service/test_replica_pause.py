@@ -22,8 +22,8 @@ import httpx
 import pytest
 from sqlalchemy import func, select, text
 
-from service_processes import CLI, token_cli
-from service_support import flat_row, to_wire, wait_for
+from helpers.processes import CLI, token_cli
+from helpers.service import flat_row, to_wire, wait_for
 from trainclimate.service.store import liveness
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import Setpoint, Telemetry

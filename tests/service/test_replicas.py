@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import create_engine
 
-from service_support import API, at, flat_rows, post_rows, register, wait_for
+from helpers.service import API, at, flat_rows, post_rows, register, wait_for
 from trainclimate.service.app import create_app
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.store.db import Database, downgrade, head_revision, migrate

@@ -28,8 +28,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service_processes import Server, free_port
-from service_support import wait_for
+from helpers.processes import Server, free_port
+from helpers.service import wait_for
 
 pytestmark = pytest.mark.package
 ROOT = Path(__file__).resolve().parents[2]
@@ -96,7 +96,7 @@ def fresh_venv(where: Path, wheel: Path) -> Path:
 
 
 def test_the_wheel_and_sdist_carry_the_files_and_the_wheel_serves_the_demo_elsewhere(
-    tmp_path, model_file
+    tmp_path, small_predictor_file
 ):
     dist = build(tmp_path / "dist")
     check_contents(dist)
@@ -116,7 +116,7 @@ def test_the_wheel_and_sdist_carry_the_files_and_the_wheel_serves_the_demo_elsew
     assert Path(where).is_relative_to(outside / "venv"), where
     port = free_port()
     args = [str(bin_dir / "trainclimate"), "serve", "--fleet", "demo", "--port", str(port)]
-    args += ["--predictor", str(model_file), "--speedup", "600", "--new-token", "viewer"]
+    args += ["--predictor", str(small_predictor_file), "--speedup", "600", "--new-token", "viewer"]
     server = Server(args, env, port, tmp_path / "server.log")
     server.env = env
     try:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_support import call
+from helpers.cli import call
 from trainclimate.sim import scenarios, thermal
 from trainclimate.sim.params import VARIED, CoachParams, ParamsError
 from trainclimate.sim.plausible import PLAUSIBLE

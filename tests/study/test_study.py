@@ -18,11 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from cli_support import call
-from service_processes import free_port
-from support import small_predictor
+from helpers.cli import call
+from helpers.processes import free_port
 from trainclimate.cli import main
-from trainclimate.predict.artifact import save_predictor
 from trainclimate.sim.params import CoachParams
 from trainclimate.study import runner
 from trainclimate.study.chunk import SITUATIONS, run_chunk
@@ -31,16 +29,6 @@ from trainclimate.study.runner import ChunkError, read_chunks, run_study
 from trainclimate.study.summary import summarise
 
 DASK = Path(sys.executable).with_name("dask")
-
-
-@pytest.fixture(scope="module")
-def predictor():
-    return small_predictor()
-
-
-@pytest.fixture(scope="module")
-def predictor_file(predictor, tmp_path_factory):
-    return save_predictor(predictor, tmp_path_factory.mktemp("model") / "transient.npz")
 
 
 def study_argv(predictor_file, out, *extra) -> list[str]:
@@ -58,12 +46,12 @@ def run_cli(capsys, argv) -> dict:
 
 
 @pytest.fixture(scope="module")
-def local(predictor_file, tmp_path_factory):
+def local(small_predictor_file, tmp_path_factory):
     """The study on the default LocalCluster (2 workers), with its HTML report."""
     out = tmp_path_factory.mktemp("local")
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        code = main(study_argv(predictor_file, out, "--workers", "2", "--html"))
+        code = main(study_argv(small_predictor_file, out, "--workers", "2", "--html"))
     assert code == 0
     return out, json.loads(buf.getvalue())
 
@@ -123,25 +111,25 @@ def test_one_coach_gives_no_interval_and_says_why(local):
     assert summarise(frame, spec)["savings_ci95_pct"] == d["savings_ci95_pct"]
 
 
-def test_the_text_gives_the_saving_with_its_interval(local, predictor_file, capsys):
+def test_the_text_gives_the_saving_with_its_interval(local, small_predictor_file, capsys):
     out, d = local
-    code, text, err = call(capsys, *study_argv(predictor_file, out)[:-1])
+    code, text, err = call(capsys, *study_argv(small_predictor_file, out)[:-1])
     assert code == 0, err
     low, high = d["savings_ci95_pct"]
     assert f"savings {d['savings_pct']:.1f} % (95 % CI {low:.1f} to {high:.1f})" in text
     assert "persistence forecast" in text
 
 
-def test_a_rerun_skips_every_chunk_with_the_same_totals(local, predictor_file, capsys):
+def test_a_rerun_skips_every_chunk_with_the_same_totals(local, small_predictor_file, capsys):
     out, first = local
-    again = run_cli(capsys, study_argv(predictor_file, out))
+    again = run_cli(capsys, study_argv(small_predictor_file, out))
     assert (again["chunks_skipped"], again["chunks_run"], again["workers"]) == (4, 0, 0)
     for key in ("coach_days", "energy_rule_kwh", "energy_ddpc_kwh", "savings_pct"):
         assert again[key] == first[key]
     assert again["savings_ci95_pct"] == first["savings_ci95_pct"]  # the bootstrap is seeded
 
 
-def test_a_lost_chunk_alone_is_recomputed(local, predictor_file, capsys, tmp_path):
+def test_a_lost_chunk_alone_is_recomputed(local, small_predictor_file, capsys, tmp_path):
     out, first = local
     copy = tmp_path / "study"
     copy.mkdir()
@@ -149,7 +137,7 @@ def test_a_lost_chunk_alone_is_recomputed(local, predictor_file, capsys, tmp_pat
     (copy / "chunks").mkdir()
     for p in sorted((out / "chunks").iterdir())[1:]:  # as if killed with one chunk in flight
         (copy / "chunks" / p.name).write_bytes(p.read_bytes())
-    again = run_cli(capsys, study_argv(predictor_file, copy, "--workers", "1"))
+    again = run_cli(capsys, study_argv(small_predictor_file, copy, "--workers", "1"))
     assert (again["chunks_skipped"], again["chunks_run"]) == (3, 1)
     assert again["energy_ddpc_kwh"] == first["energy_ddpc_kwh"]
 
@@ -193,24 +181,26 @@ def hand_started_cluster(tmp_path):
 
 
 def test_a_scheduler_with_two_workers_started_by_hand_gives_the_same_numbers(
-    local, predictor_file, hand_started_cluster, capsys, tmp_path
+    local, small_predictor_file, hand_started_cluster, capsys, tmp_path
 ):
     _, first = local
     remote = run_cli(
         capsys,
-        study_argv(predictor_file, tmp_path / "remote", "--scheduler", hand_started_cluster),
+        study_argv(small_predictor_file, tmp_path / "remote", "--scheduler", hand_started_cluster),
     )
     assert remote["workers"] == 2 and remote["chunks_run"] == 4
     for key in ("energy_rule_kwh", "energy_ddpc_kwh", "savings_pct", "avg_hourly_violation_k"):
         assert math.isclose(remote[key], first[key], rel_tol=1e-6), key
 
 
-def test_an_unreachable_scheduler_is_one_line_and_exit_2(predictor_file, capsys, monkeypatch,
+def test_an_unreachable_scheduler_is_one_line_and_exit_2(small_predictor_file, capsys, monkeypatch,
                                                          tmp_path):  # fmt: skip
     monkeypatch.setattr(runner, "CONNECT_TIMEOUT_S", 1.0)
     address = f"tcp://127.0.0.1:{free_port()}"
     t0 = time.monotonic()
-    code, out, err = call(capsys, *study_argv(predictor_file, tmp_path, "--scheduler", address))
+    code, out, err = call(
+        capsys, *study_argv(small_predictor_file, tmp_path, "--scheduler", address)
+    )
     assert code == 2 and out == ""
     assert err.splitlines() == [
         f"trainclimate: error: cannot reach the Dask scheduler at {address}: "
@@ -229,26 +219,30 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(predictor_file, capsys,
         (["--weather", "no-such.csv"], "weather"),
     ],
 )
-def test_bad_arguments_are_one_line_and_exit_2(extra, needle, predictor_file, capsys, tmp_path):
-    code, out, err = call(capsys, *study_argv(predictor_file, tmp_path, *extra))
+def test_bad_arguments_are_one_line_and_exit_2(
+    extra, needle, small_predictor_file, capsys, tmp_path
+):
+    code, out, err = call(capsys, *study_argv(small_predictor_file, tmp_path, *extra))
     assert code == 2 and out == ""
     assert len(err.splitlines()) == 1 and needle in err
 
 
-def test_another_study_on_the_same_out_is_refused(local, predictor_file, capsys):
+def test_another_study_on_the_same_out_is_refused(local, small_predictor_file, capsys):
     out, _ = local
-    code, _, err = call(capsys, *study_argv(predictor_file, out, "--seed", "7"))
+    code, _, err = call(capsys, *study_argv(small_predictor_file, out, "--seed", "7"))
     assert code == 2 and "holds a different study (seed: 2025 there, 7 here)" in err
 
 
-def test_another_forecast_on_the_same_out_is_refused(local, predictor_file, capsys):
+def test_another_forecast_on_the_same_out_is_refused(local, small_predictor_file, capsys):
     out, _ = local
-    code, _, err = call(capsys, *study_argv(predictor_file, out, "--forecast", "perfect"))
+    code, _, err = call(capsys, *study_argv(small_predictor_file, out, "--forecast", "perfect"))
     assert code == 2 and "(forecast: persistence there, perfect here)" in err
     assert len(list((out / "chunks").iterdir())) == 4  # its chunks untouched
 
 
-def test_a_fleet_file_gives_the_coaches_and_their_parameters(predictor_file, capsys, tmp_path):
+def test_a_fleet_file_gives_the_coaches_and_their_parameters(
+    small_predictor_file, capsys, tmp_path
+):
     from trainclimate.cli.study import fleet_from_file
 
     path = tmp_path / "fleet.json"
@@ -262,7 +256,7 @@ def test_a_fleet_file_gives_the_coaches_and_their_parameters(predictor_file, cap
     assert code == 2 and "coach 1" in err
 
 
-def test_a_failing_chunk_is_retried_then_named_and_the_others_kept(predictor, tmp_path):
+def test_a_failing_chunk_is_retried_then_named_and_the_others_kept(small_predictor, tmp_path):
     n = 2
     spec = StudySpec(
         coach_ids=("124A", "44A"),
@@ -273,7 +267,7 @@ def test_a_failing_chunk_is_retried_then_named_and_the_others_kept(predictor, tm
     )
     weather = study_weather(StudySpec(**{**spec.__dict__, "days": 1}))  # covers day 0 only
     with pytest.raises(ChunkError) as err:
-        run_study(spec, tmp_path, weather=weather, predictor=predictor, workers=1)
+        run_study(spec, tmp_path, weather=weather, predictor=small_predictor, workers=1)
     message = str(err.value)
     assert "1 chunk(s) failed after 2 retries" in message
     assert "coaches 124A…44A, days 2025-01-15…2025-01-15" in message
@@ -282,7 +276,7 @@ def test_a_failing_chunk_is_retried_then_named_and_the_others_kept(predictor, tm
     ]
 
 
-def test_a_parked_summer_day_counts_its_cooling_hours(predictor):
+def test_a_parked_summer_day_counts_its_cooling_hours(small_predictor):
     spec = StudySpec(
         coach_ids=("A", "B"),
         coach_params=(CoachParams().to_dict(),) * 2,
@@ -290,7 +284,7 @@ def test_a_parked_summer_day_counts_its_cooling_hours(predictor):
         days=1,
         parked_share=1.0,
     )
-    frame = run_chunk(spec, spec.chunks()[0], study_weather(spec), predictor)
+    frame = run_chunk(spec, spec.chunks()[0], study_weather(spec), small_predictor)
     hours = frame.groupby("situation")["hours"].sum()
     assert hours.sum() == pytest.approx(2 * 24.0)
     # a Zurich July day: the afternoon cools, the night (below T_ref − 8 K) heats
@@ -300,7 +294,9 @@ def test_a_parked_summer_day_counts_its_cooling_hours(predictor):
     assert (frame["regular_hours"] == frame["hours"]).all()
 
 
-def test_a_twin_validated_for_summer_warns_in_a_january_study(predictor_file, capsys, tmp_path):
+def test_a_twin_validated_for_summer_warns_in_a_january_study(
+    small_predictor_file, capsys, tmp_path
+):
     """A fleet file (calibrate --json) whose first coach's twin was validated at 15–32 °C only:
     the January weather leaves its range, the coach without a range gets no warning."""
     fleet = tmp_path / "fleet.json"
@@ -309,7 +305,7 @@ def test_a_twin_validated_for_summer_warns_in_a_january_study(predictor_file, ca
         {"coach": "44A", "params": {}},
     ]
     fleet.write_text(json.dumps({"coaches": coaches}))
-    argv = study_argv(predictor_file, tmp_path / "out", "--workers", "1")
+    argv = study_argv(small_predictor_file, tmp_path / "out", "--workers", "1")
     argv[argv.index("--coaches") : argv.index("--coaches") + 2] = ["--fleet", str(fleet)]
     argv[argv.index("--days") + 1] = "1"
     code, out, err = call(capsys, *argv)
@@ -327,7 +323,9 @@ def test_a_twin_validated_for_summer_warns_in_a_january_study(predictor_file, ca
     assert "--fleet: coach 124A: validated_t_amb_c must be [low, high]" in err
 
 
-def test_the_twin_at_its_intervals_ends_gives_the_savings_range(predictor_file, capsys, tmp_path):
+def test_the_twin_at_its_intervals_ends_gives_the_savings_range(
+    small_predictor_file, capsys, tmp_path
+):
     """A twin calibrated with the envelope 1.2 [1.1, 1.3] and the fans without an interval:
     ``--twin-ends`` runs the study again with the envelope at 1.1 and at 1.3 (the fans as
     calibrated), the same seed and weather; the range spans every run's saving, the twin's own
@@ -347,7 +345,7 @@ def test_the_twin_at_its_intervals_ends_gives_the_savings_range(predictor_file, 
     }
     file = tmp_path / "twin.json"
     file.write_text(json.dumps(twin))
-    argv = study_argv(predictor_file, tmp_path / "out", "--workers", "1", "--coach-params",
+    argv = study_argv(small_predictor_file, tmp_path / "out", "--workers", "1", "--coach-params",
                       str(file), "--twin-ends")  # fmt: skip
     argv[argv.index("--coaches") + 1] = "2"
     argv[argv.index("--days") + 1] = "1"
@@ -365,6 +363,6 @@ def test_the_twin_at_its_intervals_ends_gives_the_savings_range(predictor_file, 
         assert low[key] < d[key] < high[key], key
     assert all(Path(r["out"], "study.json").is_file() for r in ends["runs"])
     # without a twin's file: one line, exit 2
-    argv = study_argv(predictor_file, tmp_path / "none", "--twin-ends")
+    argv = study_argv(small_predictor_file, tmp_path / "none", "--twin-ends")
     code, out, err = call(capsys, *argv)
     assert code == 2 and out == "" and "--twin-ends needs --coach-params" in err

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from scipy.optimize import OptimizeResult
 
-from cli_support import call, call_json
+from helpers.cli import call, call_json
 from trainclimate.data import fleetlogs
 from trainclimate.data.dataset import build_dataset
 from trainclimate.data.trajectory import Trajectory, read_trajectories

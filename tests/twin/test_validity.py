@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from support import twin_file
+from helpers.twin import twin_file
 from trainclimate.sim.params import ParamsError, load_params
 from trainclimate.twin import validity
 

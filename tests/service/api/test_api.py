@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
 
-from service_support import (
+from helpers.service import (
     API,
     at,
     count,
@@ -364,8 +364,10 @@ PREFLIGHT = {
 
 
 @pytest.fixture
-def sqlite_settings(tmp_path, model_file):
-    return Settings(database_url=f"sqlite:///{tmp_path / 'cors.db'}", predictor_path=model_file)
+def sqlite_settings(tmp_path, small_predictor_file):
+    return Settings(
+        database_url=f"sqlite:///{tmp_path / 'cors.db'}", predictor_path=small_predictor_file
+    )
 
 
 def test_no_cors_by_default(sqlite_settings):

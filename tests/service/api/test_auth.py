@@ -13,7 +13,7 @@ import pytest
 from fastapi.routing import APIRoute, iter_route_contexts
 from sqlalchemy import inspect, select, text
 
-from service_support import (
+from helpers.service import (
     API,
     shared_coach_model,  # noqa: F401  (autouse)
 )

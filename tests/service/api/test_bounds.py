@@ -14,7 +14,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from service_support import API, at, count, flat_row, flat_rows, post_rows, register, to_wire
+from helpers.service import API, at, count, flat_row, flat_rows, post_rows, register, to_wire
 from trainclimate.service.api.schemas import TelemetryBatch
 from trainclimate.service.settings import MAX_BODY_BYTES
 from trainclimate.service.store.models import ApiToken, Override, Telemetry

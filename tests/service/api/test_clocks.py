@@ -12,7 +12,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from fastapi.testclient import TestClient
 
-from service_support import (
+from helpers.service import (
     API,
     at,
     flat_row,

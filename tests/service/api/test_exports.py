@@ -12,7 +12,7 @@ from datetime import datetime, timedelta
 
 import pytest
 
-from service_support import (
+from helpers.service import (
     API,
     at,
     decided,

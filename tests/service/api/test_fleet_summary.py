@@ -9,7 +9,7 @@ from datetime import timedelta
 
 import pytest
 
-from service_support import (
+from helpers.service import (
     API,
     T0,
     at,

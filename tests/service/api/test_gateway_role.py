@@ -12,7 +12,7 @@ import pytest
 from fastapi.routing import APIRoute, iter_route_contexts
 from sqlalchemy import inspect, select
 
-from service_support import (
+from helpers.service import (
     API,
     at,
     flat_row,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 from sqlalchemy import select
 
-from service_support import (
+from helpers.service import (
     API,
     DAY,
     at,

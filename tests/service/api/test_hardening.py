@@ -15,7 +15,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from service_support import API, count, flat_rows, post_rows, register, to_wire
+from helpers.service import API, count, flat_rows, post_rows, register, to_wire
 from trainclimate.service.api.hardening import (
     CONTENT_SECURITY_POLICY,
     BodySizeLimit,

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from sqlalchemy import select, update
 
-from service_support import (
+from helpers.service import (
     API,
     at,
     flat_row,
@@ -21,7 +21,6 @@ from service_support import (
 )
 from trainclimate.service.adapters import demo
 from trainclimate.service.scheduler import Scheduler
-from trainclimate.service.store.db import Database
 from trainclimate.service.store.model_health import BOUND_C
 from trainclimate.service.store.models import (
     Coach,
@@ -55,14 +54,6 @@ def trajectory(offset_per_step: float) -> dict:
 def row(minute: int, **values) -> dict:
     decks = dict(zip(("t_room_up_c", "t_room_mid_c", "t_room_low_c"), DECKS, strict=True))
     return flat_row(at(minute), **{**decks, **values})
-
-
-@pytest.fixture
-def db(client, settings):
-    """The app's database (model version 1 active, 5 min, T = 6), for writing the test's data."""
-    database = Database(settings.database_url)
-    yield database
-    database.dispose()
 
 
 def add_model(session, version: int) -> PredictorModel:
@@ -106,7 +97,7 @@ def store(session, coach_id: str, rows: list[dict], predictions: dict[int, dict]
 
 
 @pytest.fixture
-def fleet(db):
+def fleet(app_database):
     """Model version 1's predictions (Δ = 5 min, T = 6):
 
     - coach H-A at the ticks T0 + 60, 65, … 90 min, every deck off by 0.1 K per step; rows at
@@ -117,7 +108,7 @@ def fleet(db):
 
     Version 2 (inactive) predicted for H-B at the ticks 95 and 100, off by 0.3 K per step;
     version 3 never predicted."""
-    with db.transaction() as s:
+    with app_database.transaction() as s:
         v1 = s.scalar(select(PredictorModel).where(PredictorModel.version == 1))
         v2 = add_model(s, 2)
         add_model(s, 3)
@@ -222,7 +213,7 @@ def test_a_model_over_the_bound_and_one_without_predictions(client, tokens, flee
     }
 
 
-def test_refusals(client, tokens, settings, db):
+def test_refusals(client, tokens, settings, app_database):
     viewer = tokens["viewer"]
     missing = health(client, viewer, "99")
     assert missing.status_code == 404 and missing.json() == {"detail": "no model version 99"}
@@ -233,7 +224,7 @@ def test_refusals(client, tokens, settings, db):
         assert health(client, viewer, "active", hours=hours).status_code == 422, hours
     assert health(client, viewer, hours="744").status_code == 200
     # roles: no token 401, a gateway token 403 (it may only use the live feed)
-    with db.transaction() as s:
+    with app_database.transaction() as s:
         gateway, _ = create_token(s, "gateway", "gw-h", ["H-A"])
     for version in ("1", "active"):
         assert health(client, {}, version).status_code == 401
@@ -241,23 +232,23 @@ def test_refusals(client, tokens, settings, db):
         assert refused.status_code == 403
         assert refused.json() == {"detail": "this needs the viewer role; the token is gateway"}
     # no active model
-    with db.transaction() as s:
+    with app_database.transaction() as s:
         s.execute(update(PredictorModel).values(state="retired"))
     none = health(client, viewer, "active")
     assert none.status_code == 404 and none.json() == {"detail": "no active model"}
 
 
-def test_the_demo_fleets_predictions(client, tokens, db, settings):
+def test_the_demo_fleets_predictions(client, tokens, app_database, settings):
     """The demo fleet in closed loop for 2.5 simulated hours (30 periods): the scheduler's stored
     predictions, paired here independently by the rows' times, give the answer's MAE per step;
     the model tracks the simulated coaches well within the bound."""
-    with db.transaction() as s:
+    with app_database.transaction() as s:
         demo.register(s)
-    fleet = demo.DemoFleet(db, Scheduler(db, settings), speedup=1.0)
+    fleet = demo.DemoFleet(app_database, Scheduler(app_database, settings), speedup=1.0)
     for _ in range(30):
         fleet.advance()
     h = client.get(f"{API}/models/active/health", headers=tokens["viewer"]).json()
-    with db.transaction() as s:
+    with app_database.transaction() as s:
         model = s.scalar(select(PredictorModel).where(PredictorModel.state == "active"))
         predicted = [
             (sp.coach_id, sp.tick, sp.predicted["y_pred_c"])

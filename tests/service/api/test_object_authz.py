@@ -15,7 +15,7 @@ import pytest
 from fastapi.routing import APIRoute, iter_route_contexts
 from sqlalchemy import select
 
-from service_support import (
+from helpers.service import (
     API,
     at,
     flat_row,

@@ -16,7 +16,7 @@ from fastapi import Request
 from fastapi.testclient import TestClient
 from sqlalchemy.exc import OperationalError
 
-from service_support import API, wait_for
+from helpers.service import API, wait_for
 from trainclimate.service.api import deps
 from trainclimate.service.api.hardening import (
     DATABASE_RETRY_AFTER_S,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from service_support import (
+from helpers.service import (
     API,
     DAY,
     HOURS,

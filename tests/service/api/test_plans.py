@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import get_args
 
-from service_support import (
+from helpers.service import (
     API,
     at,
     flat_rows,

@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from service_support import API, count, flat_rows, post_rows, register, to_wire
+from helpers.service import API, count, flat_rows, post_rows, register, to_wire
 from trainclimate.service.store.models import AuditLog, Coach, Override, Telemetry
 
 

@@ -11,7 +11,7 @@ from datetime import datetime
 
 import pytest
 
-from service_support import API, T0, at, decided, flat_rows, post_rows, register
+from helpers.service import API, T0, at, decided, flat_rows, post_rows, register
 from trainclimate.service.settings import Settings
 from trainclimate.service.store import comparison as pair_comparison
 from trainclimate.service.store import queries
@@ -21,10 +21,12 @@ RANGE = {"start": T0.isoformat(), "end": at(120).isoformat()}
 
 
 @pytest.fixture
-def settings(db_url, model_file) -> Settings:
+def settings(db_url, small_predictor_file) -> Settings:
     """The app's live loop runs once at start and then sleeps: no setpoint is issued while a test
     counts what the cache computes."""
-    return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=3600)
+    return Settings(
+        database_url=db_url, predictor_path=small_predictor_file, scheduler_interval_s=3600
+    )
 
 
 @pytest.fixture

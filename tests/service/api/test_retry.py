@@ -8,7 +8,7 @@ import psycopg.errors
 from fastapi import Request
 from sqlalchemy.exc import OperationalError
 
-from service_support import API, count
+from helpers.service import API, count
 from trainclimate.service.api import deps
 from trainclimate.service.api.retry import ATTEMPTS, RETRY_HEADER
 from trainclimate.service.store.models import Coach

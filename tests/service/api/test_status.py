@@ -12,11 +12,10 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from service_support import API, at, flat_row, flat_rows, post_rows, register
+from helpers.service import API, at, flat_row, flat_rows, post_rows, register
 from trainclimate.service.settings import Settings
 from trainclimate.service.store import queries
 from trainclimate.service.store.comfort import comfort_now
-from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import Coach, FleetClock, Setpoint, Train
 from trainclimate.service.store.telemetry import insert_rows
 
@@ -24,17 +23,11 @@ DEMO = "demo"
 
 
 @pytest.fixture
-def settings(db_url, model_file) -> Settings:
+def settings(db_url, small_predictor_file) -> Settings:
     """The live loop runs once at start and then sleeps: the setpoints are the test's."""
-    return Settings(database_url=db_url, predictor_path=model_file, scheduler_interval_s=3600)
-
-
-@pytest.fixture
-def db(client, settings):
-    """The app's database (migrated by the app), for writing what the demo fleet would."""
-    database = Database(settings.database_url)
-    yield database
-    database.dispose()
+    return Settings(
+        database_url=db_url, predictor_path=small_predictor_file, scheduler_interval_s=3600
+    )
 
 
 def demo_coach(
@@ -89,9 +82,11 @@ def get(client, path: str, headers: dict, **params):
     return reply.json()
 
 
-def test_a_lost_link_is_disconnected_in_the_view_the_list_and_the_summary(client, tokens, db):
+def test_a_lost_link_is_disconnected_in_the_view_the_list_and_the_summary(
+    client, tokens, app_database
+):
     viewer = tokens["viewer"]
-    demo_fleet(db)
+    demo_fleet(app_database)
     view = get(client, "/coaches/D9-A", viewer)
     assert (view["status"], view["reason"]) == ("disconnected", "connection_lost")
     # the T_ref issued is not presented as applied: the HVAC holds T_rule
@@ -125,11 +120,11 @@ def test_a_lost_link_is_disconnected_in_the_view_the_list_and_the_summary(client
     )
 
 
-def test_the_newest_row_decides_and_the_cached_view_follows_it(client, tokens, db):
+def test_the_newest_row_decides_and_the_cached_view_follows_it(client, tokens, app_database):
     """Reconnected, the coach is ``ok`` again; an override in force does not hide a lost link;
     each change of the newest row is seen at once (the read cache keys on its time)."""
     op, viewer = tokens["operator"], tokens["viewer"]
-    demo_fleet(db)
+    demo_fleet(app_database)
     cache = client.app.state.read_cache
     assert get(client, "/coaches/D9-A", viewer)["status"] == "disconnected"
     assert get(client, "/coaches/D9-A", viewer)["status"] == "disconnected"
@@ -137,7 +132,7 @@ def test_the_newest_row_decides_and_the_cached_view_follows_it(client, tokens, d
 
     def newest(minute: int, connected: bool) -> None:
         """A new newest row of D9-A at T0 + ``minute``, the demo clock moved to it."""
-        with db.transaction() as s:
+        with app_database.transaction() as s:
             insert_rows(s, "D9-A", [flat_row(at(minute), connected=connected)])
             s.get(FleetClock, DEMO).time = at(minute)
 
@@ -164,7 +159,7 @@ def test_the_newest_row_decides_and_the_cached_view_follows_it(client, tokens, d
     assert ("D9-A", "override") not in {(a["coach_id"], a["kind"]) for a in attention}
 
     # rows behind the demo clock by more than two periods: stale beats the lost link
-    with db.transaction() as s:
+    with app_database.transaction() as s:
         s.get(FleetClock, DEMO).time = at(60)
     view = get(client, "/coaches/D9-A", viewer)
     assert (view["status"], view["t_ref_applied"], view["comfort"]) == ("stale", None, None)

@@ -11,7 +11,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from sqlalchemy import event, text
 
-from service_support import (
+from helpers.service import (
     API,
     flat_row,
     post_rows,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from datetime import UTC, datetime, timedelta, timezone
 
-from service_support import (
+from helpers.service import (
     API,
     T0,
     at,

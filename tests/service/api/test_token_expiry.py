@@ -10,7 +10,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from sqlalchemy import update
 
-from service_support import API
+from helpers.service import API
 from trainclimate import cli
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import ApiToken

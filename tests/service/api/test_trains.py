@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from service_support import (
+from helpers.service import (
     API,
     T0,
     at,

@@ -10,7 +10,7 @@ import json
 
 from sqlalchemy import select
 
-from service_support import (
+from helpers.service import (
     API,
     register,
     shared_coach_model,  # noqa: F401  (autouse)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from sqlalchemy import text
 
-from service_support import PG_SKIP, PG_URL, drop_pg_database, pg_database
+from helpers.service import PG_SKIP, PG_URL, drop_pg_database, pg_database
 from trainclimate.service.store.db import make_engine, probe_engine, session_options
 
 

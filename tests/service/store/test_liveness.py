@@ -58,7 +58,7 @@ def test_a_coach_is_stale_after_two_periods_at_the_pace():
 
 
 @pytest.fixture
-def db(db_url):
+def live_coaches_database(db_url):
     """A migrated database (SQLite, then PostgreSQL) with live coaches A and B."""
     migrate(db_url)
     database = Database(db_url)
@@ -77,35 +77,49 @@ def arrive(db: Database, coach_id: str, newest: datetime, now: datetime) -> Coac
         return liveness.clocks(s)[coach_id]
 
 
-def test_arrivals_keep_the_anchor_until_a_long_silence(db):
-    row = arrive(db, "A", SIM, WALL)
+def test_arrivals_keep_the_anchor_until_a_long_silence(live_coaches_database):
+    row = arrive(live_coaches_database, "A", SIM, WALL)
     assert (row.time, row.anchor_time, row.anchor_at, row.last_seen_at) == (SIM, SIM, WALL, WALL)
-    row = arrive(db, "A", SIM + timedelta(minutes=50), WALL + timedelta(seconds=25))
+    row = arrive(
+        live_coaches_database, "A", SIM + timedelta(minutes=50), WALL + timedelta(seconds=25)
+    )
     assert row.anchor_at == WALL and liveness.pace(row) == pytest.approx(120)
-    row = arrive(db, "A", SIM, WALL + timedelta(seconds=30))  # older rows: the clock stays
+    row = arrive(
+        live_coaches_database, "A", SIM, WALL + timedelta(seconds=30)
+    )  # older rows: the clock stays
     assert row.time == SIM + timedelta(minutes=50) and row.last_seen_at == WALL + timedelta(
         seconds=30
     )
     # the coach silent for longer than PACE_RESET_S: measured anew from the next arrival
     later = WALL + timedelta(seconds=30 + liveness.PACE_RESET_S + 1)
-    row = arrive(db, "A", SIM + timedelta(minutes=51), later)
+    row = arrive(live_coaches_database, "A", SIM + timedelta(minutes=51), later)
     assert (row.anchor_time, row.anchor_at) == (row.time, later)
     assert liveness.pace(row) == 1.0
 
 
-def test_a_backlog_then_live_rows_is_measured_at_the_live_pace(db):
+def test_a_backlog_then_live_rows_is_measured_at_the_live_pace(live_coaches_database):
     """A fresh coach sends its week-old rows, then reports live every second: the jump from
     the backlog to now is no pace, so its allowed silence stays that of real time (10 min),
     not under a second; the other coach's clock is untouched."""
     week_ago = WALL - timedelta(days=7)
-    arrive(db, "B", WALL, WALL)
+    arrive(live_coaches_database, "B", WALL, WALL)
     for i in range(10):  # the backlog, oldest first, a batch a second
-        arrive(db, "A", week_ago + timedelta(hours=12 * i), WALL + timedelta(seconds=i))
+        arrive(
+            live_coaches_database,
+            "A",
+            week_ago + timedelta(hours=12 * i),
+            WALL + timedelta(seconds=i),
+        )
     for s in range(60):  # then live, a row a minute… reported each second (real time: 1 s)
-        row = arrive(db, "A", WALL + timedelta(seconds=s), WALL + timedelta(seconds=10 + s))
+        row = arrive(
+            live_coaches_database,
+            "A",
+            WALL + timedelta(seconds=s),
+            WALL + timedelta(seconds=10 + s),
+        )
     assert liveness.pace(row) == pytest.approx(1.0)
     assert liveness.allowed_silence(row, PERIOD, 2) == timedelta(minutes=10)
-    with db.transaction() as s:
+    with live_coaches_database.transaction() as s:
         other = liveness.clocks(s)["B"]
     assert (other.time, other.anchor_time, other.last_seen_at) == (WALL, WALL, WALL)
     assert not liveness.silent(other.last_seen_at, other, WALL + timedelta(minutes=9), PERIOD, 2)

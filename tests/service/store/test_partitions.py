@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import inspect, select, text
 from sqlalchemy.exc import OperationalError
 
-from service_support import flat_row
+from helpers.service import flat_row
 from trainclimate.service.app import create_app
 from trainclimate.service.store import partitions
 from trainclimate.service.store.db import Database, downgrade, make_engine, migrate
@@ -52,7 +52,7 @@ def rollups(session) -> tuple[list, list]:
 
 
 @pytest.fixture
-def db(db_url):
+def one_coach_database(db_url):
     migrate(db_url)
     database = Database(db_url)
     with database.transaction() as s:
@@ -63,16 +63,16 @@ def db(db_url):
     database.dispose()
 
 
-def test_retention_drops_old_months_and_deletes_older_rows(db):
-    pg = db.engine.dialect.name == "postgresql"
-    with db.transaction() as s:
+def test_retention_drops_old_months_and_deletes_older_rows(one_coach_database):
+    pg = one_coach_database.engine.dialect.name == "postgresql"
+    with one_coach_database.transaction() as s:
         assert partitions.ensure_months(s, SEP, NOV) == (
             ["telemetry_y2024m09", "telemetry_y2024m10", "telemetry_y2024m11"] if pg else []
         )
         rows = [*hourly(SEP + timedelta(days=9), 48), *hourly(OCT + timedelta(days=9), 48)]
         rows += [*hourly(OCT + timedelta(days=24), 48), *hourly(NOV + timedelta(days=9), 48)]
         assert insert_rows(s, "T-A", rows) == 192
-    with db.transaction() as s:
+    with one_coach_database.transaction() as s:
         if pg:
             assert where(s) == {
                 "telemetry_y2024m09": 48,
@@ -82,7 +82,7 @@ def test_retention_drops_old_months_and_deletes_older_rows(db):
         kept = rollups(s)
         assert len(kept[0]) == 192  # an hour apart: a window each
     now = datetime(2024, 11, 19, 12, 0, tzinfo=UTC)
-    with db.transaction() as s:
+    with one_coach_database.transaction() as s:
         report = partitions.raw_retention(s, 30, now)
     cutoff = datetime(2024, 10, 20, 12, 0, tzinfo=UTC)
     assert report == {
@@ -92,7 +92,7 @@ def test_retention_drops_old_months_and_deletes_older_rows(db):
         "rows_deleted": 48 if pg else 96,  # the 10th and 11th of October (and September)
         "database": "postgresql" if pg else "sqlite",
     }
-    with db.transaction() as s:
+    with one_coach_database.transaction() as s:
         times = s.scalars(select(Telemetry.time).order_by(Telemetry.time)).all()
         assert len(times) == 96 and times[0] == OCT + timedelta(days=24)
         assert where(s) == (
@@ -112,30 +112,30 @@ def test_retention_drops_old_months_and_deletes_older_rows(db):
         )
 
 
-def test_a_row_outside_every_month_goes_to_the_default_partition(db):
-    pg = db.engine.dialect.name == "postgresql"
-    with db.transaction() as s:
+def test_a_row_outside_every_month_goes_to_the_default_partition(one_coach_database):
+    pg = one_coach_database.engine.dialect.name == "postgresql"
+    with one_coach_database.transaction() as s:
         assert insert_rows(s, "T-A", [flat_row(FAR)]) == 1
         assert insert_rows(s, "T-A", [flat_row(FAR)]) == 0  # ON CONFLICT (coach_id, time)
-    with db.transaction() as s:
+    with one_coach_database.transaction() as s:
         assert where(s) == ({"telemetry_default": 1} if pg else {"telemetry": 1})
         report = partitions.raw_retention(s, 1, datetime(2026, 11, 28, tzinfo=UTC))
         assert (report["rows_deleted"], report["rows_dropped"]) == (0, 0)
         assert s.scalars(select(Telemetry.time)).all() == [FAR]
 
 
-def test_a_new_month_takes_its_rows_out_of_the_default_partition(db):
-    pg = db.engine.dialect.name == "postgresql"
+def test_a_new_month_takes_its_rows_out_of_the_default_partition(one_coach_database):
+    pg = one_coach_database.engine.dialect.name == "postgresql"
     february = FAR + timedelta(days=31)
-    with db.transaction() as s:
+    with one_coach_database.transaction() as s:
         insert_rows(
             s, "T-A", [flat_row(FAR), flat_row(FAR + timedelta(days=1)), flat_row(february)]
         )
         assert where(s) == ({"telemetry_default": 3} if pg else {"telemetry": 3})
-    with db.transaction() as s:
+    with one_coach_database.transaction() as s:
         created = partitions.ensure_months(s, FAR, FAR)
         assert created == (["telemetry_y2099m01"] if pg else [])
-    with db.transaction() as s:
+    with one_coach_database.transaction() as s:
         assert partitions.ensure_months(s, FAR, FAR) == []  # there already
         assert insert_rows(s, "T-A", [flat_row(FAR), flat_row(FAR + timedelta(days=2))]) == 1
         assert where(s) == (

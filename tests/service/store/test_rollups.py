@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from sqlalchemy import select
 
-from service_support import T0, at, flat_row, registered, sim_rows
+from helpers.service import T0, at, flat_row, registered, sim_rows
 from trainclimate.service.store import fleet_summary, pair_windows, rollups
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import CoachFeed, Override, WindowRollup
@@ -30,7 +30,7 @@ def _rows(coach: int, first: int, last: int, changes: dict | None = None) -> lis
 
 
 @pytest.fixture
-def db(db_url):
+def two_pairs_database(db_url):
     database = registered(db_url, [("T-A", True), ("T-B", False), ("U-A", True), ("U-B", False)])
     yield database
     database.dispose()
@@ -88,9 +88,9 @@ def _both_ways(db: Database) -> tuple[dict, dict, dict, list]:
     return raw, kept, exact, dirty
 
 
-def test_the_rollups_give_the_raw_minutes_sums(db):
-    _fill(db)
-    raw, kept, exact, dirty = _both_ways(db)
+def test_the_rollups_give_the_raw_minutes_sums(two_pairs_database):
+    _fill(two_pairs_database)
+    raw, kept, exact, dirty = _both_ways(two_pairs_database)
     w0 = round(T0.timestamp()) // 1800
     assert set(raw) == set(kept) == {"T-A", "U-A"}
     for pair in raw:
@@ -126,11 +126,11 @@ def test_the_rollups_give_the_raw_minutes_sums(db):
     assert third["discomfort_0_up_kh"] > 0.05 and third["discomfort_1_up_kh"] < 0.01
 
 
-def test_the_rollups_kept_at_ingest_equal_a_rebuild_from_the_raw_minutes(db):
-    _fill(db)
+def test_the_rollups_kept_at_ingest_equal_a_rebuild_from_the_raw_minutes(two_pairs_database):
+    _fill(two_pairs_database)
 
     def read():
-        with db.transaction() as s:
+        with two_pairs_database.transaction() as s:
             windows = {
                 (r.coach_id, r.window): tuple(
                     getattr(r, c) for c in (*rollups.MASKS, *rollups.TOTALS)
@@ -141,7 +141,7 @@ def test_the_rollups_kept_at_ingest_equal_a_rebuild_from_the_raw_minutes(db):
         return windows, comfort
 
     kept_windows, kept_comfort = read()
-    with db.transaction() as s:
+    with two_pairs_database.transaction() as s:
         assert rollups.rebuild(s) == len(kept_windows) == 4 * 4
     rebuilt_windows, rebuilt_comfort = read()
     assert rebuilt_comfort == kept_comfort
@@ -154,25 +154,27 @@ def test_the_rollups_kept_at_ingest_equal_a_rebuild_from_the_raw_minutes(db):
     assert present == rollups.FULL & ~(0b111 << 4)
 
 
-def test_the_comfort_state_answers_the_attention_lookback(db):
+def test_the_comfort_state_answers_the_attention_lookback(two_pairs_database):
     """A coach's minutes outside comfort up to its newest row, from its comfort state, as the
     raw look-back over its last two hours counts them."""
     hot = {"t_room_up_c": 25.0}
-    _store(db, "T-A", [flat_row(at(m)) for m in range(1, 41)])
-    _store(db, "T-A", [flat_row(at(m), **hot) for m in range(41, 61)])
-    _store(db, "T-B", [flat_row(at(m), **hot) for m in range(1, 31)])
-    _store(db, "U-A", [flat_row(at(m), **hot, mode="slumber") for m in range(1, 31)])
-    with db.transaction() as s:
+    _store(two_pairs_database, "T-A", [flat_row(at(m)) for m in range(1, 41)])
+    _store(two_pairs_database, "T-A", [flat_row(at(m), **hot) for m in range(41, 61)])
+    _store(two_pairs_database, "T-B", [flat_row(at(m), **hot) for m in range(1, 31)])
+    _store(
+        two_pairs_database, "U-A", [flat_row(at(m), **hot, mode="slumber") for m in range(1, 31)]
+    )
+    with two_pairs_database.transaction() as s:
         ends = {"T-A": at(60), "T-B": at(200), "U-A": at(30), "U-B": at(30)}
         found = fleet_summary.comfort_violations(s, ends)
     # T-A: within comfort until 40, outside since: 20 min; T-B outside from its first row, its
     # look-back (2 h before 200 min) starting at 80 after its newest row: left out; U-A not in
     # regular mode: within comfort; U-B without rows: left out
     assert found == {"T-A": pytest.approx(20.0)}
-    with db.transaction() as s:
+    with two_pairs_database.transaction() as s:
         ends = {"T-B": at(60)}
         assert fleet_summary.comfort_violations(s, ends) == {"T-B": pytest.approx(90.0)}
     # a late row within comfort moves the last row within comfort forward
-    _store(db, "T-B", [flat_row(at(20) - timedelta(seconds=30))])
-    with db.transaction() as s:
+    _store(two_pairs_database, "T-B", [flat_row(at(20) - timedelta(seconds=30))])
+    with two_pairs_database.transaction() as s:
         assert fleet_summary.comfort_violations(s, {"T-B": at(60)}) == {"T-B": pytest.approx(10.5)}

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from sqlalchemy import delete, select
 
-from service_support import T0, at, registered
+from helpers.service import T0, at, registered
 from trainclimate.service.store import pair_trial, setpoint_rollups
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import Setpoint, SetpointRollup
@@ -37,7 +37,7 @@ W0 = round(T0.timestamp()) // 1800
 
 
 @pytest.fixture
-def db(db_url):
+def four_coaches_database(db_url):
     database = registered(db_url, [(c, False) for c in COACHES])
     yield database
     database.dispose()
@@ -99,9 +99,9 @@ def test_increments_count_each_source_and_reason_in_its_window():
     assert counts == [(7, 1, 3, 1, 0, 0, 1), (4, 0, 0, 0, 1, 3, 0), (1, 1, 0, 0, 0, 0, 0)]
 
 
-def test_the_rollups_count_as_the_group_by(db):
-    _fill(db)
-    with db.transaction() as s:
+def test_the_rollups_count_as_the_group_by(four_coaches_database):
+    _fill(four_coaches_database)
+    with four_coaches_database.transaction() as s:
         raw = pair_trial.setpoint_counts_raw(s, COACHES, T0, at(180), 30.0)
         kept = pair_trial.setpoint_counts(s, COACHES, T0, at(180), 30.0)
         inner = pair_trial.setpoint_counts(s, ["T-A", "U-B"], at(30), at(120), 30.0)
@@ -122,29 +122,29 @@ def test_the_rollups_count_as_the_group_by(db):
     assert kept["U-B"][W0].tolist() == [6, 1, 2, 0, 1, 1, 1]
     assert kept["T-B"][W0 + 1].tolist() == [7, 2, 2, 1, 0, 1, 1]
     # the 30-minute count reads the rollups: without them it has nothing, the raw count the same
-    with db.transaction() as s:
+    with four_coaches_database.transaction() as s:
         s.execute(delete(SetpointRollup))
-    with db.transaction() as s:
+    with four_coaches_database.transaction() as s:
         assert pair_trial.setpoint_counts(s, COACHES, T0, at(180), 30.0) == {}
         assert pair_trial.setpoint_counts_raw(s, COACHES, T0, at(180), 30.0).keys() == raw.keys()
 
 
-def test_the_rollups_kept_equal_a_rebuild(db):
-    _fill(db)
-    kept = _table(db)
-    with db.transaction() as s:
+def test_the_rollups_kept_equal_a_rebuild(four_coaches_database):
+    _fill(four_coaches_database)
+    kept = _table(four_coaches_database)
+    with four_coaches_database.transaction() as s:
         assert setpoint_rollups.rebuild(s) == len(kept) == len(COACHES) * 6
-    assert _table(db) == kept
+    assert _table(four_coaches_database) == kept
     assert sum(v[0] for v in kept.values()) == len(COACHES) * 36 + 2
 
 
-def test_read_gives_each_coachs_windows_in_order(db):
-    _fill(db)
-    with db.transaction() as s:
+def test_read_gives_each_coachs_windows_in_order(four_coaches_database):
+    _fill(four_coaches_database)
+    with four_coaches_database.transaction() as s:
         got = setpoint_rollups.read(s, ["U-A", "T-B", "nobody"], W0 + 2, W0 + 5)
         assert setpoint_rollups.read(s, [], W0, W0 + 6) == {}
         assert setpoint_rollups.read(s, COACHES, W0 + 6, W0 + 8) == {}
-    kept = _table(db)
+    kept = _table(four_coaches_database)
     assert sorted(got) == ["T-B", "U-A"]
     for c, (index, counts) in got.items():
         assert index.dtype == np.int64 and counts.dtype == float

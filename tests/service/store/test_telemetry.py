@@ -149,7 +149,7 @@ def test_load_rows_reads_arrays_from_either_database(db_url):
     """``load_rows``: each coach's rows in the range as arrays — exact times (also off the
     minute grid), NaN for a value not reported, regular mode — and empty arrays for a coach
     without rows."""
-    from service_support import at, flat_row
+    from helpers.service import at, flat_row
     from trainclimate.service.store.db import Database, migrate
     from trainclimate.service.store.models import Coach, Train
     from trainclimate.service.store.telemetry import insert_rows, load_rows

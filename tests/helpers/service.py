@@ -1,5 +1,4 @@
-"""Helpers of the service tests (importable as ``service_support``: pytest's ``pythonpath``
-includes ``tests``).
+"""Helpers of the service tests.
 
 Telemetry rows in the store's format (:data:`trainclimate.service.store.telemetry.FRAME_COLS`,
 one per coach and minute, stamped at the minute's end): realistic ones from a short simulation of

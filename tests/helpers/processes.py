@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service_support import wait_for
+from helpers.service import wait_for
 
 #: ``python -m trainclimate.cli`` (cli.py has the ``__main__`` guard) and the console script.
 CLI = [sys.executable, "-m", "trainclimate.cli"]
@@ -128,7 +128,7 @@ def token_cli(db_url: str, role: str, env: dict[str, str], *options: str) -> str
 
 
 #: The compose demo's broker configuration (Mosquitto's config and ACL).
-MOSQUITTO_DEPLOY = Path(__file__).resolve().parents[1] / "deploy" / "mosquitto"
+MOSQUITTO_DEPLOY = Path(__file__).resolve().parents[2] / "deploy" / "mosquitto"
 #: Where Debian installs Mosquitto's dynamic security plugin.
 DYNSEC_PLUGIN = Path("/usr/lib/x86_64-linux-gnu/mosquitto_dynamic_security.so")
 

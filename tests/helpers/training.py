@@ -1,8 +1,8 @@
-"""Test support shared by several test directories (importable as ``support``: pytest's
-``pythonpath`` includes ``tests``).
+"""The training data of the tests' small Transient Predictor (the session fixture
+``small_predictor`` of tests/conftest.py) and the controller's 5-min sampling of a simulation.
 
-:func:`training_trajectories` simulates coaches for a small Transient Predictor at the
-controller's setting (5 min, ρ = 12, T = 6), fitted in ≈ 1.5–3 s: two in-service coaches of
+:func:`trajectories` simulates coaches for a small Transient Predictor at the controller's setting
+(5 min, ρ = 12, T = 6), fitted in ≈ 1.5–3 s: two in-service coaches of
 ``winter-day`` and the four parked scenarios, each on a re-seeded day (other weather than the
 scenarios the closed-loop tests run), 12 h each, T_ref = T_rule plus a driver's random offset
 (piecewise constant in ±2 K for 15–75 min) for excitation. The measured disturbances get a
@@ -16,18 +16,14 @@ step (mostly the sensors' noise).
 from __future__ import annotations
 
 import dataclasses
-import json
 from types import SimpleNamespace
 
 import numpy as np
 
 from trainclimate.coach.rule import MODE_REGULAR
-from trainclimate.predict import TransientPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
-from trainclimate.sim.params import CoachParams
 from trainclimate.sim.simulator import FleetSimulator
-from trainclimate.twin.validity import params_file
 
 RHO, HORIZON, SAMPLING_MIN = 12, 6, 5
 TICK_S = 300.0
@@ -82,7 +78,7 @@ def tick_samples(result, tick_s: float = TICK_S) -> SimpleNamespace:
     )
 
 
-def training_trajectories(seed: int = 1) -> list[SimpleNamespace]:
+def trajectories(seed: int = 1) -> list[SimpleNamespace]:
     """5-min trajectories (regular-mode runs of ≥ ρ + T samples) of the training simulation."""
     envs, params = [], []
     for i, name in enumerate(TRAINING_SCENARIOS):
@@ -130,22 +126,3 @@ def training_trajectories(seed: int = 1) -> list[SimpleNamespace]:
                 )
             k = j
     return out
-
-
-def small_predictor() -> TransientPredictor:
-    """The Transient Predictor at 5 min, ρ = 12, T = 6, fitted on :func:`training_trajectories`."""
-    return TransientPredictor(RHO, HORIZON).fit(training_trajectories())
-
-
-def twin_file(path, validated):
-    """A calibrated twin's coach-params file at ``path`` validated for ``validated`` (°C)."""
-    coach = {
-        "coach": "124A",
-        "params": CoachParams(fan_supply_w=1300.0).to_dict(),
-        "validated_t_amb_c": validated,
-        "fitted": {"fan_supply_w": {"value": 1300.0, "std": 20.0, "ci95": [1250.0, 1360.0]}},
-        "not_identified": [{"param": "cop_level", "reason": "nothing depends on it"}],
-        "warnings": [],
-    }
-    path.write_text(json.dumps(params_file(coach)))
-    return path
