@@ -480,8 +480,9 @@ def test_a_service_preparing_its_model_says_so_and_runs_the_coaches_under_t_rule
         notice.wait_for(state="visible", timeout=10_000)
         assert re.match(r"Preparing the predictor model: .+, \d+ %\.", notice.inner_text())
         assert "coaches follow the rule-based setpoint T_rule" in notice.inner_text()
-        w.page.wait_for_selector("tr[data-coach='D1-A'] .badge.preparing", timeout=20_000)
-        assert w.page.locator("tr[data-coach='D1-B'] .badge").inner_text() == "inactive"
+        status = "tr[data-coach='{}'] td[data-label='Status'] .badge"  # the comfort cell has one too
+        w.page.wait_for_selector(status.format("D1-A") + ".preparing", timeout=20_000)
+        assert w.page.locator(status.format("D1-B")).inner_text() == "inactive"
         w.shot("dashboard-preparing")
         assert w.errors == []
         w.close()
