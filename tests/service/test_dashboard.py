@@ -480,7 +480,8 @@ def test_a_service_preparing_its_model_says_so_and_runs_the_coaches_under_t_rule
         notice.wait_for(state="visible", timeout=10_000)
         assert re.match(r"Preparing the predictor model: .+, \d+ %\.", notice.inner_text())
         assert "coaches follow the rule-based setpoint T_rule" in notice.inner_text()
-        status = "tr[data-coach='{}'] td[data-label='Status'] .badge"  # the comfort cell has one too
+        # the status cell's badge (a coach outside the comfort band has one in its comfort cell)
+        status = "tr[data-coach='{}'] td[data-label='Status'] .badge"
         w.page.wait_for_selector(status.format("D1-A") + ".preparing", timeout=20_000)
         assert w.page.locator(status.format("D1-B")).inner_text() == "inactive"
         w.shot("dashboard-preparing")
