@@ -91,12 +91,23 @@ def test_the_replay_reproduces_the_logged_disturbances():
     assert rep.scored[: replay.WARMUP_MIN].sum() == 0 and rep.scored[replay.WARMUP_MIN :].all()
 
 
-@pytest.mark.slow  # 12 simulated coach-days, then a fit
-def test_a_known_envelope_is_recovered_from_generated_logs(winter):
-    """The envelope 20 % above the default, the fans' power known (from the nameplate)."""
+@pytest.fixture(scope="module")
+def envelope_fit(winter):
+    """44A calibrated by default among the envelope and the COP, the fans' power known (from
+    the nameplate): winter days identify the envelope only, so this is the envelope's fit, one
+    for the two tests below (≈ 2 min)."""
     mine = [t for t in winter if t.coach == "44A"]
     known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
-    fit = calibrate("44A", mine, ("envelope_scale",), base=known, starts=1, bootstrap=0)
+    return calibrate(
+        "44A", mine, base=known, starts=1, bootstrap=3, among=("envelope_scale", "cop_level")
+    )
+
+
+@pytest.mark.slow  # 12 simulated coach-days, then a fit
+def test_a_known_envelope_is_recovered_from_generated_logs(envelope_fit):
+    """The envelope 20 % above the default, the fans' power known (from the nameplate)."""
+    fit = envelope_fit
+    known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
     envelope = fit.fitted["envelope_scale"]
     assert envelope["value"] == pytest.approx(TRUTH["envelope_scale"], rel=0.05)
     assert 0 < envelope["std"] < 0.05
@@ -184,17 +195,14 @@ def test_the_predicted_fall_of_a_linear_problem():
     assert fit_module.predicted_fall(np.zeros(3), a, best, lo, hi) == 0.0
 
 
-@pytest.mark.slow  # a fit of one parameter
-def test_by_default_what_winter_days_do_not_identify_is_held_at_its_base(winter):
+@pytest.mark.slow  # the envelope's fit
+def test_by_default_what_winter_days_do_not_identify_is_held_at_its_base(envelope_fit):
     """Among the envelope and the COP, winter days identify the envelope only: the COP is kept
     at its base value and reported, not refused. 44A's coldest and warmest of its 3 days are
     held out: one training day, which a bootstrap over days cannot resample (a warning); the
     held-out days get their errors per ambient band."""
-    mine = [t for t in winter if t.coach == "44A"]
+    fit = envelope_fit
     known = CoachParams(fan_supply_w=TRUTH["fan_supply_w"])
-    fit = calibrate(
-        "44A", mine, base=known, starts=1, bootstrap=3, among=("envelope_scale", "cop_level")
-    )
     assert fit.not_identified == [
         {"param": "cop_level", "reason": "nothing logged on the training days depends on it"}
     ]
