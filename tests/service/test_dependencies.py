@@ -39,7 +39,8 @@ def reaching(modules: set[str], *parts: str) -> set[str]:
 
 
 def package(name: str) -> list[Path]:
-    return sorted((SERVICE / name).glob("*.py"))
+    """The modules of ``trainclimate.service.<name>``, its subpackages' included."""
+    return sorted((SERVICE / name).rglob("*.py"))
 
 
 def test_the_store_imports_nothing_that_builds_on_it():

@@ -260,7 +260,7 @@ def _create_token(
 def cmd_token_create(args: argparse.Namespace) -> None:
     """``token create``: a new token for a new user or an existing one of the same role, shown
     once (or written to ``--out``); a gateway's is scoped to ``--coaches``."""
-    from trainclimate.service.api.schemas import MIN_EXPIRES_DAYS
+    from trainclimate.service.api.schemas.users import MIN_EXPIRES_DAYS
     from trainclimate.service.store.tokens import USER_NAME_MAX, check_scope
 
     coaches = None

@@ -15,7 +15,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 
 from helpers.service import API, at, count, flat_row, flat_rows, post_rows, register, to_wire
-from trainclimate.service.api.schemas import TelemetryBatch
+from trainclimate.service.api.schemas.telemetry import TelemetryBatch
 from trainclimate.service.settings import MAX_BODY_BYTES
 from trainclimate.service.store.models import ApiToken, Override, Telemetry
 

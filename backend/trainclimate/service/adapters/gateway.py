@@ -45,7 +45,7 @@ import pandas as pd
 from trainclimate.coach.rule import MODE_REGULAR
 from trainclimate.coach.setpoint import apply_setpoint
 from trainclimate.service.adapters.mqtt import Broker
-from trainclimate.service.api.schemas import MAX_BATCH_ROWS
+from trainclimate.service.api.schemas.telemetry import MAX_BATCH_ROWS
 from trainclimate.service.store.records import TelemetryRecord
 from trainclimate.service.store.telemetry import rows_from_simulation, to_wire
 from trainclimate.sim import scenarios

@@ -67,7 +67,7 @@ from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session
 
 from trainclimate.service.adapters import MQTT_PREFIX
-from trainclimate.service.api.schemas import MAX_BATCH_ROWS, TelemetryRow
+from trainclimate.service.api.schemas.telemetry import MAX_BATCH_ROWS, TelemetryRow
 from trainclimate.service.store import commands, liveness
 from trainclimate.service.store.commands import (
     AheadOfClockError,

@@ -8,19 +8,20 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 from sqlalchemy import select
 
-from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import AUTH, DB, INT32_MAX, Viewer
+from trainclimate.service.api.schemas.base import DIGITS_ONLY
+from trainclimate.service.api.schemas.users import AuditOut
 from trainclimate.service.store.models import AuditLog
 
 router = APIRouter()
 
 
-@router.get("/audit", response_model=list[schemas.AuditOut], tags=["audit"], responses=AUTH)
+@router.get("/audit", response_model=list[AuditOut], tags=["audit"], responses=AUTH)
 def audit_log(
     s: DB,
     _: Viewer,
-    limit: Annotated[int, Query(ge=1, le=1000), schemas.DIGITS_ONLY] = 100,
-    offset: Annotated[int, Query(ge=0, le=INT32_MAX), schemas.DIGITS_ONLY] = 0,
+    limit: Annotated[int, Query(ge=1, le=1000), DIGITS_ONLY] = 100,
+    offset: Annotated[int, Query(ge=0, le=INT32_MAX), DIGITS_ONLY] = 0,
     target: Annotated[str | None, Query(max_length=64)] = None,
 ) -> list:
     """The audit log, newest first."""

@@ -11,7 +11,6 @@ from pydantic import AwareDatetime
 from sqlalchemy.orm import Session
 
 from trainclimate.service import exports
-from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
     AUTH,
     DB,
@@ -23,13 +22,22 @@ from trainclimate.service.api.deps import (
     period,
     settings,
 )
+from trainclimate.service.api.schemas.base import Message
+from trainclimate.service.api.schemas.coaches import (
+    CoachCreate,
+    CoachOut,
+    ControllerChange,
+    SetpointHistory,
+    TimeSeries,
+)
+from trainclimate.service.api.schemas.telemetry import SetpointOut
 from trainclimate.service.store import commands, liveness, queries, records
 from trainclimate.service.store.models import Coach, utcnow
 
 router = APIRouter()
 
 
-@router.get("/coaches", response_model=list[schemas.CoachOut], tags=["coaches"], responses=AUTH)
+@router.get("/coaches", response_model=list[CoachOut], tags=["coaches"], responses=AUTH)
 def list_coaches(request: Request, s: DB, _: Viewer) -> list[records.CoachView]:
     """Every coach with its train, layer, status (ok, warm-up, stale, disconnected, fallback,
     override, inactive, not-regular, preparing, no-data), latest readings, whether its decks are
@@ -40,13 +48,13 @@ def list_coaches(request: Request, s: DB, _: Viewer) -> list[records.CoachView]:
 
 @router.post(
     "/coaches",
-    response_model=schemas.CoachOut,
+    response_model=CoachOut,
     tags=["coaches"],
     status_code=201,
-    responses={**AUTH, 200: {"model": schemas.CoachOut}, 409: {"model": schemas.Message}},
+    responses={**AUTH, 200: {"model": CoachOut}, 409: {"model": Message}},
 )
 def register_coach(
-    body: schemas.CoachCreate,
+    body: CoachCreate,
     request: Request,
     response: Response,
     s: DB,
@@ -65,7 +73,7 @@ def register_coach(
 
 @router.get(
     "/coaches/{coach_id}",
-    response_model=schemas.CoachOut,
+    response_model=CoachOut,
     tags=["coaches"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -93,7 +101,7 @@ def current_view(
 
 @router.get(
     "/coaches/{coach_id}/timeseries",
-    response_model=schemas.TimeSeries,
+    response_model=TimeSeries,
     tags=["coaches"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -132,7 +140,7 @@ def coach_timeseries_csv(
 
 @router.get(
     "/coaches/{coach_id}/setpoint",
-    response_model=schemas.SetpointOut,
+    response_model=SetpointOut,
     tags=["live feed"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -147,7 +155,7 @@ def coach_setpoint(
 
 @router.get(
     "/coaches/{coach_id}/setpoints",
-    response_model=schemas.SetpointHistory,
+    response_model=SetpointHistory,
     tags=["coaches"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -166,13 +174,13 @@ def coach_setpoints(
 
 @router.put(
     "/coaches/{coach_id}/controller",
-    response_model=schemas.CoachOut,
+    response_model=CoachOut,
     tags=["coaches"],
     responses={**AUTH, **NOT_FOUND},
 )
 def set_controller(
     coach_id: str,
-    body: schemas.ControllerChange,
+    body: ControllerChange,
     request: Request,
     s: DB,
     who: Operator,

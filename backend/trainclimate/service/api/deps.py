@@ -12,7 +12,9 @@ from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 from sqlalchemy.orm import Session
 
-from trainclimate.service.api import schemas
+from trainclimate.service.api.schemas.base import Message
+from trainclimate.service.api.schemas.coaches import CoachCreate
+from trainclimate.service.api.schemas.telemetry import TelemetryBatch
 from trainclimate.service.api.security import require, require_coach
 from trainclimate.service.settings import Settings
 from trainclimate.service.store.queries import RequestError
@@ -21,19 +23,17 @@ from trainclimate.service.store.tokens import Principal
 #: A route's documented answers besides its success, as FastAPI's ``responses=`` takes them.
 Responses = dict[int | str, dict[str, Any]]
 
-UNAUTHORIZED: Responses = {401: {"model": schemas.Message, "description": "no valid token"}}
+UNAUTHORIZED: Responses = {401: {"model": Message, "description": "no valid token"}}
 FORBIDDEN: Responses = {
     403: {
-        "model": schemas.Message,
+        "model": Message,
         "description": "the token's role is too low, or a gateway token is not for the coach "
         "or its train",
     }
 }
-NOT_FOUND: Responses = {404: {"model": schemas.Message, "description": "no such coach or train"}}
+NOT_FOUND: Responses = {404: {"model": Message, "description": "no such coach or train"}}
 AUTH: Responses = {**UNAUTHORIZED, **FORBIDDEN}
-CONFLICT: Responses = {
-    409: {"model": schemas.Message, "description": "a conflict with the stored state"}
-}
+CONFLICT: Responses = {409: {"model": Message, "description": "a conflict with the stored state"}}
 #: The largest id, version or offset taken: the columns are 32-bit integers (a larger value
 #: cannot exist, and PostgreSQL refuses to compare with it).
 INT32_MAX = 2**31 - 1
@@ -54,11 +54,9 @@ Admin = Annotated[Principal, Depends(require("admin"))]
 #: The live feed's routes, which a gateway token scoped to the coach may call too (and only these):
 #: registering a coach (the body's ``id``), pushing its telemetry (the body's ``coach_id``) and
 #: pulling its setpoint (the path's ``coach_id``).
-GatewayOrOperatorCoach = Annotated[
-    Principal, Depends(require_coach("operator", schemas.CoachCreate, "id"))
-]
+GatewayOrOperatorCoach = Annotated[Principal, Depends(require_coach("operator", CoachCreate, "id"))]
 GatewayOrOperatorTelemetry = Annotated[
-    Principal, Depends(require_coach("operator", schemas.TelemetryBatch, "coach_id"))
+    Principal, Depends(require_coach("operator", TelemetryBatch, "coach_id"))
 ]
 GatewayOrViewer = Annotated[Principal, Depends(require_coach("viewer"))]
 

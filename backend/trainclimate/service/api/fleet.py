@@ -10,20 +10,21 @@ from fastapi import APIRouter, Query, Request, Response
 from pydantic import AwareDatetime
 
 from trainclimate.service import exports
-from trainclimate.service.api import schemas
 from trainclimate.service.api.coaches import current_view
 from trainclimate.service.api.deps import AUTH, DB, Viewer
+from trainclimate.service.api.schemas.base import DIGITS_ONLY
+from trainclimate.service.api.schemas.savings import FleetSummary
 from trainclimate.service.store import fleet_summary, queries
 
 router = APIRouter()
 #: The summary's window up to its end, whole hours 1 … 744 (31 days): its windows are 30
 #: minutes, and a float let 5e-324 hours through.
 Hours = Annotated[
-    int, Query(ge=1, le=744, description="the window, whole hours (1 … 744)"), schemas.DIGITS_ONLY
+    int, Query(ge=1, le=744, description="the window, whole hours (1 … 744)"), DIGITS_ONLY
 ]
 
 
-@router.get("/fleet/summary", response_model=schemas.FleetSummary, tags=["fleet"], responses=AUTH)
+@router.get("/fleet/summary", response_model=FleetSummary, tags=["fleet"], responses=AUTH)
 def get_fleet_summary(
     request: Request,
     s: DB,

@@ -11,8 +11,8 @@ from fastapi.responses import JSONResponse
 
 from trainclimate import __version__
 from trainclimate.service import readiness
-from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import DB, Viewer
+from trainclimate.service.api.schemas.health import Health, NotReady, Ready, ReplicaOut
 from trainclimate.service.store import queries
 
 #: ``GET /replicas`` lists the replicas that decided a setpoint this long ago or since.
@@ -21,7 +21,7 @@ REPLICAS_SEEN = timedelta(hours=1)
 router = APIRouter()
 
 
-@router.get("/health", response_model=schemas.Health, tags=["health"])
+@router.get("/health", response_model=Health, tags=["health"])
 async def health(request: Request) -> dict:
     """Liveness, without authentication, and what the service is still preparing (e.g. the
     predictor model, with how far it is), the telemetry rows refused since start, the MQTT
@@ -45,9 +45,9 @@ async def health(request: Request) -> dict:
 
 @router.get(
     "/ready",
-    response_model=schemas.Ready,
+    response_model=Ready,
     tags=["health"],
-    responses={503: {"model": schemas.NotReady}},
+    responses={503: {"model": NotReady}},
 )
 async def ready(request: Request):
     """Readiness of this replica: the database answers (within ``ready_timeout_s``, 3 s by
@@ -72,7 +72,7 @@ async def ready(request: Request):
     return {"status": "ready", **dataclasses.asdict(found)}
 
 
-@router.get("/replicas", response_model=list[schemas.ReplicaOut], tags=["health"])
+@router.get("/replicas", response_model=list[ReplicaOut], tags=["health"])
 def replicas(request: Request, s: DB, _: Viewer) -> list[dict]:
     """The service replicas that decided setpoints in the last hour, with the coaches and the
     number of ticks each took (replicas sharing one PostgreSQL database split the coaches)."""

@@ -8,7 +8,6 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Query, Request
 from sqlalchemy import select
 
-from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
     AUTH,
     CONFLICT,
@@ -19,6 +18,8 @@ from trainclimate.service.api.deps import (
     Viewer,
     settings,
 )
+from trainclimate.service.api.schemas.base import DIGITS_ONLY
+from trainclimate.service.api.schemas.models import ModelHealth, ModelOut, RetrainIn, RetrainStatus
 from trainclimate.service.store import commands, model_health
 from trainclimate.service.store.commands import ConflictError
 from trainclimate.service.store.models import PredictorModel
@@ -29,7 +30,7 @@ router = APIRouter()
 Hours = Annotated[float, Query(gt=0, le=744, description="the window, h")]
 
 
-@router.get("/models", response_model=list[schemas.ModelOut], tags=["models"], responses=AUTH)
+@router.get("/models", response_model=list[ModelOut], tags=["models"], responses=AUTH)
 def list_models(request: Request, s: DB, _: Viewer) -> list:
     """The predictor model versions: state, validation MAE and, for the active model and the
     candidates, the online MAE (last 24 h)."""
@@ -47,12 +48,12 @@ def list_models(request: Request, s: DB, _: Viewer) -> list:
 
 @router.post(
     "/models/retrain",
-    response_model=schemas.RetrainStatus,
+    response_model=RetrainStatus,
     status_code=202,
     tags=["models"],
     responses={**AUTH, **CONFLICT},
 )
-def start_retrain(body: schemas.RetrainIn, request: Request, s: DB, who: Admin) -> dict:
+def start_retrain(body: RetrainIn, request: Request, s: DB, who: Admin) -> dict:
     """Retrain the model on the stored telemetry in the background (admin only; audited): a new
     version in state ``candidate`` when it is at least as good as the active one on the same
     validation coaches (``force``: anyway). Its progress: ``GET /models/retrain``."""
@@ -73,9 +74,7 @@ def start_retrain(body: schemas.RetrainIn, request: Request, s: DB, who: Admin) 
     return job.status
 
 
-@router.get(
-    "/models/retrain", response_model=schemas.RetrainStatus, tags=["models"], responses=AUTH
-)
+@router.get("/models/retrain", response_model=RetrainStatus, tags=["models"], responses=AUTH)
 def retrain_status(request: Request, _: Viewer) -> dict:
     """The last retraining's progress and outcome."""
     return request.app.state.retrain.status
@@ -83,12 +82,12 @@ def retrain_status(request: Request, _: Viewer) -> dict:
 
 @router.post(
     "/models/{version}/activate",
-    response_model=schemas.ModelOut,
+    response_model=ModelOut,
     tags=["models"],
     responses={**AUTH, **NOT_FOUND},
 )
 def activate_model(
-    version: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY],
+    version: Annotated[int, Path(ge=1, le=INT32_MAX), DIGITS_ONLY],
     reason: Annotated[str, Query(min_length=1, max_length=500)],
     s: DB,
     who: Admin,
@@ -102,7 +101,7 @@ def activate_model(
 
 @router.get(
     "/models/active/health",
-    response_model=schemas.ModelHealth,
+    response_model=ModelHealth,
     tags=["models"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -116,12 +115,12 @@ def active_model_health(request: Request, s: DB, _: Viewer, hours: Hours = 24.0)
 
 @router.get(
     "/models/{version}/health",
-    response_model=schemas.ModelHealth,
+    response_model=ModelHealth,
     tags=["models"],
     responses={**AUTH, **NOT_FOUND},
 )
 def get_model_health(
-    version: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY],
+    version: Annotated[int, Path(ge=1, le=INT32_MAX), DIGITS_ONLY],
     request: Request,
     s: DB,
     _: Viewer,

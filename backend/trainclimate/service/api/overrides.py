@@ -7,8 +7,9 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 from sqlalchemy import select
 
-from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import AUTH, DB, NOT_FOUND, Operator, Viewer
+from trainclimate.service.api.schemas.base import Message
+from trainclimate.service.api.schemas.coaches import OverrideIn, OverrideOut
 from trainclimate.service.store import commands, queries
 from trainclimate.service.store.models import Override
 
@@ -17,14 +18,14 @@ router = APIRouter()
 
 @router.post(
     "/coaches/{coach_id}/override",
-    response_model=schemas.OverrideOut,
+    response_model=OverrideOut,
     status_code=201,
     tags=["overrides"],
-    responses={**AUTH, **NOT_FOUND, 409: {"model": schemas.Message}},
+    responses={**AUTH, **NOT_FOUND, 409: {"model": Message}},
 )
 def create_override(
     coach_id: str,
-    body: schemas.OverrideIn,
+    body: OverrideIn,
     s: DB,
     who: Operator,
 ) -> dict:
@@ -35,7 +36,7 @@ def create_override(
 
 @router.delete(
     "/coaches/{coach_id}/override",
-    response_model=schemas.OverrideOut,
+    response_model=OverrideOut,
     tags=["overrides"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -51,7 +52,7 @@ def cancel_override(
 
 @router.get(
     "/coaches/{coach_id}/overrides",
-    response_model=list[schemas.OverrideOut],
+    response_model=list[OverrideOut],
     tags=["overrides"],
     responses={**AUTH, **NOT_FOUND},
 )

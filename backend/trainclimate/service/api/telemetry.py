@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
     AUTH,
     CONFLICT,
@@ -13,6 +12,7 @@ from trainclimate.service.api.deps import (
     NOT_FOUND,
     GatewayOrOperatorTelemetry,
 )
+from trainclimate.service.api.schemas.telemetry import TelemetryAccepted, TelemetryBatch
 from trainclimate.service.store import commands
 from trainclimate.service.store.telemetry import from_wire
 
@@ -21,12 +21,12 @@ router = APIRouter()
 
 @router.post(
     "/telemetry",
-    response_model=schemas.TelemetryAccepted,
+    response_model=TelemetryAccepted,
     tags=["live feed"],
     responses={**AUTH, **NOT_FOUND, **CONFLICT},
 )
 def post_telemetry(
-    batch: schemas.TelemetryBatch, request: Request, s: DB, _: GatewayOrOperatorTelemetry
+    batch: TelemetryBatch, request: Request, s: DB, _: GatewayOrOperatorTelemetry
 ) -> dict:
     """A gateway's batch of 1-minute rows for one coach; rows already stored are skipped. A
     gateway token may send it for the coaches of its scope. 409 for a coach of the demo

@@ -11,8 +11,16 @@ from pydantic import AwareDatetime
 from sqlalchemy import select
 
 from trainclimate.service import exports
-from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import AUTH, CONFLICT, DB, NOT_FOUND, Operator, Viewer
+from trainclimate.service.api.schemas.base import DIGITS_ONLY
+from trainclimate.service.api.schemas.savings import Comparison
+from trainclimate.service.api.schemas.trains import (
+    GuardOut,
+    GuardReset,
+    PlanIn,
+    TrainOut,
+    TrainPlanOut,
+)
 from trainclimate.service.store import commands, comparison, guard, plans, queries
 from trainclimate.service.store.models import Train
 
@@ -22,7 +30,7 @@ router = APIRouter()
 WINDOW_MIN = (5, 24 * 60)
 
 
-@router.get("/trains", response_model=list[schemas.TrainOut], tags=["trains"], responses=AUTH)
+@router.get("/trains", response_model=list[TrainOut], tags=["trains"], responses=AUTH)
 def list_trains(s: DB, _: Viewer) -> list:
     """Every train with its activated and deactivated coaches and its trial plan."""
     trains = s.scalars(select(Train).order_by(Train.id)).all()
@@ -32,7 +40,7 @@ def list_trains(s: DB, _: Viewer) -> list:
 
 @router.get(
     "/trains/{train_id}",
-    response_model=schemas.TrainOut,
+    response_model=TrainOut,
     tags=["trains"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -55,7 +63,7 @@ def _train(t: Train, plan: str) -> dict:
 
 @router.get(
     "/trains/{train_id}/plan",
-    response_model=schemas.TrainPlanOut,
+    response_model=TrainPlanOut,
     tags=["trains"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -68,11 +76,11 @@ def get_plan(train_id: str, s: DB, _: Viewer) -> dict:
 
 @router.put(
     "/trains/{train_id}/plan",
-    response_model=schemas.TrainPlanOut,
+    response_model=TrainPlanOut,
     tags=["trains"],
     responses={**AUTH, **NOT_FOUND, **CONFLICT},
 )
-def set_plan(train_id: str, body: schemas.PlanIn, s: DB, who: Operator) -> dict:
+def set_plan(train_id: str, body: PlanIn, s: DB, who: Operator) -> dict:
     """Change the train's trial plan; audited. On a train that reports telemetry it takes effect
     at the next switch hour of its fleet clock, never mid-day (``pending`` and ``message`` say
     when); on one that has reported nothing yet, at once. It replaces a change still pending.
@@ -82,7 +90,7 @@ def set_plan(train_id: str, body: schemas.PlanIn, s: DB, who: Operator) -> dict:
 
 @router.get(
     "/trains/{train_id}/guard",
-    response_model=schemas.GuardOut,
+    response_model=GuardOut,
     tags=["trains"],
     responses={**AUTH, **NOT_FOUND},
 )
@@ -96,11 +104,11 @@ def get_guard(train_id: str, s: DB, _: Viewer) -> dict:
 
 @router.post(
     "/trains/{train_id}/guard/reset",
-    response_model=schemas.GuardOut,
+    response_model=GuardOut,
     tags=["trains"],
     responses={**AUTH, **NOT_FOUND, **CONFLICT},
 )
-def reset_guard(train_id: str, body: schemas.GuardReset, s: DB, who: Operator) -> dict:
+def reset_guard(train_id: str, body: GuardReset, s: DB, who: Operator) -> dict:
     """Re-enable the layer on a train whose guard handed it back; audited. The guard watches
     again from the next tick, its estimate counting only windows from now on. 409 when the
     guard has not handed the layer back."""
@@ -111,13 +119,13 @@ def reset_guard(train_id: str, body: schemas.GuardReset, s: DB, who: Operator) -
 WindowMin = Annotated[
     int,
     Query(ge=WINDOW_MIN[0], le=WINDOW_MIN[1], description="the window, whole minutes"),
-    schemas.DIGITS_ONLY,
+    DIGITS_ONLY,
 ]
 
 
 @router.get(
     "/trains/{train_id}/comparison",
-    response_model=schemas.Comparison,
+    response_model=Comparison,
     tags=["trains"],
     responses={**AUTH, **NOT_FOUND},
 )

@@ -10,7 +10,6 @@ from fastapi import APIRouter, Path, Request
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from trainclimate.service.api import schemas
 from trainclimate.service.api.deps import (
     AUTH,
     CONFLICT,
@@ -21,6 +20,15 @@ from trainclimate.service.api.deps import (
     Admin,
     Viewer,
 )
+from trainclimate.service.api.schemas.base import DIGITS_ONLY
+from trainclimate.service.api.schemas.users import (
+    Me,
+    RoleChange,
+    TokenIn,
+    TokenInfo,
+    TokenOut,
+    UserOut,
+)
 from trainclimate.service.store import commands
 from trainclimate.service.store.models import ApiToken, User
 from trainclimate.service.store.tokens import USER_NAME_MAX
@@ -28,7 +36,7 @@ from trainclimate.service.store.tokens import USER_NAME_MAX
 router = APIRouter()
 
 
-@router.get("/me", response_model=schemas.Me, tags=["users"], responses=UNAUTHORIZED)
+@router.get("/me", response_model=Me, tags=["users"], responses=UNAUTHORIZED)
 def me(who: Viewer) -> dict:
     """Who the token belongs to and its role (the dashboard shows write controls by it)."""
     return {"name": who.name, "role": who.role}
@@ -36,12 +44,12 @@ def me(who: Viewer) -> dict:
 
 @router.post(
     "/tokens",
-    response_model=schemas.TokenOut,
+    response_model=TokenOut,
     status_code=201,
     tags=["users"],
     responses={**AUTH, **CONFLICT},
 )
-def create_token(body: schemas.TokenIn, s: DB, who: Admin, request: Request) -> dict:
+def create_token(body: TokenIn, s: DB, who: Admin, request: Request) -> dict:
     """A new token (shown once) for a user, created with the role if new. An existing user's
     token has the user's role: another role is 409, and no other token changes (a user's role
     changes only by ``PUT /users/{name}/role``). A gateway token is scoped to ``coaches`` (it may
@@ -71,7 +79,7 @@ def _add_broker_client(request: Request, s: Session, token: str, coaches: list[s
     return clients.add(s, token, coaches)
 
 
-@router.get("/tokens", response_model=list[schemas.TokenInfo], tags=["users"], responses=AUTH)
+@router.get("/tokens", response_model=list[TokenInfo], tags=["users"], responses=AUTH)
 def list_tokens(s: DB, _: Admin) -> list:
     """Every token (its prefix only), its user, role, a gateway token's coaches, and whether it
     is revoked."""
@@ -81,12 +89,12 @@ def list_tokens(s: DB, _: Admin) -> list:
 
 @router.delete(
     "/tokens/{token_id}",
-    response_model=schemas.TokenInfo,
+    response_model=TokenInfo,
     tags=["users"],
     responses={**AUTH, **NOT_FOUND},
 )
 def revoke_token(
-    token_id: Annotated[int, Path(ge=1, le=INT32_MAX), schemas.DIGITS_ONLY],
+    token_id: Annotated[int, Path(ge=1, le=INT32_MAX), DIGITS_ONLY],
     s: DB,
     who: Admin,
     request: Request,
@@ -103,13 +111,13 @@ def revoke_token(
 
 @router.put(
     "/users/{name}/role",
-    response_model=schemas.UserOut,
+    response_model=UserOut,
     tags=["users"],
     responses={**AUTH, **NOT_FOUND, **CONFLICT},
 )
 def set_user_role(
     name: Annotated[str, Path(min_length=1, max_length=USER_NAME_MAX)],
-    body: schemas.RoleChange,
+    body: RoleChange,
     s: DB,
     who: Admin,
 ) -> dict:

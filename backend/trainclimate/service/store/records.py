@@ -18,8 +18,8 @@ class TelemetryRecord(TypedDict, total=False):
     (:mod:`.telemetry`). ``time`` and the decks are always there; a field the feed does not
     report may be left out (a feed without the floor heating's share), a value not measured is
     None. The same row on the wire (``POST /api/v1/telemetry``, MQTT) is
-    :class:`~trainclimate.service.api.schemas.TelemetryRow`: :func:`.telemetry.from_wire` and
-    :func:`.telemetry.to_wire` convert."""
+    :class:`~trainclimate.service.api.schemas.telemetry.TelemetryRow`:
+    :func:`.telemetry.from_wire` and :func:`.telemetry.to_wire` convert."""
 
     # The minute's end (timezone-aware).
     time: Required[datetime]
