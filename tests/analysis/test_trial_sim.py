@@ -15,15 +15,9 @@ import pytest
 
 from trainclimate.analysis import trial_sim
 from trainclimate.analysis.trial import TrialDays, activated, day_start, estimate
-from trainclimate.analysis.trial_sim import (
-    TrialRun,
-    _lead_in,
-    _TrialFleet,
-    day_starts,
-    simulate_trial,
-    summarize,
-    trial_environment,
-)
+from trainclimate.analysis.trial_environment import day_starts, trial_environment
+from trainclimate.analysis.trial_runs import TrialRun, summarize
+from trainclimate.analysis.trial_sim import _lead_in, _TrialFleet, simulate_trial
 from trainclimate.cli import experiment as cli_experiment
 from trainclimate.cli import main
 from trainclimate.coach.rule import MODE_REGULAR

@@ -12,15 +12,10 @@ seeds in one vectorised fleet:
   switch hour (:func:`~trainclimate.analysis.trial.activated`): what a trial measures;
 - each coach with the layer always on, and always off: the counterfactual, shared by the plans.
 
-**The days.** The scenario gives the place, the first date and the kind of operation. The weather
-is the seeded generator's at that place over the N days (the Zurich climatology with its AR(1)
-day-to-day anomaly, the scenario's mean cloud cover), so days differ as the data generator's do.
-A parked scenario's train stands in regular mode all day, heading as in the scenario; an
-in-service one runs each day a timetable drawn as the fleet data's
-(:func:`~trainclimate.data.fleetlogs.draw_service_day`). Both coaches share weather and
-operation. The scenario's controller settings and HVAC options apply
-(:func:`~trainclimate.analysis.experiment.setup_for`), its one-off field events do not, and the
-solver's real-time budget lifted as in every offline simulation
+**The days** are :mod:`.trial_environment`'s: the scenario's place, first date and kind of
+operation, the seeded generator's weather. The scenario's controller settings and HVAC options
+apply (:func:`~trainclimate.analysis.experiment.setup_for`), its one-off field events do not, and
+the solver's real-time budget lifted as in every offline simulation
 (:data:`~trainclimate.control.ocp.OFFLINE_TIME_LIMIT_S`).
 
 **Counting**, per plan: 30-min windows from the trial's start. A window counts where the
@@ -31,46 +26,47 @@ still carry the other condition's thermal state. The simulator's data are always
 windows make service days (:func:`~trainclimate.analysis.trial.daily`), the days the estimate
 (:func:`~trainclimate.analysis.trial.estimate`). The truth is 100 (1 − ΣE_on / ΣE_off) of the
 counterfactual runs, both coaches together, over the same counted windows of the days the
-estimate used; energy is the HVAC meter's (the headline meter of ``experiment run``).
+estimate used; energy is the HVAC meter's (the headline meter of ``experiment run``). The runs
+and their summary over seeds are :mod:`.trial_runs`'.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import multiprocessing
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from datetime import date, timedelta
 
 import numpy as np
-import pandas as pd
 
 from trainclimate.analysis.experiment import setup_for
 from trainclimate.analysis.trial import (
     DEFAULT_SWITCH_HOUR,
-    TrialEstimate,
     activated,
     daily,
-    day_start,
     estimate,
     service_days,
 )
+from trainclimate.analysis.trial_environment import (
+    FORECAST_STREAM,
+    NOISE_STREAM,
+    PARAMS_STREAM,
+    SIM_DT_S,
+    day_starts,
+    trial_environment,
+)
+from trainclimate.analysis.trial_runs import TrialRun
 from trainclimate.coach.meters import HEADLINE_METER
-from trainclimate.coach.rule import MODE_REGULAR, mode_from_operation
+from trainclimate.coach.rule import MODE_REGULAR
 from trainclimate.control.closed_loop import ClosedLoop, TickLog, build_controllers
-from trainclimate.data.fleetlogs import draw_service_day, local_hours
 from trainclimate.predict.base import MultistepPredictor
 from trainclimate.sim import scenarios
 from trainclimate.sim.environment import Environment
 from trainclimate.sim.params import CoachParams, diversify
-from trainclimate.sim.routes import LINES, OperationSeries, service_day, stationary
 from trainclimate.sim.seeding import seed_of
 from trainclimate.sim.simulator import FleetSimulator
-from trainclimate.sim.solar import solar_position
-from trainclimate.sim.weather import SITES, generate_weather
 
 #: The plans a simulated trial runs (``reference`` alone measures no saving).
 TRIAL_PLANS = ("fixed", "alternate", "randomized")
@@ -78,115 +74,9 @@ TRIAL_PLANS = ("fixed", "alternate", "randomized")
 LEAD_IN_MIN = 60.0
 #: Savings window. [min]
 WINDOW_MIN = 30.0
-#: Simulator step. [s]
-SIM_DT_S = 10.0
 _STEPS_PER_WINDOW = round(WINDOW_MIN * 60.0 / SIM_DT_S)
 #: Simulator steps between two progress reports (a simulated hour).
 PROGRESS_STEPS = 360
-#: The seed streams of a trial.
-_PARAMS, _WEATHER, _OPERATION, _NOISE, _FORECAST = range(5)
-
-
-@dataclass
-class TrialRun:
-    """One plan of a simulated trial: the estimate a trial makes and the truth beside it.
-
-    Attributes
-    ----------
-    scenario : str
-        The scenario's name.
-    plan : str
-        One of :data:`TRIAL_PLANS`.
-    seed : int
-        The trial's seed (weather, operation, coaches, sensor noise, randomized plan, bootstrap).
-    coach_spread : float
-        The coaches' parameter spread. [–]
-    forecast : str
-        The layer's disturbance forecast.
-    switch_hour : int
-        Local hour a service day starts. [h]
-    lead_in_min : float
-        Excluded after each switch. [min]
-    days_simulated : int
-        Service days simulated.
-    estimate : TrialEstimate
-        What the trial estimates from the plan's run.
-    true_savings_pct : float or None
-        The counterfactual saving over the counted windows of the estimate's days. [%]
-    true_savings_by_coach_pct : list of float or None
-        The same, per coach. [%]
-    counted_windows : int
-        Windows counted (of the days the estimate used).
-    wall_s : float
-        Wall-clock time of the whole simulation (all its plans). [s]
-    """
-
-    scenario: str
-    plan: str
-    seed: int
-    coach_spread: float
-    forecast: str
-    switch_hour: int
-    lead_in_min: float
-    days_simulated: int
-    estimate: TrialEstimate
-    true_savings_pct: float | None
-    true_savings_by_coach_pct: list[float | None]
-    counted_windows: int
-    wall_s: float
-
-    @property
-    def error_pct(self) -> float | None:
-        """The estimate less the truth (None without either). [percentage points]"""
-        return _difference(self.estimate.savings_pct, self.true_savings_pct)
-
-    @property
-    def naive_error_pct(self) -> float | None:
-        """The naive figure less the truth (None without either). [percentage points]"""
-        return _difference(self.estimate.naive_savings_pct, self.true_savings_pct)
-
-    @property
-    def covered(self) -> bool | None:
-        """Whether the 95 % interval holds the truth (None without either)."""
-        ci = self.estimate.savings_ci95_pct
-        if ci is None or self.true_savings_pct is None:
-            return None
-        return bool(ci[0] <= self.true_savings_pct <= ci[1])
-
-    def to_dict(self) -> dict:
-        """The JSON of ``trainclimate experiment trial``.
-
-        Returns
-        -------
-        dict
-            The run's inputs, the estimate (:meth:`TrialEstimate.to_dict`: savings and interval
-            in %, days by group), ``true_savings_pct`` and per coach (%), ``error_pct`` and
-            ``naive_error_pct`` (percentage points), ``covered``, ``counted_windows``, ``meter``
-            and ``wall_seconds`` (s).
-        """
-        return {
-            "scenario": self.scenario,
-            "plan": self.plan,
-            "seed": self.seed,
-            "coach_spread": self.coach_spread,
-            "forecast": self.forecast,
-            "switch_hour": self.switch_hour,
-            "lead_in_min": self.lead_in_min,
-            "days_simulated": self.days_simulated,
-            "meter": HEADLINE_METER,
-            **self.estimate.to_dict(),
-            "true_savings_pct": self.true_savings_pct,
-            "true_savings_by_coach_pct": self.true_savings_by_coach_pct,
-            "error_pct": self.error_pct,
-            "naive_error_pct": self.naive_error_pct,
-            "covered": self.covered,
-            "counted_windows": self.counted_windows,
-            "wall_seconds": self.wall_s,
-        }
-
-
-def _difference(a: float | None, b: float | None) -> float | None:
-    return None if a is None or b is None else float(a - b)
 
 
 def pair_params(base: CoachParams, coach_spread: float, seed: int) -> list[CoachParams]:
@@ -210,101 +100,6 @@ def pair_params(base: CoachParams, coach_spread: float, seed: int) -> list[Coach
     if not coach_spread:
         return [base, base]
     return diversify(base, 2, seed=seed, spread=coach_spread)
-
-
-def _operation(
-    scenario: scenarios.Scenario, times: pd.DatetimeIndex, starts: pd.DatetimeIndex, seed: int
-) -> OperationSeries:
-    """The train's operation on ``times``: parked throughout, or a drawn timetable per service
-    day (``starts``: each day's start, then the end)."""
-    site = SITES[scenario.site]
-    if scenario.parked:
-        return stationary(
-            times,
-            latitude_deg=site.latitude_deg,
-            longitude_deg=site.longitude_deg,
-            heading_deg=scenario.parked_heading_deg,
-        )
-    days = []
-    for i, (a, b) in enumerate(itertools.pairwise(starts)):
-        grid = times[(times >= a) & (times < b)]
-        local_date = a.tz_convert(scenarios.LOCAL_TZ).strftime("%Y-%m-%d")
-        day_seed = seed_of(scenario.seed, seed, _OPERATION, i)
-        line, first, last, layovers = draw_service_day(np.random.default_rng(day_seed))
-        days.append(
-            service_day(
-                LINES[line],
-                grid,
-                seed=day_seed,
-                first_departure=local_hours(local_date, first),
-                last_arrival=local_hours(local_date, last),
-                layovers=[
-                    (local_hours(local_date, s), local_hours(local_date, s + h))
-                    for s, h in layovers
-                ],
-                start_at_terminus=day_seed % 2,
-            )
-        )
-    columns = [f.name for f in dataclasses.fields(OperationSeries) if f.name != "time"]
-    return OperationSeries(
-        time=times, **{c: np.concatenate([getattr(d, c) for d in days]) for c in columns}
-    )
-
-
-def day_starts(
-    scenario: scenarios.Scenario, days: int, switch_hour: int = DEFAULT_SWITCH_HOUR
-) -> pd.DatetimeIndex:
-    """When each of the trial's service days starts, from the scenario's date, and when the
-    last ends: ``days + 1`` UTC times (:func:`~trainclimate.analysis.trial.day_start`)."""
-    first = date.fromisoformat(scenario.date)
-    return pd.DatetimeIndex(
-        [day_start(first + timedelta(days=i), switch_hour) for i in range(days + 1)]
-    )
-
-
-def trial_environment(
-    scenario: scenarios.Scenario,
-    days: int,
-    seed: int,
-    switch_hour: int = DEFAULT_SWITCH_HOUR,
-) -> Environment:
-    """The train's N service days from the scenario's date (see the module docstring).
-
-    Parameters
-    ----------
-    scenario : Scenario
-        Gives the site, the first date, the mean cloud cover and parked or in service.
-    days : int
-        Service days N.
-    seed : int
-        The trial's seed (weather and operation).
-    switch_hour : int, default 3
-        Local hour a service day starts. [h]
-
-    Returns
-    -------
-    Environment
-        One coach column on a 10-s grid from the first day's switch hour to the N-th's end.
-    """
-    starts = day_starts(scenario, days, switch_hour)
-    step = pd.Timedelta(seconds=SIM_DT_S)
-    times = pd.date_range(starts[0], starts[-1], freq=step, inclusive="left")
-    site = SITES[scenario.site]
-    weather = generate_weather(
-        site,
-        starts[0] - pd.Timedelta(hours=1),
-        starts[-1] + pd.Timedelta(hours=1),
-        seed=seed_of(scenario.seed, seed, _WEATHER),
-        cloud_cover=scenario.cloud_cover,
-    )
-    t_amb, ghi = weather.at(times)
-    sun = solar_position(times, site.latitude_deg, site.longitude_deg, site.altitude_m)
-    op = _operation(scenario, times, starts, seed)
-    if scenario.parked:
-        mode = np.full(len(times), MODE_REGULAR, dtype=np.int8)
-    else:
-        mode = mode_from_operation(op.operation)
-    return Environment.of_operations(times, t_amb, ghi, sun, [op], mode[:, None])
 
 
 @dataclass
@@ -345,7 +140,7 @@ def _trial(
     return _Trial(
         seed=seed,
         env=env,
-        coaches=pair_params(base, coach_spread, seed_of(scenario.seed, seed, _PARAMS)),
+        coaches=pair_params(base, coach_spread, seed_of(scenario.seed, seed, PARAMS_STREAM)),
         day=day,
         acts=[np.array([activated(p, d, seed) for d in day]) for p in plans],
         since_min=((w_time - starts[day - day[0]]).total_seconds() / 60.0).to_numpy(),
@@ -491,7 +286,7 @@ def _fleet(
     sim = _TrialFleet(
         [p for t in trials for p in t.coaches * (n_cols // 2)],
         env,
-        noise_seeds=[seed_of(scenario.seed, t.seed, _NOISE) for t in trials],
+        noise_seeds=[seed_of(scenario.seed, t.seed, NOISE_STREAM) for t in trials],
         columns=n_cols,
     )
     controllers = []
@@ -501,7 +296,11 @@ def _fleet(
         sim,
         controllers,
         forecast=([forecast] * (n_cols - 2) + ["perfect"] * 2) * len(trials),
-        seed=[seed_of(scenario.seed, t.seed, _FORECAST) + c for t in trials for c in range(n_cols)],
+        seed=[
+            seed_of(scenario.seed, t.seed, FORECAST_STREAM) + c
+            for t in trials
+            for c in range(n_cols)
+        ],
         active=np.repeat(np.hstack([t.active(n_cols) for t in trials]), _STEPS_PER_WINDOW, axis=0),
     )
     return sim, loop
@@ -590,54 +389,6 @@ def check_trial(
         raise ValueError("--switch-hour must lie in 0–23")
     if not 0.0 <= lead_in_min < 1440.0:
         raise ValueError("--lead-in-min must lie in [0, 1440)")
-
-
-def summarize(runs: list[TrialRun]) -> dict[str, dict]:
-    """How the plans' estimates fared against the truth over several seeds.
-
-    Parameters
-    ----------
-    runs : list of TrialRun
-        Any number of seeds and plans.
-
-    Returns
-    -------
-    dict
-        Plan → ``runs``, ``with_interval``, ``coverage_pct`` (% of the runs with an interval
-        whose interval holds the truth), ``mae_pct`` and ``mean_error_pct`` (the estimate's mean
-        absolute and mean error, percentage points), ``mean_half_width_pct`` (percentage
-        points), ``mean_days_to_target``, ``guideline_14_pct`` (% of runs meeting it),
-        ``naive_mae_pct`` and ``naive_mean_error_pct`` (the naive figure's, percentage points),
-        ``mean_true_savings_pct`` (%); None where no run has the value.
-    """
-    out = {}
-    for plan in dict.fromkeys(r.plan for r in runs):
-        mine = [r for r in runs if r.plan == plan]
-        ci = [r for r in mine if r.covered is not None]
-        errors = [r.error_pct for r in mine]
-        naive = [r.naive_error_pct for r in mine]
-        out[plan] = {
-            "runs": len(mine),
-            "with_interval": len(ci),
-            "coverage_pct": _mean([100.0 * r.covered for r in ci]),
-            "mae_pct": _mean([abs(e) for e in errors if e is not None]),
-            "mean_error_pct": _mean(errors),
-            "mean_half_width_pct": _mean(
-                [(r.estimate.savings_ci95_pct[1] - r.estimate.savings_ci95_pct[0]) / 2 for r in ci]
-            ),
-            "mean_days_to_target": _mean([r.estimate.days_to_target for r in mine]),
-            "guideline_14_pct": _mean([100.0 * r.estimate.meets_guideline_14 for r in ci]),
-            "naive_mae_pct": _mean([abs(e) for e in naive if e is not None]),
-            "naive_mean_error_pct": _mean(naive),
-            "mean_true_savings_pct": _mean([r.true_savings_pct for r in mine]),
-        }
-    return out
-
-
-def _mean(values: list) -> float | None:
-    """The mean of the values that are not None (None if none is)."""
-    kept = [float(v) for v in values if v is not None]
-    return float(np.mean(kept)) if kept else None
 
 
 def simulate_seeds(

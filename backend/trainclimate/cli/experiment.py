@@ -62,7 +62,7 @@ def _range_warnings(args: argparse.Namespace, names: list[str], hours: float | N
 def _trial_range_warnings(args: argparse.Namespace, seeds: range) -> list[str]:
     """The warnings of the trials of ``seeds`` whose weather leaves the validated ambient range
     of the twin in ``--coach-params`` (none without one)."""
-    from trainclimate.analysis.trial_sim import trial_environment
+    from trainclimate.analysis.trial_environment import trial_environment
     from trainclimate.sim import scenarios
     from trainclimate.twin import validity
 
@@ -158,7 +158,8 @@ def _trials_text(d: dict) -> str:
 def cmd_experiment_trial(args: argparse.Namespace) -> None:
     """``experiment trial``: a trial of a pair of coaches over days, beside the counterfactual
     truth; with ``--seeds N`` or several plans, the runs and how each plan fared."""
-    from trainclimate.analysis.trial_sim import check_trial, simulate_seeds, summarize
+    from trainclimate.analysis.trial_runs import summarize
+    from trainclimate.analysis.trial_sim import check_trial, simulate_seeds
     from trainclimate.sim import scenarios
 
     scenarios.get(args.scenario)  # an unknown name is a usage error before any work
