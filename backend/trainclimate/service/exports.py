@@ -50,12 +50,8 @@ TRAIN_COLUMNS = (
     "counted_hours",
     "days_to_target",
 )
-#: A coach's telemetry columns, in order (``t_room_c`` split by deck).
-TELEMETRY_COLUMNS = (
-    "time_utc",
-    "t_room_up_c",
-    "t_room_mid_c",
-    "t_room_low_c",
+#: The telemetry columns written as the time series holds them, in order.
+_SERIES_COLUMNS: Final = (
     "t_ref_c",
     "t_rule_c",
     "t_amb_c",
@@ -68,6 +64,8 @@ TELEMETRY_COLUMNS = (
     "connected",
     "source",
 )
+#: A coach's telemetry columns, in order (``t_room_c`` split by deck).
+TELEMETRY_COLUMNS = ("time_utc", "t_room_up_c", "t_room_mid_c", "t_room_low_c", *_SERIES_COLUMNS)
 
 
 def cell(value: object) -> str:
@@ -166,23 +164,10 @@ def telemetry_csv(ts: TimeSeries) -> str:
     :data:`TELEMETRY_COLUMNS`: the minute's end (UTC, fleet clock), the decks' temperatures
     (°C), setpoints (°C), ambient (°C), irradiance (W/m²), power (kW), occupancy (%), speed
     (km/h), HVAC mode, link and the setpoint's source."""
-    flat: Final = (
-        "t_ref_c",
-        "t_rule_c",
-        "t_amb_c",
-        "ghi_w_m2",
-        "power_kw",
-        "floor_power_kw",
-        "occupancy_pct",
-        "speed_kmh",
-        "mode",
-        "connected",
-        "source",
-    )
 
     def row(i: int) -> list:
         decks = list(ts["t_room_c"][i] or [None, None, None])
-        return [ts["time"][i], *decks, *(ts[k][i] for k in flat)]
+        return [ts["time"][i], *decks, *(ts[k][i] for k in _SERIES_COLUMNS)]
 
     return write(TELEMETRY_COLUMNS, (row(i) for i in range(len(ts["time"]))))
 
