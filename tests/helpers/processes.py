@@ -82,19 +82,34 @@ class Server:
         self.proc.wait(timeout=10)
 
 
-def demo_server(home: Path, model_file: Path, *extra: str) -> Server:
-    """``serve --fleet demo --speedup 600`` on a SQLite file in ``home`` (``extra`` appended to
-    the command), started with an environment free of ``TRAINCLIMATE_*`` variables."""
-    db_url = f"sqlite:///{home / 'trainclimate.db'}"
+def child_env(home: Path) -> dict[str, str]:
+    """A child's environment: none of the ``TRAINCLIMATE_*`` variables from outside, ``home`` as
+    ``TRAINCLIMATE_HOME``, its output unbuffered."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
-    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+    return env | {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+
+
+def serve_args(port: int, *options: str) -> list[str]:
+    """The command of ``trainclimate serve`` on ``port`` with ``options``."""
+    return [*CLI, "serve", "--port", str(port), *options]
+
+
+def sqlite_server(home: Path, model_file: Path | str, *extra: str) -> Server:
+    """``serve`` on a SQLite file in ``home`` (its ``db_url``) with the predictor ``model_file``
+    (``extra`` appended to the command), started in :func:`child_env` of ``home``, its output in
+    ``home``/server.log."""
+    db_url = f"sqlite:///{home / 'trainclimate.db'}"
     port = free_port()
-    args = [*CLI, "serve", "--db", db_url, "--port", str(port), "--predictor", str(model_file)]
-    srv = Server([*args, "--fleet", "demo", "--speedup", "600", *extra], env, port,
-                 home / "server.log")  # fmt: skip
+    args = serve_args(port, "--db", db_url, "--predictor", str(model_file), *extra)
+    srv = Server(args, child_env(home), port, home / "server.log")
     srv.db_url = db_url
     srv.start()
     return srv
+
+
+def demo_server(home: Path, model_file: Path | str, *extra: str) -> Server:
+    """:func:`sqlite_server` of ``serve --fleet demo --speedup 600`` (``extra`` appended)."""
+    return sqlite_server(home, model_file, "--fleet", "demo", "--speedup", "600", *extra)
 
 
 def wait_for_ddpc(srv: Server, token: str, coach: str = "D1-A", n: int = 20) -> None:

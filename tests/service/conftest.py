@@ -9,12 +9,10 @@ PostgreSQL case is skipped with the reason. ``.ci/run`` makes sure a server answ
 
 from __future__ import annotations
 
-import os
-
 import pytest
 from fastapi.testclient import TestClient
 
-from helpers.processes import CLI, Server, free_port
+from helpers.processes import Server, child_env, free_port, serve_args
 from helpers.service import PG_SKIP, PG_URL, drop_pg_database, pg_database
 from trainclimate.service.app import create_app, register_model_file
 from trainclimate.service.settings import Settings
@@ -99,10 +97,7 @@ def database_with_model(settings):
 @pytest.fixture
 def proc_env(tmp_path) -> dict[str, str]:
     """The children's environment: no TRAINCLIMATE_* from outside, a private home."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
-    env["TRAINCLIMATE_HOME"] = str(tmp_path / "home")
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
+    return child_env(tmp_path / "home")
 
 
 @pytest.fixture
@@ -112,17 +107,7 @@ def servers(tmp_path, small_predictor_file, proc_env):
 
     def make(db_url: str, *extra: str, env: dict[str, str] | None = None, port=None) -> Server:
         port = port or free_port()
-        args = [
-            *CLI,
-            "serve",
-            "--db",
-            db_url,
-            "--port",
-            str(port),
-            "--predictor",
-            str(small_predictor_file),
-            *extra,
-        ]
+        args = serve_args(port, "--db", db_url, "--predictor", str(small_predictor_file), *extra)
         server = Server(args, env or proc_env, port, tmp_path / f"server-{port}.log")
         made.append(server)
         return server

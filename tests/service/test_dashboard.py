@@ -28,7 +28,15 @@ from zoneinfo import ZoneInfo
 import httpx
 import pytest
 
-from helpers.processes import CLI, Server, demo_server, free_port, wait_for_ddpc
+from helpers.processes import (
+    Server,
+    child_env,
+    demo_server,
+    free_port,
+    serve_args,
+    sqlite_server,
+    wait_for_ddpc,
+)
 from helpers.service import decided, flat_rows, post_rows, register, wait_for
 from trainclimate.service.adapters import demo
 from trainclimate.service.store.db import Database, migrate
@@ -465,11 +473,9 @@ def test_operator_overrides_and_it_is_applied_and_audited(browser, server):
 def test_a_service_preparing_its_model_says_so_and_runs_the_coaches_under_t_rule(browser, tmp_path):
     """A first start without a model (no ``--predictor``, nothing cached): the dashboard shows
     the preparation's progress and the activated coaches as ``preparing`` under T_rule."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
-    env |= {"TRAINCLIMATE_HOME": str(tmp_path / "new" / "home"), "PYTHONUNBUFFERED": "1"}
     port = free_port()
-    args = [*CLI, "serve", "--port", str(port), "--fleet", "demo", "--speedup", "600"]
-    srv = Server([*args, "--new-token", "operator"], env, port, tmp_path / "server.log")
+    args = serve_args(port, "--fleet", "demo", "--speedup", "600", "--new-token", "operator")
+    srv = Server(args, child_env(tmp_path / "new" / "home"), port, tmp_path / "server.log")
     try:
         srv.start()
         printed = srv.printed(r"operator token: (tc_\S+)")
@@ -545,26 +551,9 @@ def seeded(tmp_path_factory, small_predictor_file):
     model was still being prepared (every window excluded as ``preparing``). ``seed_trial()``
     adds train ``X`` on a crossover plan over six service days (a 95 % interval) and ``F`` on a
     fixed plan over two (confounded: none), once."""
-    home = tmp_path_factory.mktemp("dashboard-trial")
-    db_url = f"sqlite:///{home / 'trainclimate.db'}"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
-    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
-    port = free_port()
-    args = [
-        *CLI,
-        "serve",
-        "--db",
-        db_url,
-        "--port",
-        str(port),
-        "--predictor",
-        str(small_predictor_file),
-    ]
-    srv = Server(args, env, port, home / "server.log")
-    srv.start()
-    srv.db_url = db_url
-    migrate(db_url)
-    db = Database(db_url)
+    srv = sqlite_server(tmp_path_factory.mktemp("dashboard-trial"), small_predictor_file)
+    migrate(srv.db_url)
+    db = Database(srv.db_url)
     with db.transaction() as s:
         srv.tokens = {role: create_token(s, role, f"browser-{role}")[0] for role in ROLES}
     db.dispose()

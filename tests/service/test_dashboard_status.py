@@ -8,12 +8,10 @@ coach with a deck outside the comfort band is flagged in words in the list and o
 
 from __future__ import annotations
 
-import os
-
 import httpx
 import pytest
 
-from helpers.processes import CLI, Server, free_port
+from helpers.processes import sqlite_server
 from helpers.service import at, flat_row, flat_rows, to_wire, wait_for
 from service import test_dashboard
 from service.test_dashboard import Watched
@@ -29,25 +27,9 @@ def server(tmp_path_factory, small_predictor_file):
     """The service without a fleet, a viewer's and an operator's token, and train S: S-A
     (activated) whose newest row (T0 + 30 min) says the link is down, once its tick at T0 + 30
     is issued; S-B (deactivated) with its up deck 0.3 K above T_rule + 1 K in its newest row."""
-    home = tmp_path_factory.mktemp("dashboard-status")
-    db_url = f"sqlite:///{home / 'trainclimate.db'}"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
-    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
-    port = free_port()
-    args = [
-        *CLI,
-        "serve",
-        "--db",
-        db_url,
-        "--port",
-        str(port),
-        "--predictor",
-        str(small_predictor_file),
-    ]
-    srv = Server(args, env, port, home / "server.log")
-    srv.start()
-    migrate(db_url)
-    db = Database(db_url)
+    srv = sqlite_server(tmp_path_factory.mktemp("dashboard-status"), small_predictor_file)
+    migrate(srv.db_url)
+    db = Database(srv.db_url)
     with db.transaction() as s:
         srv.tokens = {
             role: create_token(s, role, f"browser-{role}")[0] for role in ("viewer", "operator")

@@ -11,7 +11,6 @@ the page never asks ``/api/v1/tokens``. Token names are shown as text, never as 
 
 from __future__ import annotations
 
-import os
 import re
 import time
 from datetime import UTC, datetime, timedelta
@@ -21,7 +20,7 @@ from zoneinfo import ZoneInfo
 import httpx
 import pytest
 
-from helpers.processes import CLI, Server, free_port
+from helpers.processes import sqlite_server
 from service import test_dashboard
 from service.test_dashboard import Watched
 from trainclimate.service.store.db import Database, migrate
@@ -48,26 +47,9 @@ def server(tmp_path_factory, small_predictor_file):
     30 days), ``old-kiosk`` (then revoked by the admin), ``lost-laptop`` and one named like
     markup. ``ids``: each user's token id; ``issued``: the ``POST /tokens`` replies by user (the
     short-lived one's token and expiry)."""
-    home = tmp_path_factory.mktemp("dashboard-tokens")
-    db_url = f"sqlite:///{home / 'trainclimate.db'}"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("TRAINCLIMATE_")}
-    env |= {"TRAINCLIMATE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
-    port = free_port()
-    args = [
-        *CLI,
-        "serve",
-        "--db",
-        db_url,
-        "--port",
-        str(port),
-        "--predictor",
-        str(small_predictor_file),
-    ]
-    srv = Server(args, env, port, home / "server.log")
-    srv.start()
-    srv.db_url = db_url
-    migrate(db_url)
-    db = Database(db_url)
+    srv = sqlite_server(tmp_path_factory.mktemp("dashboard-tokens"), small_predictor_file)
+    migrate(srv.db_url)
+    db = Database(srv.db_url)
     with db.transaction() as s:
         roles = ("viewer", "operator", "admin")
         srv.tokens = {role: create_token(s, role, f"browser-{role}")[0] for role in roles}
