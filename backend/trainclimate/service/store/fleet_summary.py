@@ -46,7 +46,7 @@ from trainclimate.service.store.models import (
     Telemetry,
     Train,
 )
-from trainclimate.service.store.pair_trial import COUNTS, SUMS, energy_columns
+from trainclimate.service.store.pair_trial import COUNTS, SUMS
 from trainclimate.service.store.records import CoachView
 
 
@@ -199,12 +199,12 @@ def summary(
     fleet_meter = HEADLINE_METER if HEADLINE_METER in fleet_meters else "hvac_and_floor"
     fleet = {m: PairTotals.empty(window_min) for m in fleet_meters}
     out_trains, counted_w, counted_e = [], [], []
+    chart_columns = [2 * list(METERS).index(fleet_meter) + k for k in (0, 1)]
     for t, c0, c1, first, stop, r in results:
         fleet = {m: fleet[m] + r["totals"][m] for m in fleet}
-        e0, e1 = r["grid"][:, list(energy_columns(fleet_meter))].T
-        one = r["label"] == 1
-        counted_w.append(r["index"][r["counted"]])
-        counted_e.append(np.stack([np.where(one, e1, e0), np.where(one, e0, e1)])[:, r["counted"]])
+        chart_w, chart_e = r["chart"]
+        counted_w.append(chart_w)
+        counted_e.append(chart_e[:, chart_columns].T)
         out_trains.append(
             {
                 "id": t.id,
@@ -245,7 +245,7 @@ def summary(
         "avg_hourly_violation_activated_k": totals.avg_hourly_violation_k,
         "avg_hourly_violation_deactivated_k": totals.baseline_violation_k,
         "excluded_minutes": totals.excluded_minutes,
-        "counted_windows": sum(int(r[-1]["counted"].sum()) for r in results),
+        "counted_windows": sum(r[-1]["counted_windows"] for r in results),
         "counted_hours": totals.counted_hours,
         "trains": out_trains,
         "windows": [
