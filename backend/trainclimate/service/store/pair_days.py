@@ -23,6 +23,7 @@ a pair day missing costs time, never a figure.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass
 from datetime import datetime
@@ -117,7 +118,7 @@ def days_from_windows(
 
 def _row(c0: str, c1: str, hour: int, d: Day, entering, first: int, grid, label, code0) -> dict:
     """A :class:`~.models.PairDay` row of day ``d`` over windows [first, first + len(grid))."""
-    offsets = (d.chart_windows - first).astype(np.int16)
+    chart = np.column_stack([d.chart_windows - first, d.chart]).astype(np.float64)
     return {
         "coach_0": c0,
         "coach_1": c1,
@@ -130,7 +131,7 @@ def _row(c0: str, c1: str, hour: int, d: Day, entering, first: int, grid, label,
         "exiting_label": d.exiting[0],
         "exiting_age": d.exiting[1],
         "fields": d.fields.astype(np.float64).tobytes(),
-        "chart": offsets.tobytes() + d.chart.astype(np.float64).tobytes(),
+        "chart": chart.tobytes(),
         "minutes": grid.astype(np.float64).tobytes()
         + label.astype(np.int8).tobytes()
         + code0.astype(np.int8).tobytes(),
@@ -145,17 +146,6 @@ def _unpack_windows(row) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     label = np.frombuffer(row.minutes, np.int8, n, size).astype(np.int64)
     code0 = np.frombuffer(row.minutes, np.int8, n, size + n).astype(np.int64)
     return grid, label, code0
-
-
-def _unpack_day(row) -> Day:
-    """A pair day's :class:`Day` from its stored fields and chart."""
-    fields = np.frombuffer(row.fields, np.float64)
-    k = int(fields[pair_trial.FIELDS_INDEX["counted"]])
-    offsets = np.frombuffer(row.chart, np.int16, k).astype(np.int64)
-    chart = np.frombuffer(row.chart, np.float64, 4 * k, 2 * k).reshape(k, 4)
-    return Day(
-        row.day, fields, offsets + row.first_window, chart, (row.exiting_label, row.exiting_age)
-    )
 
 
 def horizons(session: Session, pairs: list[tuple[str, str]]) -> dict[tuple[str, str], datetime]:
@@ -345,7 +335,7 @@ def forget_all(session: Session, before_window: int | None = None) -> None:
 # --- reading ------------------------------------------------------------------------------
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Segment:
     """A pair's service day as its range has it: windows [a, b) of the range, whole or not."""
 
@@ -355,8 +345,10 @@ class _Segment:
     whole: bool
 
 
-def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, list[_Segment]]:
-    """The first window of the range (lo, hi] and its service days at ``hour``, in order."""
+@functools.lru_cache(maxsize=64)
+def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, tuple[_Segment, ...]]:
+    """The first window of the range (lo, hi] and its service days at ``hour``, in order
+    (kept: the trains of a summary share their range)."""
     w_lo, n = pair_windows.range_windows(lo, hi, WINDOW_MIN)
     index = np.arange(w_lo - 1, w_lo + n + 1)
     day = trial.service_days(pd.to_datetime(index * _WINDOW_S, unit="s", utc=True), hour)
@@ -368,7 +360,7 @@ def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, list[_Segment
         out.append(
             _Segment(d, a, b, not (a == 0 and day[0] == d) and not (b == n and day[-1] == d))
         )
-    return w_lo, out
+    return w_lo, tuple(out)
 
 
 def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[tuple, object]:
@@ -442,27 +434,27 @@ def pair_results(
     whole service days read from their pair days where they were entered from the state the
     range reaches them in, the others from their windows (stored with the pair day, or from the
     rollups). In the order of ``pairs``."""
-    plans = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
+    layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
     keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
-    span = [s.day for _, segs in plans for s in segs]
+    span = [s.day for _, segs in layout for s in segs]
     stored = _stored(session, keys, (min(span), max(span))) if span else {}
     windows: dict[tuple[int, int], tuple] = {}  # (pair, segment) → (index, grid, label, code0)
-    _windows_from_rollups(session, pairs, switch_hours, plans, stored, overrides, windows)
-    _windows_from_pair_days(session, pairs, switch_hours, plans, windows, stored, partial=True)
-    days: list[list[Day]] = [[] for _ in pairs]
+    _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows)
+    _windows_from_pair_days(session, pairs, switch_hours, layout, windows, stored, partial=True)
+    days: list[list] = [[] for _ in pairs]  # per pair its days in order: stored rows or Days
     state = [_state(*NO_STATE) for _ in pairs]
     position = [0] * len(pairs)
     while True:
         waiting = []
         for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
-            segs = plans[i][1]
+            segs = layout[i][1]
             while position[i] < len(segs):
                 seg = segs[position[i]]
                 row = stored.get((c0, c1, hour, seg.day)) if seg.whole else None
                 if row is None or (row.entering_label, row.entering_age) != state[i]:
                     break
-                days[i].append(_unpack_day(row))
-                state[i] = days[i][-1].exiting
+                days[i].append(row)
+                state[i] = (row.exiting_label, row.exiting_age)
                 position[i] += 1
             if position[i] < len(segs):
                 waiting.append(i)
@@ -471,20 +463,20 @@ def pair_results(
         missing = [i for i in waiting if (i, position[i]) not in windows]
         if missing:  # whole days entered from another state than they were made from
             _windows_from_pair_days(
-                session, pairs, switch_hours, plans, windows, stored, only=missing, at=position
+                session, pairs, switch_hours, layout, windows, stored, only=missing, at=position
             )
-        _compute(waiting, plans, position, windows, state, days)
+        _compute(waiting, layout, position, windows, state, days)
     return _assemble(days)
 
 
-def _windows_from_rollups(session, pairs, switch_hours, plans, stored, overrides, windows) -> None:
+def _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows) -> None:
     """The windows of every segment without a pair day, from the rollups: each pair's
     consecutive such segments read as one range, the pairs' first ranges together, then their
     second ones, …"""
     runs: list[list[tuple[int, int, int]]] = []  # per pair: (first segment, last segment + 1)
     for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
         mine: list[tuple[int, int, int]] = []
-        for k, seg in enumerate(plans[i][1]):
+        for k, seg in enumerate(layout[i][1]):
             if (c0, c1, hour, seg.day) in stored:
                 continue
             if mine and mine[-1][1] == k:
@@ -496,7 +488,7 @@ def _windows_from_rollups(session, pairs, switch_hours, plans, stored, overrides
         batch = [x[r] for x in runs if len(x) > r]
         ranges = []
         for k0, k1, i in batch:
-            w_lo, segs = plans[i]
+            w_lo, segs = layout[i]
             a, b = segs[k0].a + w_lo, segs[k1 - 1].b + w_lo
             lo, hi = (
                 pd.Timestamp(w * _WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (a, b)
@@ -506,7 +498,7 @@ def _windows_from_rollups(session, pairs, switch_hours, plans, stored, overrides
         for (k0, k1, i), rng in zip(batch, ranges, strict=True):
             grid, counts = data[rng[0]]
             label, code0 = pair_trial.base_windows(grid, counts, WINDOW_MIN)
-            w_lo, segs = plans[i]
+            w_lo, segs = layout[i]
             base = segs[k0].a
             for k in range(k0, k1):
                 a, b = segs[k].a - base, segs[k].b - base
@@ -515,13 +507,13 @@ def _windows_from_rollups(session, pairs, switch_hours, plans, stored, overrides
 
 
 def _windows_from_pair_days(
-    session, pairs, switch_hours, plans, windows, stored, partial=False, only=None, at=None
+    session, pairs, switch_hours, layout, windows, stored, partial=False, only=None, at=None
 ) -> None:
     """The windows of segments from their stored pair days: the partial ones (``partial``), or
     those at ``at[i]`` for the pairs ``only``."""
     wanted: dict[tuple, list[tuple[int, int]]] = {}
     for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
-        segs = plans[i][1]
+        segs = layout[i][1]
         chosen = range(len(segs)) if partial else [at[i]] if i in set(only or ()) else []
         for k in chosen:
             seg = segs[k]
@@ -534,13 +526,13 @@ def _windows_from_pair_days(
     for key, places in wanted.items():
         first, grid, label, code0 = found[key]
         for i, k in places:
-            w_lo, segs = plans[i]
+            w_lo, segs = layout[i]
             a, b = segs[k].a + w_lo - first, segs[k].b + w_lo - first
             index = np.arange(segs[k].a, segs[k].b) + w_lo
             windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
 
 
-def _compute(waiting, plans, position, windows, state, days) -> None:
+def _compute(waiting, layout, position, windows, state, days) -> None:
     """Take the waiting pairs' next segments from their windows, those of one length at once,
     each from the state its pair is in; advance them."""
     by_length: dict[int, list[int]] = {}
@@ -549,7 +541,7 @@ def _compute(waiting, plans, position, windows, state, days) -> None:
     for group in by_length.values():
         parts = [windows[(i, position[i])] for i in group]
         found = days_from_windows(
-            [plans[i][1][position[i]].day for i in group],
+            [layout[i][1][position[i]].day for i in group],
             *(np.stack([p[j] for p in parts]) for j in range(4)),
             (np.array([state[i][0] for i in group]), np.array([state[i][1] for i in group])),
         )
@@ -559,22 +551,54 @@ def _compute(waiting, plans, position, windows, state, days) -> None:
             position[i] += 1
 
 
-def _assemble(days: list[list[Day]]) -> list[dict]:
-    """Each pair's result from its days (:func:`.pair_trial.results_from_fields`) with its
-    ``chart``."""
+def _assemble(days: list[list]) -> list[dict]:
+    """Each pair's result from its days in order, stored rows (their fields and charts read all
+    at once) or :class:`Day` (:func:`.pair_trial.results_from_fields`), with its ``chart``."""
+    rows = [
+        (p, slot, d)
+        for p, mine in enumerate(days)
+        for slot, d in enumerate(mine)
+        if not isinstance(d, Day)
+    ]
     width = max((len(d) for d in days), default=0)
     fields = np.zeros((len(days), width, len(FIELDS)))
     ordinals = np.zeros((len(days), width), np.int64)
-    for p, mine in enumerate(days):
-        if mine:
-            fields[p, : len(mine)] = np.stack([d.fields for d in mine])
-            ordinals[p, : len(mine)] = [d.day for d in mine]
-    out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN)
-    for result, mine in zip(out, days, strict=True):
-        result["chart"] = (
-            np.concatenate([d.chart_windows for d in mine]) if mine else np.zeros(0, np.int64),
-            np.concatenate([d.chart for d in mine]) if mine else np.zeros((0, 4)),
+    chart_pair, chart_windows, chart = [], [], []
+    if rows:
+        p, slot = (np.array([r[i] for r in rows]) for i in (0, 1))
+        stored = np.frombuffer(b"".join(r[2].fields for r in rows), np.float64)
+        fields[p, slot] = stored.reshape(len(rows), len(FIELDS))
+        ordinals[p, slot] = [r[2].day for r in rows]
+        k = fields[p, slot, pair_trial.FIELDS_INDEX["counted"]].astype(np.int64)
+        entries = np.frombuffer(b"".join(r[2].chart for r in rows), np.float64).reshape(-1, 5)
+        chart_pair.append(np.repeat(p, k))
+        chart_windows.append(
+            entries[:, 0].astype(np.int64) + np.repeat([r[2].first_window for r in rows], k)
         )
+        chart.append(entries[:, 1:])
+    for p, mine in enumerate(days):
+        for slot, d in enumerate(mine):
+            if isinstance(d, Day):
+                fields[p, slot] = d.fields
+                ordinals[p, slot] = d.day
+                chart_pair.append(np.full(len(d.chart_windows), p))
+                chart_windows.append(d.chart_windows)
+                chart.append(d.chart)
+    out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN)
+    if chart:
+        which = np.concatenate(chart_pair)
+        order = np.argsort(which, kind="stable")
+        edges = np.searchsorted(which[order], np.arange(len(days) + 1))
+        all_windows, all_chart = np.concatenate(chart_windows)[order], np.concatenate(chart)[order]
+    else:
+        edges, all_windows, all_chart = (
+            np.zeros(len(days) + 1, int),
+            np.zeros(0, np.int64),
+            np.zeros((0, 4)),
+        )
+    for p, result in enumerate(out):
+        a, b = edges[p], edges[p + 1]
+        result["chart"] = (all_windows[a:b], all_chart[a:b])
     return out
 
 
@@ -582,9 +606,8 @@ def fleet_pairs(session: Session, at: datetime) -> list[tuple[str, str, int]]:
     """Every train's pair (:func:`.queries.pick_pair`: coach 0, coach 1) with the switch hour
     of its plan in force at ``at`` [h], by train."""
     by_train: dict[str, list] = {}
-    for c in session.execute(
-        select(Coach.id, Coach.train_id, Coach.ddpc_active).order_by(Coach.id)
-    ):
+    coaches = select(Coach.id, Coach.train_id, Coach.ddpc_active).order_by(Coach.id)
+    for c in session.execute(coaches):
         by_train.setdefault(c.train_id, []).append(c)
     pairs = {t: queries.pick_pair(coaches) for t, coaches in sorted(by_train.items())}
     trains = [t for t, pair in pairs.items() if pair is not None]
