@@ -35,7 +35,14 @@ from sqlalchemy import Table, and_, delete, func, or_, select
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
-from trainclimate.service.store import pair_trial, pair_windows, plans, queries, rollups
+from trainclimate.service.store import (
+    binary_copy,
+    pair_trial,
+    pair_windows,
+    plans,
+    queries,
+    rollups,
+)
 from trainclimate.service.store.models import Coach, CoachFeed, PairDay, Telemetry
 from trainclimate.service.store.pair_trial import (
     CHART_FIELDS,
@@ -369,7 +376,8 @@ def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[t
     if not keys:
         return {}
     t = _table()
-    rows = session.execute(
+    rows = binary_copy.rows(
+        session,
         select(
             t.c.coach_0,
             t.c.coach_1,
@@ -387,7 +395,7 @@ def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[t
             t.c.day >= days[0],
             t.c.day <= days[1],
             queries.among(t.c.coach_0, {k[0] for k in keys}),
-        )
+        ),
     )
     return {(r[0], r[1], r[2], r[3]): r for r in rows if (r[0], r[1], r[2]) in keys}
 
@@ -399,7 +407,8 @@ def _stored_windows(session: Session, wanted: list[tuple]) -> dict[tuple, tuple]
         return {}
     t = _table()
     days = [k[3] for k in wanted]
-    rows = session.execute(
+    rows = binary_copy.rows(
+        session,
         select(
             t.c.coach_0,
             t.c.coach_1,
@@ -409,10 +418,9 @@ def _stored_windows(session: Session, wanted: list[tuple]) -> dict[tuple, tuple]
             t.c.windows,
             t.c.minutes,
         ).where(
-            t.c.day >= min(days),
-            t.c.day <= max(days),
+            t.c.day.in_(sorted(set(days))),
             queries.among(t.c.coach_0, {k[0] for k in wanted}),
-        )
+        ),
     )
     keys = set(wanted)
     return {
