@@ -3,7 +3,8 @@ from the rollups alone, over ranges that start and end anywhere in a day and on 
 on data with role changes at any window (one just before the switch hour, whose lead-in runs into
 the next day), hours without setpoints, fallbacks, reference windows, gaps, a lost link, a coach
 out of regular mode and an override; a late row drops the pair days it changes and the next
-build makes them again."""
+build makes them again, as it does the days retention cuts into; the scheduler makes them a few
+at a time."""
 
 from __future__ import annotations
 
@@ -13,7 +14,14 @@ import numpy as np
 import pytest
 
 from helpers.service import flat_row
-from trainclimate.service.store import comparison, fleet_summary, pair_days, setpoint_rollups
+from trainclimate.service.scheduler import Scheduler
+from trainclimate.service.store import (
+    comparison,
+    fleet_summary,
+    pair_days,
+    partitions,
+    setpoint_rollups,
+)
 from trainclimate.service.store.commands import ingest
 from trainclimate.service.store.db import Database, migrate
 from trainclimate.service.store.models import Coach, Override, PairDay, Setpoint, Train
@@ -238,3 +246,24 @@ def test_a_late_row_drops_the_days_it_changes_and_they_are_made_again(fleet):
     _assert_same(_summaries(fleet), want)
     assert _build(fleet) >= 1
     _assert_same(_summaries(fleet), want)
+
+
+def test_the_scheduler_makes_them_a_few_at_a_time(fleet, settings):
+    keeper = Scheduler(fleet, settings)
+    assert keeper.keep_pair_days(max_days=5) == 5
+    assert keeper.keep_pair_days(max_days=100) == 7
+    assert keeper.keep_pair_days() == 0
+    with fleet.transaction() as s:
+        assert s.query(PairDay).count() == 12
+
+
+def test_retention_drops_the_days_before_the_cutoff(fleet):
+    assert _build(fleet) == 12
+    with fleet.transaction() as s:
+        partitions.raw_retention(s, 2, START + timedelta(days=4))
+    cutoff_window = pair_days.rollups.window_of(START + timedelta(days=2))
+    with fleet.transaction() as s:
+        assert min(d.first_window for d in s.query(PairDay)) > cutoff_window
+    assert _build(fleet) == 2  # each pair's day the cutoff falls in, from its rollups
+    got = _summaries(fleet)
+    _assert_same(_figures(got), _comparisons(fleet, got))
