@@ -27,7 +27,7 @@ import functools
 import itertools
 from dataclasses import dataclass
 from datetime import datetime
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -174,8 +174,9 @@ def horizons(session: Session, pairs: list[tuple[str, str]]) -> dict[tuple[str, 
     out = {}
     for p in pairs:
         times = [t.get(c) for c in p for t in (newest, ticks)]
-        if all(t is not None for t in times):
-            out[p] = min(times)
+        known = [t for t in times if t is not None]
+        if len(known) == len(times):
+            out[p] = min(known)
     return out
 
 
@@ -296,7 +297,7 @@ def _build_run(
         a, b = (w - lo_w for w in day_windows(day, hour))
         entering = (np.array([state[0]]), np.array([state[1]]))
         d = days_from_windows(
-            [day], *(x[None, a:b] for x in (index, grid, label, code0)), entering
+            [day], index[None, a:b], grid[None, a:b], label[None, a:b], code0[None, a:b], entering
         )[0]
         rows.append(_row(c0, c1, hour, d, state, lo_w + a, grid[a:b], label[a:b], code0[a:b]))
         state = d.exiting
@@ -370,7 +371,7 @@ def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, tuple[_Segmen
     return w_lo, tuple(out)
 
 
-def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[tuple, object]:
+def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[tuple, Any]:
     """The pair days of ``keys`` (coach 0, coach 1, switch hour) over the days [first, last]:
     (coach 0, coach 1, hour, day) → row with its states, fields and chart."""
     if not keys:
@@ -547,10 +548,15 @@ def _compute(waiting, layout, position, windows, state, days) -> None:
     for i in waiting:
         by_length.setdefault(len(windows[(i, position[i])][0]), []).append(i)
     for group in by_length.values():
-        parts = [windows[(i, position[i])] for i in group]
+        index, grid, label, code0 = (
+            np.stack([windows[(i, position[i])][j] for i in group]) for j in range(4)
+        )
         found = days_from_windows(
             [layout[i][1][position[i]].day for i in group],
-            *(np.stack([p[j] for p in parts]) for j in range(4)),
+            index,
+            grid,
+            label,
+            code0,
             (np.array([state[i][0] for i in group]), np.array([state[i][1] for i in group])),
         )
         for i, d in zip(group, found, strict=True):
@@ -573,13 +579,13 @@ def _assemble(days: list[list]) -> list[dict]:
     ordinals = np.zeros((len(days), width), np.int64)
     chart_pair, chart_windows, chart = [], [], []
     if rows:
-        p, slot = (np.array([r[i] for r in rows]) for i in (0, 1))
+        at_pair, at_slot = (np.array([r[i] for r in rows]) for i in (0, 1))
         stored = np.frombuffer(b"".join(r[2].fields for r in rows), np.float64)
-        fields[p, slot] = stored.reshape(len(rows), len(FIELDS))
-        ordinals[p, slot] = [r[2].day for r in rows]
-        k = fields[p, slot, pair_trial.FIELDS_INDEX["counted"]].astype(np.int64)
+        fields[at_pair, at_slot] = stored.reshape(len(rows), len(FIELDS))
+        ordinals[at_pair, at_slot] = [r[2].day for r in rows]
+        k = fields[at_pair, at_slot, pair_trial.FIELDS_INDEX["counted"]].astype(np.int64)
         entries = np.frombuffer(b"".join(r[2].chart for r in rows), np.float64).reshape(-1, 5)
-        chart_pair.append(np.repeat(p, k))
+        chart_pair.append(np.repeat(at_pair, k))
         chart_windows.append(
             entries[:, 0].astype(np.int64) + np.repeat([r[2].first_window for r in rows], k)
         )
@@ -605,8 +611,7 @@ def _assemble(days: list[list]) -> list[dict]:
             np.zeros((0, 4)),
         )
     for p, result in enumerate(out):
-        a, b = edges[p], edges[p + 1]
-        result["chart"] = (all_windows[a:b], all_chart[a:b])
+        result["chart"] = (all_windows[edges[p] : edges[p + 1]], all_chart[edges[p] : edges[p + 1]])
     return out
 
 
