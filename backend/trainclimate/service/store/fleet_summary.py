@@ -6,14 +6,14 @@ the same 30-minute windows (aligned to the clock, the first one after the pair's
 starts), labelled and excluded the same way (:mod:`.pair_trial`: the coach that ran the layer,
 a minute missing, a link lost, an override, a tick that was not DDPC on the activated coach),
 violation and discomfort over the same minutes (both coaches in regular mode, nothing affected).
-Here the telemetry's sums per pair and window come from the window rollups kept at ingest
-(:mod:`.rollups`; the raw minutes only for the windows they cannot give exactly, summed in the
-database in one statement over every train), and the setpoints' counts per coach and window from
-the setpoint rollups kept by the scheduler (:mod:`.setpoint_rollups`); the fleet's naive figures
-pool its trains' energies, its savings estimate their trial estimates
-(:func:`trainclimate.analysis.trial.pool`). Each train's figures are kept in the read cache while
-its rows and setpoints in the counted range and its overrides are unchanged
-(:func:`.pair_windows.pair_states`).
+Here each train's whole service days come from its pair days (:mod:`.pair_days`, kept by the
+scheduler once a day is over), the rest from the telemetry's sums per pair and window in the
+window rollups kept at ingest (:mod:`.rollups`; the raw minutes only for the windows they cannot
+give exactly) and the setpoints' counts per coach and window in the setpoint rollups
+(:mod:`.setpoint_rollups`); the fleet's naive figures pool its trains' energies, its savings
+estimate their trial estimates (:func:`trainclimate.analysis.trial.pool`). Each train's figures
+are kept in the read cache while its rows and setpoints in the counted range and its overrides
+are unchanged (:func:`.pair_windows.pair_states`).
 """
 
 from __future__ import annotations
