@@ -56,6 +56,9 @@ def test_the_service_benchmark_runs_at_a_small_scale():
     assert i["http_batch_latency"]["requests"] == 8
     # the fleet's data and its rollups: 2 days of 48 windows for each of 4 coaches
     assert c["trains_per_reply"] == 2 and c["rollups"]["rows"] == 4 * 2 * 48
+    # and the pair days over: the data's first two hours and its first whole service day (the
+    # days switch at 02:00 UTC; the data ends at midnight)
+    assert c["pair_days"]["rows"] == 2 * 2 and c["pair_days"]["total_mb"] > 0
     assert c["copy"]["rows"] == d["rows"] and c["copy"]["rows_per_s"] > 0
     assert set(c["floor"]) == set(d["summary_ms"]) and c["floor"]["7d"]["requests"] == 3
     assert c["new_vs_floor_p95"]["24h"] == (

@@ -249,34 +249,95 @@ def daily_many(
     ValueError
         If a counted window's ``activated`` is not 0, 1 or :data:`NEITHER`.
     """
-    day = np.asarray(day, np.int64)
+    days, which = np.unique(np.asarray(day, np.int64), return_inverse=True)
+    n, total, present = daily_sums(which, len(days), energy_kwh, activated, counted)
+    return days_from_sums(np.broadcast_to(days, n.shape), n, total, present, min_windows)
+
+
+def daily_sums(
+    which: np.ndarray,
+    n_days: int,
+    energy_kwh: np.ndarray,
+    activated: np.ndarray,
+    counted: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What :func:`days_from_sums` judges each service day by, summed over its counted windows
+    (several pairs over the same windows at once; the sums of two parts of a day add up).
+
+    Parameters
+    ----------
+    which : numpy.ndarray of int, shape (W,)
+        Each window's day, 0 … ``n_days`` − 1.
+    n_days : int
+    energy_kwh : numpy.ndarray of shape (P, W, 2)
+        Each pair's coaches' energy per window. [kWh]
+    activated : numpy.ndarray of int, shape (P, W)
+        The coach running the layer (0, 1, :data:`NEITHER`; any value where not counted).
+    counted : numpy.ndarray of bool, shape (P, W)
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray, numpy.ndarray)
+        Counted windows per day (P, D), each coach's energy over them (P, D, 2) [kWh] and how
+        many of them had coach 0, coach 1 and neither activated (P, D, 3).
+
+    Raises
+    ------
+    ValueError
+        If a counted window's ``activated`` is not 0, 1 or :data:`NEITHER`.
+    """
     keep = np.asarray(counted, bool)
     act = np.asarray(activated, np.int64)
     energy = np.asarray(energy_kwh, float).reshape(*keep.shape, 2)
     if np.any(keep & (act != 0) & (act != 1) & (act != NEITHER)):
         raise ValueError("a counted window's activated coach must be 0, 1 or NEITHER")
-    days, which = np.unique(day, return_inverse=True)
-    one_hot = np.zeros((len(day), len(days)))
-    one_hot[np.arange(len(day)), which] = 1.0
+    one_hot = np.zeros((len(which), n_days))
+    one_hot[np.arange(len(which)), which] = 1.0
     n = keep.astype(float) @ one_hot  # (P, D) counted windows per day
-    total = np.swapaxes(np.where(keep[..., None], energy, 0.0), -1, -2) @ one_hot  # (P, 2, D)
-    present = [((keep & (act == g)).astype(float) @ one_hot) > 0 for g in (0, 1, NEITHER)]
-    label = np.select(present, [0, 1, NEITHER], default=NEITHER)
+    total = np.swapaxes(
+        np.swapaxes(np.where(keep[..., None], energy, 0.0), -1, -2) @ one_hot, -1, -2
+    )
+    present = np.stack([(keep & (act == g)).astype(float) @ one_hot for g in (0, 1, NEITHER)], -1)
+    return n, total, present
+
+
+def days_from_sums(
+    day: np.ndarray,
+    n: np.ndarray,
+    total: np.ndarray,
+    present: np.ndarray,
+    min_windows: int = 4,
+) -> list[TrialDays]:
+    """Each pair's :class:`TrialDays` from its days' :func:`daily_sums`: a day with fewer than
+    ``min_windows`` counted windows is dropped as ``too_few_windows``, one whose counted windows
+    do not all have one activated coach (a plan changed within it) as ``mixed_activation``, one
+    where a coach used no energy as ``no_energy``; days without a counted window are left out.
+
+    Parameters
+    ----------
+    day : numpy.ndarray of int, shape (P, D)
+        Each pair's service days (ordinals), ascending among those with counted windows.
+    n, total, present : numpy.ndarray
+        From :func:`daily_sums`, shapes (P, D), (P, D, 2) and (P, D, 3).
+    min_windows : int, default 4
+    """
+    has = present > 0
+    label = np.select([has[..., 0], has[..., 1], has[..., 2]], [0, 1, NEITHER], default=NEITHER)
     reason = np.select(
-        [n < min_windows, sum(p.astype(int) for p in present) > 1, ~np.all(total > 0, axis=-2)],
+        [n < min_windows, has.sum(axis=-1) > 1, ~np.all(total > 0, axis=-1)],
         [1, 2, 3],
         default=0,
     )
     names = {1: "too_few_windows", 2: "mixed_activation", 3: "no_energy"}
     out = []
-    for p in range(len(keep)):
+    for p in range(len(n)):
         some = n[p] > 0
         good = some & (reason[p] == 0)
         codes, k = np.unique(reason[p][some & ~good], return_counts=True)
         out.append(
             TrialDays(
-                day=days[good],
-                energy_kwh=total[p][:, good].T.reshape(-1, 2),
+                day=np.asarray(day[p])[good],
+                energy_kwh=total[p][good].reshape(-1, 2),
                 activated=label[p][good].astype(np.int64),
                 windows=n[p][good].astype(np.int64),
                 dropped={names[int(c)]: int(m) for c, m in zip(codes, k, strict=True)},

@@ -63,7 +63,7 @@ from trainclimate.service import logs, policy
 from trainclimate.service.metrics import Metrics
 from trainclimate.service.policy import Decision
 from trainclimate.service.settings import LOOP_READY_MIN_S, Settings
-from trainclimate.service.store import guard, plans, setpoint_rollups
+from trainclimate.service.store import guard, pair_days, plans, setpoint_rollups
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import (
     Coach,
@@ -73,10 +73,13 @@ from trainclimate.service.store.models import (
     Setpoint,
     ShadowPrediction,
     Telemetry,
+    utcnow,
 )
 from trainclimate.service.store.telemetry import Samples, controller_samples, load_rows
 
 log = logging.getLogger(__name__)
+#: Pair days made in one loop at most (a few tens of milliseconds of work each).
+PAIR_DAYS_PER_LOOP = 16
 
 
 def floor_tick(time: datetime, period: timedelta) -> datetime:
@@ -432,6 +435,20 @@ class Scheduler:
             issued += self.tick_fleet("live", tick, reported_only=True, coaches=due[tick])
         return issued
 
+    # --- the pair days --------------------------------------------------------------------
+    def keep_pair_days(self, max_days: int = PAIR_DAYS_PER_LOOP) -> int:
+        """Make up to ``max_days`` of the pair days now due (:func:`.pair_days.build`: service
+        days over for both coaches of a train), in their own transaction; how many were made.
+        A failure is logged and left for the next loop (the summary reads the days without
+        pair days from the rollups meanwhile)."""
+        try:
+            with self.db.transaction() as session:
+                pairs = pair_days.fleet_pairs(session, utcnow())
+                return pair_days.build(session, pairs, max_days)
+        except Exception:
+            log.exception("making the pair days failed; retrying in the next loop")
+            return 0
+
     # --- the loops' heartbeats ---------------------------------------------------------------
     def beat(self, loop: str, period_wall_s: float) -> None:
         """Record that ``loop`` completed an iteration now. It counts as running for two of its
@@ -462,6 +479,7 @@ class Scheduler:
         while not stop.is_set():
             try:
                 self.run_live_once()
+                self.keep_pair_days()
                 self.beat("live", self.period_s)
                 self.metrics.database_up = True
             except OperationalError as exc:

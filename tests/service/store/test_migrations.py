@@ -38,8 +38,9 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 #: The newest revision.
-HEAD = "0015"
+HEAD = "0016"
 TABLES = {
+    "pair_days",
     "setpoint_rollups",
     "window_rollups",
     "coach_feed",
@@ -62,6 +63,7 @@ TABLES = {
 
 #: The tables before 0008.
 BEFORE_0008 = TABLES - {
+    "pair_days",
     "setpoint_rollups",
     "train_plans",
     "trial_days",
@@ -345,7 +347,10 @@ def test_rollups_are_computed_for_the_telemetry_already_stored(db_url):
     finally:
         db.dispose()
     downgrade(db_url, "0011")
-    assert schema(db_url) == (TABLES - {"window_rollups", "coach_feed", "setpoint_rollups"}, "0011")
+    assert schema(db_url) == (
+        TABLES - {"window_rollups", "coach_feed", "setpoint_rollups", "pair_days"},
+        "0011",
+    )
 
 
 def test_setpoint_rollups_are_counted_from_the_setpoints_already_stored(db_url):
@@ -405,4 +410,4 @@ def test_setpoint_rollups_are_counted_from_the_setpoints_already_stored(db_url):
         ("B", 0): (1, 1, 0, 0, 0, 0, 0),
     }
     downgrade(db_url, "0014")
-    assert schema(db_url) == (TABLES - {"setpoint_rollups"}, "0014")
+    assert schema(db_url) == (TABLES - {"setpoint_rollups", "pair_days"}, "0014")

@@ -66,8 +66,8 @@ def run(
        SQLAlchemy executemany INSERT of the same batches. They take turns batch by batch, each
        writing its own coaches.
     2. Fleet scale (:mod:`.comparison`): ``pairs`` × 2 coaches × ``days`` of 1-min rows loaded
-       with binary COPY and their rollups built; ``samples`` requests per point of the fleet
-       summary over 6 h, 24 h, 7 d and 30 d, refreshed and over new ranges, and of the pair
+       with binary COPY and their rollups and pair days built; ``samples`` requests per point of the
+       fleet summary over 6 h, 24 h, 7 d and 30 d, refreshed and over new ranges, and of the pair
        comparison over 24 h and 7 d; baseline the rollup floor over the same windows.
     3. Fleet tick: ``fleet`` live coaches (half activated), simulated minute by minute for a
        lead-in of 14 ticks; after a warm-up tick, ``repeats`` ticks of
@@ -151,7 +151,9 @@ def text(d: dict) -> str:
         f"rows/s; COPY {c['copy']['rows_per_s']:,.0f} rows/s\n"
         f"{c['pairs']} pairs × {c['days']} days ({d['rows'] / 1e6:.1f} M rows, "
         f"{c['table']['total_mb']:,.0f} MB; rollups {c['rollups']['rows']:,} rows, "
-        f"{c['rollups']['total_mb']:,.0f} MB, built in {c['rollups']['build_s']:.1f} s)\n"
+        f"{c['rollups']['total_mb']:,.0f} MB, built in {c['rollups']['build_s']:.1f} s; "
+        f"pair days {c['pair_days']['rows']:,} rows, {c['pair_days']['total_mb']:,.0f} MB, "
+        f"built in {c['pair_days']['build_s']:.1f} s)\n"
         f"fleet summary median/p95 ms: {summary}\n"
         f"pair comparison median/p95 ms: {compared}\n"
         f"fleet tick of {t['coaches']} coaches with the database: {t['tick_s']:.2f} s "

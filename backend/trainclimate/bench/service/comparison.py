@@ -36,16 +36,17 @@ FLOOR = (
 
 
 def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) -> dict:
-    """Load ``pairs`` × ``days`` of 1-minute rows with binary COPY and build their window
-    rollups, then time ``samples`` requests per point: the fleet summary over each of
-    :data:`SUMMARY_H` refreshed (the data's end, each window in turn, after one untimed round
-    that fills the read cache) and over new ranges (random ends), the pair comparison over each
-    of :data:`COMPARISON_H` (random trains and ends), and the rollup floor over each summary
-    window. ``progress(1)`` after the load and after the requests."""
-    from trainclimate.service.store import rollups, setpoint_rollups
+    """Load ``pairs`` × ``days`` of 1-minute rows with binary COPY and build their window rollups
+    and pair days (:mod:`~trainclimate.service.store.pair_days`), then time ``samples`` requests per
+    point: the fleet summary over each of :data:`SUMMARY_H` refreshed (the data's end, each window
+    in turn, after one untimed round that fills the read cache) and over new ranges (random ends),
+    the pair comparison over each of :data:`COMPARISON_H` (random trains and ends), and the rollup
+    floor over each summary window. ``progress(1)`` after the load and after the requests."""
+    from trainclimate.service.store import pair_days, rollups, setpoint_rollups
     from trainclimate.service.store.db import Database
 
     ids = pair_ids("C", pairs)[0]
+    end = DATA_START + pd.Timedelta(days=days)
     register(url, ids, "archive")  # not the live fleet: the tick later leaves them alone
     n_rows = len(ids) * days * 1440
     sent, copy_s = copy_telemetry(url, _rows(pairs, days, seed=2))
@@ -56,6 +57,10 @@ def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) ->
         n_rollups = rollups.rebuild(session)
         setpoint_rollups.rebuild(session)
     rollup_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    with db.transaction() as session:  # as the scheduler keeps them, all at once
+        n_days = pair_days.build(session, pair_days.fleet_pairs(session, end.to_pydatetime()))
+    days_s = time.perf_counter() - t0
     db.dispose()
     t0 = time.perf_counter()
     sql(url, "VACUUM ANALYZE", autocommit=True)
@@ -63,7 +68,6 @@ def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) ->
     if progress:
         progress(1)
     rng = np.random.default_rng(4)
-    end = DATA_START + pd.Timedelta(days=days)
     summary: dict[str, dict] = {name: {} for name in SUMMARY_H}
     comparison: dict[str, dict] = {}
     with fleet_client(url, model) as client:
@@ -104,6 +108,7 @@ def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) ->
     if progress:
         progress(1)
     rollup_mb = sql(url, "SELECT pg_total_relation_size('window_rollups')")[0][0] / 2**20
+    days_mb = sql(url, "SELECT pg_total_relation_size('pair_days')")[0][0] / 2**20
     return {
         "pairs": pairs,
         "days": days,
@@ -119,6 +124,7 @@ def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) ->
         },
         "table": table_size(url),
         "rollups": {"rows": n_rollups, "build_s": rollup_s, "total_mb": rollup_mb},
+        "pair_days": {"rows": n_days, "build_s": days_s, "total_mb": days_mb},
         "copy": {
             "rows": n_rows,
             "seconds": copy_s,

@@ -15,7 +15,8 @@ _PG_EPOCH_S = 946_684_800  # 2000-01-01T00:00Z: PostgreSQL's binary timestamps c
 _COPY_SIGNATURE = b"PGCOPY\n\xff\r\n\x00" + bytes(8)  # binary COPY header (no flags, no extension)
 #: Empties every table the benchmark writes.
 RESET = (
-    "TRUNCATE telemetry, window_rollups, coach_feed, setpoints, setpoint_rollups, overrides, "
+    "TRUNCATE telemetry, window_rollups, coach_feed, setpoints, setpoint_rollups, pair_days, "
+    "overrides, "
     "coach_liveness, coaches, trains, fleet_clocks, "
     "audit_log "
     "RESTART IDENTITY CASCADE"

@@ -16,19 +16,19 @@ from trainclimate.bench.service.fleet import pair_ids, register, synthetic, toke
 
 
 def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) -> dict:
-    """Telemetry ingest rows/s four ways on the same batches: the HTTP API, ``commands.ingest``
-    (one transaction per batch, no HTTP), the same without the window rollups kept (what they
-    cost) and the baseline, a plain executemany INSERT per batch; interleaved batch by batch
-    (each way writes its own coaches into one table), so a machine that slows down meanwhile
-    slows all four alike. Then all rows once more in one executemany
-    and one transaction. ``coaches`` coaches × ``batches`` hourly batches of ``rows_per_batch``
-    1-minute rows; the HTTP requests' latencies in ms. Empties the tables afterwards."""
+    """Telemetry ingest rows/s four ways on the same batches: the HTTP API, ``commands.ingest`` (one
+    transaction per batch, no HTTP), the same without the window rollups kept and the pair days they
+    change dropped (what that upkeep costs) and the baseline, a plain executemany INSERT per batch;
+    interleaved batch by batch (each way writes its own coaches into one table), so a machine that
+    slows down meanwhile slows all four alike. Then all rows once more in one executemany and one
+    transaction. ``coaches`` coaches × ``batches`` hourly batches of ``rows_per_batch`` 1-minute
+    rows; the HTTP requests' latencies in ms. Empties the tables afterwards."""
     from unittest import mock
 
     import pandas as pd
     from sqlalchemy import text
 
-    from trainclimate.service.store import commands, rollups
+    from trainclimate.service.store import commands, pair_days, rollups
     from trainclimate.service.store.db import Database
     from trainclimate.service.store.models import Telemetry
     from trainclimate.service.store.telemetry import to_wire
@@ -88,8 +88,12 @@ def run(url: str, model: Path, coaches: int, batches: int, rows_per_batch: int) 
                 commands.ingest(session, way_ids["direct"][i], rows)
             t2 = time.perf_counter()  # through the HTTP API
             reply = client.post("/api/v1/telemetry", content=body, headers=headers)
-            t3 = time.perf_counter()  # the command without the rollups
-            with mock.patch.object(rollups, "add_rows"), db.transaction() as session:
+            t3 = time.perf_counter()  # the command without the rollups and pair days' upkeep
+            with (
+                mock.patch.object(rollups, "add_rows"),
+                mock.patch.object(pair_days, "forget"),
+                db.transaction() as session,
+            ):
                 commands.ingest(session, way_ids["bare"][i], rows)
             t4 = time.perf_counter()
             if reply.status_code != 200 or reply.json()["stored"] != len(rows):

@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
 from trainclimate.coach.setpoint import U_BAND_K
-from trainclimate.service.store import guard, liveness, plans
+from trainclimate.service.store import guard, liveness, pair_days, plans, rollups
 from trainclimate.service.store.models import (
     ApiToken,
     AuditLog,
@@ -199,10 +199,10 @@ class Backfill:
 def ingest(
     session: Session, coach_id: str, rows: list[TelemetryRecord], backfill: Backfill | None = None
 ) -> tuple[int, int]:
-    """Store a batch of telemetry, advance the coach's own clock and note the arrival
-    (:mod:`.liveness`). Returns (stored, duplicates). With ``backfill``, a batch with a row
-    ahead of the server's clock or older than its horizon is refused whole
-    (:class:`AheadOfClockError`, :class:`OutsideHorizonError`).
+    """Store a batch of telemetry, drop the pair days it changes (:func:`.pair_days.forget`),
+    advance the coach's own clock and note the arrival (:mod:`.liveness`). Returns (stored,
+    duplicates). With ``backfill``, a batch with a row ahead of the server's clock or older
+    than its horizon is refused whole (:class:`AheadOfClockError`, :class:`OutsideHorizonError`).
 
     Nothing here locks a row a tick holds: the telemetry's foreign key takes a key-share lock
     on the coach, which the tick's ``FOR NO KEY UPDATE`` lets through, and the arrival is
@@ -218,6 +218,8 @@ def ingest(
         backfill.check(session, coach.id, rows)
     newest = max(r["time"] for r in rows)
     stored = insert_rows(session, coach.id, rows)
+    # a row for a day already summed (arriving late) makes that day's pair days stale
+    pair_days.forget(session, {coach.id: rollups.window_of(min(r["time"] for r in rows))})
     liveness.note_arrival(session, coach.id, newest, utcnow())
     return stored, len(rows) - stored
 
@@ -253,6 +255,7 @@ def create_override(
     )
     session.add(override)
     session.flush()
+    pair_days.forget(session, {coach.id: rollups.window_of(now)})
     audit(
         session,
         who,
@@ -277,6 +280,7 @@ def cancel_override(session: Session, who: Principal, coach_id: str, reason: str
     for o in current:
         o.cancelled_at, o.cancelled_by = now, who.name
         audit(session, who, "override.cancel", coach.id, reason, override_id=o.id)
+    pair_days.forget(session, {coach.id: rollups.window_of(now)})
     return current[-1]
 
 

@@ -6,14 +6,14 @@ the same 30-minute windows (aligned to the clock, the first one after the pair's
 starts), labelled and excluded the same way (:mod:`.pair_trial`: the coach that ran the layer,
 a minute missing, a link lost, an override, a tick that was not DDPC on the activated coach),
 violation and discomfort over the same minutes (both coaches in regular mode, nothing affected).
-Here the telemetry's sums per pair and window come from the window rollups kept at ingest
-(:mod:`.rollups`; the raw minutes only for the windows they cannot give exactly, summed in the
-database in one statement over every train), and the setpoints' counts per coach and window from
-the setpoint rollups kept by the scheduler (:mod:`.setpoint_rollups`); the fleet's naive figures
-pool its trains' energies, its savings estimate their trial estimates
-(:func:`trainclimate.analysis.trial.pool`). Each train's figures are kept in the read cache while
-its rows and setpoints in the counted range and its overrides are unchanged
-(:func:`.pair_windows.pair_states`).
+Here each train's whole service days come from its pair days (:mod:`.pair_days`, kept by the
+scheduler once a day is over), the rest from the telemetry's sums per pair and window in the
+window rollups kept at ingest (:mod:`.rollups`; the raw minutes only for the windows they cannot
+give exactly) and the setpoints' counts per coach and window in the setpoint rollups
+(:mod:`.setpoint_rollups`); the fleet's naive figures pool its trains' energies, its savings
+estimate their trial estimates (:func:`trainclimate.analysis.trial.pool`). Each train's figures
+are kept in the read cache while its rows and setpoints in the counted range and its overrides
+are unchanged (:func:`.pair_windows.pair_states`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from sqlalchemy.orm import Session
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
 from trainclimate.coach.meters import HEADLINE_METER, METERS
-from trainclimate.service.store import pair_trial, pair_windows, plans, queries
+from trainclimate.service.store import pair_days, pair_windows, plans, queries
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
     attention,
@@ -46,7 +46,6 @@ from trainclimate.service.store.models import (
     Telemetry,
     Train,
 )
-from trainclimate.service.store.pair_trial import COUNTS, SUMS, energy_columns
 from trainclimate.service.store.records import CoachView
 
 
@@ -63,55 +62,40 @@ def _coach_times(session: Session, coaches: list) -> dict[str, tuple]:
     return {cid: (t0, t1) for cid, t0, t1 in rows if cid in ids}
 
 
-#: Pairs analysed together (bounds the arrays: 128 pairs × 30 days ≈ 45 MB).
+#: Pairs analysed together (bounds the arrays: 128 pairs × 30 days of windows ≈ 45 MB, where
+#: no pair day holds them).
 _CHUNK = 128
+#: The summary's window: the rollups' and the pair days'. [min]
+WINDOW_MIN = float(pair_days.WINDOW_MIN)
 
 
 def pair_results(
     session: Session,
     pairs: list[tuple[str, str, datetime, datetime]],
     switch_hours: list[int],
-    window_min: float,
     cache: ReadCache | None = None,
 ) -> dict[str, dict]:
-    """Each pair's :func:`.pair_trial.pair_result` over its range (lo, hi] with its train's
-    switch hour, those whose state (:func:`.pair_windows.pair_states`) is unchanged since they
-    were computed taken from ``cache`` (a dashboard's refresh recomputes nothing), the others
-    from their :func:`.pair_windows.pair_data`. Coach 0's id → result (shared with the cache:
-    not to be changed)."""
+    """Each pair's figures over its range (lo, hi] with its train's switch hour
+    (:func:`.pair_days.pair_results`), those whose state (:func:`.pair_windows.pair_states`)
+    is unchanged since they were computed taken from ``cache`` (a dashboard's refresh
+    recomputes nothing). Coach 0's id → result (shared with the cache: not to be changed)."""
     overrides = pair_windows.overrides_over(session, pairs)
     states = pair_windows.pair_states(session, pairs, overrides) if cache else [None] * len(pairs)
     out, missing = {}, []
     for pair, hour, state in zip(pairs, switch_hours, states, strict=True):
-        key = ("pair-result", *pair, window_min, hour)
+        key = ("pair-result", *pair, WINDOW_MIN, hour)
         kept = cache.lookup(key, state) if cache is not None else None
         if kept is None:
             missing.append((pair, hour, state, key))
         else:
             out[pair[0]] = kept
-    todo = [m[0] for m in missing]
     # the figures are kept, not the sums they came from: one answer per train and range
-    data = pair_windows.pair_data(session, todo, window_min, None, overrides)
-    by_range: dict[tuple, list] = {}
-    for m in missing:
-        by_range.setdefault(m[0][2:], []).append(m)
-    chunks = [
-        (lo_hi, group[i : i + _CHUNK])
-        for lo_hi, group in by_range.items()
-        for i in range(0, len(group), _CHUNK)
-    ]
-    for (lo, hi), group in chunks:
-        w_lo, n = pair_windows.range_windows(lo, hi, window_min)
-        found = pair_trial.pair_results(
-            np.arange(w_lo, w_lo + n),
-            np.stack([data[pair[0]][0] for pair, *_ in group]).reshape(len(group), n, len(SUMS)),
-            np.stack([data[pair[0]][1] for pair, *_ in group]).reshape(
-                len(group), n, 2, len(COUNTS)
-            ),
-            window_min,
-            [hour for _, hour, _, _ in group],
+    for i in range(0, len(missing), _CHUNK):
+        chunk = missing[i : i + _CHUNK]
+        found = pair_days.pair_results(
+            session, [m[0] for m in chunk], [m[1] for m in chunk], overrides
         )
-        for (pair, _, state, key), result in zip(group, found, strict=True):
+        for (pair, _, state, key), result in zip(chunk, found, strict=True):
             out[pair[0]] = result
             if cache is not None:
                 cache.put(key, state, result)
@@ -123,7 +107,6 @@ def summary(
     views: list[CoachView],
     hours: float,
     end: datetime | None = None,
-    window_min: float = 30.0,
     cache: ReadCache | None = None,
 ) -> dict:
     """The fleet at a glance: savings and comfort of every train over the ``hours`` up to
@@ -178,9 +161,9 @@ def summary(
         firsts = [times[c.id][0] for c in (c0, c1)]
         earliest = min((f for f in firsts if f is not None), default=None)
         start = stop - timedelta(hours=hours)
-        first, n = queries.counted_range(start, stop, earliest, window_min)
+        first, n = queries.counted_range(start, stop, earliest, WINDOW_MIN)
         ranges.append((t, c0, c1, first, n, stop))
-        hi = first + pd.Timedelta(minutes=window_min * n)
+        hi = first + pd.Timedelta(minutes=WINDOW_MIN * n)
         pairs.append((c0.id, c1.id, first.to_pydatetime(), hi.to_pydatetime()))
     by_stop: dict[datetime, list[str]] = {}
     for t, _, _, _, _, stop in ranges:
@@ -189,7 +172,7 @@ def summary(
     for stop, ids in by_stop.items():
         in_force |= {tid: rows[0] for tid, rows in plans.plans_at(session, ids, stop).items()}
     terms = [plans.terms(in_force.get(t.id)) for t, *_ in ranges]
-    found = pair_results(session, pairs, [h for _, h, _ in terms], window_min, cache)
+    found = pair_results(session, pairs, [h for _, h, _ in terms], cache)
     results = [
         (t, c0, c1, first, stop, {**found[c0.id], "plan": plan})
         for (t, c0, c1, first, _, stop), (plan, _, _) in zip(ranges, terms, strict=True)
@@ -197,14 +180,14 @@ def summary(
     # the fleet's headline is the HVAC units' meter when every train has it
     fleet_meters = [m for m in METERS if all(m in r[-1]["totals"] for r in results)]
     fleet_meter = HEADLINE_METER if HEADLINE_METER in fleet_meters else "hvac_and_floor"
-    fleet = {m: PairTotals.empty(window_min) for m in fleet_meters}
+    fleet = {m: PairTotals.empty(WINDOW_MIN) for m in fleet_meters}
     out_trains, counted_w, counted_e = [], [], []
+    chart_columns = [2 * list(METERS).index(fleet_meter) + k for k in (0, 1)]
     for t, c0, c1, first, stop, r in results:
         fleet = {m: fleet[m] + r["totals"][m] for m in fleet}
-        e0, e1 = r["grid"][:, list(energy_columns(fleet_meter))].T
-        one = r["label"] == 1
-        counted_w.append(r["index"][r["counted"]])
-        counted_e.append(np.stack([np.where(one, e1, e0), np.where(one, e0, e1)])[:, r["counted"]])
+        chart_w, chart_e = r["chart"]
+        counted_w.append(chart_w)
+        counted_e.append(chart_e[:, chart_columns].T)
         out_trains.append(
             {
                 "id": t.id,
@@ -229,7 +212,7 @@ def summary(
     clocks_now = {v["id"]: v["clock"] for v in views if v["clock"] is not None}
     return {
         "hours": hours,
-        "window_min": window_min,
+        "window_min": WINDOW_MIN,
         "meter": fleet_meter,
         "savings_pct": pooled["savings_pct"] if pooled["savings_pct"] is not None else naive,
         "savings_ci95_pct": pooled["savings_ci95_pct"],
@@ -245,12 +228,12 @@ def summary(
         "avg_hourly_violation_activated_k": totals.avg_hourly_violation_k,
         "avg_hourly_violation_deactivated_k": totals.baseline_violation_k,
         "excluded_minutes": totals.excluded_minutes,
-        "counted_windows": sum(int(r[-1]["counted"].sum()) for r in results),
+        "counted_windows": sum(r[-1]["counted_windows"] for r in results),
         "counted_hours": totals.counted_hours,
         "trains": out_trains,
         "windows": [
             {
-                "start": pd.Timestamp(int(w) * window_min * 60, unit="s", tz="UTC").to_pydatetime(),
+                "start": pd.Timestamp(int(w) * WINDOW_MIN * 60, unit="s", tz="UTC").to_pydatetime(),
                 "energy_activated_kwh": float(e_act),
                 "energy_deactivated_kwh": float(e_deact),
                 "trains": int(n),

@@ -196,6 +196,36 @@ class WindowRollup(Base):
     discomfort_low_kh: Mapped[float] = mapped_column(Float, default=0.0)
 
 
+class PairDay(Base):
+    """A pair's figures over one whole service day (:mod:`trainclimate.service.store.pair_days`):
+    the pair (``coach_0`` < ``coach_1``), its train's ``switch_hour`` [h] and the ``day`` (an
+    ordinal); its windows [``first_window``, ``first_window`` + ``windows``) (windows since
+    1970); the lead-in state it was computed from and the one it leaves (the last labelled
+    window's label, and how many windows back the last change was, capped at the lead-in's);
+    ``fields`` (float64 per :data:`~.pair_trial.FIELDS`), ``chart`` (the counted windows'
+    offsets, int16, then their energies per meter and role, float64 × 4) and ``minutes`` (each
+    window's sums, float64 × len(SUMS), label and own code, int8)."""
+
+    __tablename__ = "pair_days"
+    day: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    coach_0: Mapped[str] = mapped_column(ForeignKey("coaches.id"), primary_key=True)
+    coach_1: Mapped[str] = mapped_column(ForeignKey("coaches.id"), primary_key=True)
+    switch_hour: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    first_window: Mapped[int] = mapped_column(BigInteger)
+    windows: Mapped[int] = mapped_column(Integer)
+    entering_label: Mapped[int] = mapped_column(Integer)
+    entering_age: Mapped[int] = mapped_column(Integer)
+    exiting_label: Mapped[int] = mapped_column(Integer)
+    exiting_age: Mapped[int] = mapped_column(Integer)
+    fields: Mapped[bytes] = mapped_column(LargeBinary)
+    chart: Mapped[bytes] = mapped_column(LargeBinary)
+    minutes: Mapped[bytes] = mapped_column(LargeBinary)
+    __table_args__ = (
+        Index("ix_pair_days_coach_0", "coach_0", "day"),
+        Index("ix_pair_days_coach_1", "coach_1", "day"),
+    )
+
+
 class CoachFeed(Base):
     """A coach's telemetry as it stands, kept as rows arrive (:mod:`.rollups`): the time of its
     newest row, of its newest row within comfort (every deck within T_rule ± T_max, or not in

@@ -174,25 +174,79 @@ def labels(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return label, code
 
 
-def lead_in(label: np.ndarray, window_min: float, lead_in_min: float = LEAD_IN_MIN) -> np.ndarray:
+#: A pair's lead-in state where its windows start when nothing came before them: no labelled
+#: window before, no change within reach (:func:`lead_in`).
+NO_STATE = (UNLABELLED, 1 << 30)
+
+
+def _lead_windows(window_min: float, lead_in_min: float) -> int:
+    """The windows a change of the activated coach marks as lead-in."""
+    return int(np.ceil(lead_in_min / window_min))
+
+
+def lead_in(
+    label: np.ndarray,
+    window_min: float,
+    lead_in_min: float = LEAD_IN_MIN,
+    entering: tuple | None = None,
+) -> np.ndarray:
     """The windows within ``lead_in_min`` of a change of the activated coach (between labelled
-    windows: 0, 1 or reference), shape (..., W) bool, along the last axis."""
-    n = int(np.ceil(lead_in_min / window_min))
+    windows: 0, 1 or reference), shape (..., W) bool, along the last axis.
+
+    ``entering`` is the state before the first window (:func:`lead_state`; default
+    :data:`NO_STATE`): the label of the last labelled window before it, and how many windows
+    before the first one the last change was — so that windows taken in parts, each from the
+    state the part before left, are marked as taken whole."""
+    n = _lead_windows(window_min, lead_in_min)
     w = label.shape[-1]
     if w == 0:
         return np.zeros(label.shape, bool)
-    labelled = label != UNLABELLED
-    # the last labelled window before each window (−1: none)
-    last = np.maximum.accumulate(np.where(labelled, np.arange(w), -1), axis=-1)
-    before = np.concatenate([np.full((*label.shape[:-1], 1), -1), last[..., :-1]], axis=-1)
-    previous = np.take_along_axis(label, np.maximum(before, 0), axis=-1)
-    change = labelled & (before >= 0) & (label != previous)
+    change = _changes(label, entering)
     # a change at w marks w … w + n − 1: the windows with a change in the n up to them
     changes = np.cumsum(change, axis=-1)
     earlier = np.zeros_like(changes)
     if n < w:
         earlier[..., n:] = changes[..., : w - n]
-    return changes - earlier > 0
+    marked = changes - earlier > 0
+    if entering is not None:  # the lead-in of a change before the first window
+        age = np.asarray(entering[1])[..., None]
+        marked |= np.arange(w) < n - age
+    return marked
+
+
+def _changes(label: np.ndarray, entering: tuple | None) -> np.ndarray:
+    """Where the activated coach changes (..., W) bool: a labelled window whose label differs
+    from the last labelled window's before it (the ``entering`` state's before the first)."""
+    w = label.shape[-1]
+    prev = np.full(label.shape[:-1], UNLABELLED) if entering is None else entering[0]
+    prev = np.broadcast_to(np.asarray(prev)[..., None], (*label.shape[:-1], 1))
+    labelled = label != UNLABELLED
+    # the last labelled window before each window (−1: none, the entering state's label)
+    last = np.maximum.accumulate(np.where(labelled, np.arange(w), -1), axis=-1)
+    before = np.concatenate([np.full((*label.shape[:-1], 1), -1), last[..., :-1]], axis=-1)
+    previous = np.where(
+        before >= 0, np.take_along_axis(label, np.maximum(before, 0), axis=-1), prev
+    )
+    return labelled & (previous != UNLABELLED) & (label != previous)
+
+
+def lead_state(label: np.ndarray, entering: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The lead-in state after windows ``label`` (..., W) taken from the ``entering`` state:
+    the last labelled window's label (UNLABELLED if none so far) and how many windows before
+    the next one the last change was (large if none)."""
+    prev0, age0 = NO_STATE if entering is None else entering
+    w = label.shape[-1]
+    labelled = label != UNLABELLED
+    last = np.where(labelled, np.arange(w), -1).max(axis=-1, initial=-1)
+    prev = np.where(
+        last >= 0,
+        np.take_along_axis(label, np.maximum(last, 0)[..., None], axis=-1)[..., 0],
+        prev0,
+    )
+    change = _changes(label, entering)
+    last_change = np.where(change, np.arange(w), -1).max(axis=-1, initial=-1)
+    age = np.where(last_change >= 0, w - last_change, np.minimum(np.asarray(age0) + w, NO_STATE[1]))
+    return prev, age
 
 
 def exclusions(sums: np.ndarray, window_min: float) -> np.ndarray:
@@ -210,11 +264,37 @@ def exclusions(sums: np.ndarray, window_min: float) -> np.ndarray:
     return np.select(conditions, codes, default=0)
 
 
+def base_windows(
+    sums: np.ndarray, counts: np.ndarray, window_min: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each window's label (:func:`labels`) and its own reason to be excluded (the telemetry's
+    first, then the setpoints'), before the lead-in: what a window is, whatever came before it.
+    Shapes as :func:`windows`."""
+    label, code = labels(counts)
+    telemetry = exclusions(sums, window_min)
+    return label, np.where(telemetry != 0, telemetry, code)
+
+
+def with_lead_in(
+    label: np.ndarray,
+    code: np.ndarray,
+    window_min: float,
+    lead_in_min: float = LEAD_IN_MIN,
+    entering: tuple | None = None,
+) -> np.ndarray:
+    """:func:`base_windows`' codes with the windows of the lead-in (:func:`lead_in` from the
+    ``entering`` state) that have no other reason marked ``plan_switch``."""
+    code = code.copy()
+    code[lead_in(label, window_min, lead_in_min, entering) & (code == 0)] = _CODE["plan_switch"]
+    return code
+
+
 def windows(
     sums: np.ndarray,
     counts: np.ndarray,
     window_min: float,
     lead_in_min: float = LEAD_IN_MIN,
+    entering: tuple | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each window's label and reason to exclude it (see the module docstring).
 
@@ -228,6 +308,8 @@ def windows(
         Window length. [min]
     lead_in_min : float
         See :func:`lead_in`. [min]
+    entering : tuple, optional
+        The lead-in state before the first window (:func:`lead_state`).
 
     Returns
     -------
@@ -236,124 +318,168 @@ def windows(
         :data:`REASONS`, 0 where it counts (a window labelled reference counts for the
         reference estimate only).
     """
-    label, code = labels(counts)
-    telemetry = exclusions(sums, window_min)
-    code = np.where(telemetry != 0, telemetry, code)
-    code[lead_in(label, window_min, lead_in_min) & (code == 0)] = _CODE["plan_switch"]
-    return label, code
+    label, code = base_windows(sums, counts, window_min)
+    return label, with_lead_in(label, code, window_min, lead_in_min, entering)
 
 
-def _totals(
-    grids: np.ndarray,
-    label: np.ndarray,
-    counted: np.ndarray,
-    window_min: float,
-    meter_columns: tuple[int, int],
-) -> list[PairTotals]:
-    """Each pair's totals on one meter over its counted windows (activated and deactivated by
-    each window's label); violation and discomfort over the minutes in band, nothing affected,
-    of every window in which a coach ran the layer (counted or not: an excluded window's
-    comfort still happened).
-
-    Parameters
-    ----------
-    grids : numpy.ndarray of shape (P, W, S)
-        Window sums, coach 0 first.
-    label : numpy.ndarray of int, shape (P, W)
-    counted : numpy.ndarray of bool, shape (P, W)
-        Windows labelled 0 or 1 and not excluded.
-    window_min : float
-        Window length. [min]
-    meter_columns : (int, int)
-        Coach 0's and coach 1's energy columns of the meter.
-    """
-    e0, e1 = grids[..., meter_columns[0]], grids[..., meter_columns[1]]
-    one = label == 1
-    e_act = np.where(counted, np.where(one, e1, e0), 0.0).sum(axis=-1)
-    e_deact = np.where(counted, np.where(one, e0, e1), 0.0).sum(axis=-1)
-    d0 = grids[..., [SUMS_INDEX[f"discomfort_0_{d}_kh"] for d in ("up", "mid", "low")]]
-    d1 = grids[..., [SUMS_INDEX[f"discomfort_1_{d}_kh"] for d in ("up", "mid", "low")]]
-    roles = (label >= 0)[..., None]
-    d_act = np.where(roles, np.where(one[..., None], d1, d0), 0.0).sum(axis=-2)
-    d_deact = np.where(roles, np.where(one[..., None], d0, d1), 0.0).sum(axis=-2)
-    minutes = np.where(roles[..., 0], grids[..., SUMS_INDEX["counted_minutes"]], 0.0)
-    n_windows = grids.shape[-2]
-    excluded = n_windows - counted.sum(axis=-1)
-    return [
-        PairTotals(
-            energy_activated_kwh=float(e_act[p]),
-            energy_deactivated_kwh=float(e_deact[p]),
-            windows=n_windows,
-            excluded_windows=int(excluded[p]),
-            window_min=window_min,
-            counted_hours=float(minutes[p].sum() / 60.0),
-            discomfort_kh=d_act[p],
-            baseline_discomfort_kh=d_deact[p],
-        )
-        for p in range(len(grids))
-    ]
+_DECKS = ("up", "mid", "low")
+_GROUPS = {"0": 0, "1": 1, "neither": trial.NEITHER}
+#: What a pair's windows add up to over a service day (or any part of one): its windows, those
+#: counted and those excluded by reason; the minutes counted for comfort and the discomfort per
+#: deck of the activated and the deactivated coach over every window in which a coach ran the
+#: layer; the counted windows with a row that does not split the floor heating off; each meter's
+#: energy of the activated and the deactivated coach over the counted windows [kWh]; and what the
+#: trial estimate judges the day by (:func:`trainclimate.analysis.trial.daily_sums`): its
+#: counted and reference windows, by activated coach, and each coach's energy over them on each
+#: meter [kWh]. Two parts of a day add up to the whole day's.
+FIELDS = (
+    "windows",
+    "counted",
+    *(f"excluded_{r}" for r in REASONS[1:]),
+    "role_minutes",
+    *(f"discomfort_{role}_{d}_kh" for role in ("activated", "deactivated") for d in _DECKS),
+    "unsplit_counted",
+    *(f"{m}_{role}_kwh" for m in METERS for role in ("activated", "deactivated")),
+    "trial_windows",
+    *(f"trial_{g}_windows" for g in _GROUPS),
+    *(f"trial_{m}_energy_{c}_kwh" for m in METERS for c in (0, 1)),
+)
+FIELDS_INDEX = {name: i for i, name in enumerate(FIELDS)}
+#: The columns of :data:`FIELDS` with each meter's activated and deactivated energy (a chart's).
+CHART_FIELDS = [
+    FIELDS_INDEX[f"{m}_{role}_kwh"] for m in METERS for role in ("activated", "deactivated")
+]
 
 
-def _estimates(
-    index: np.ndarray,
-    energy: np.ndarray,
-    label: np.ndarray,
-    code: np.ndarray,
-    window_min: float,
-    switch_hours: list[int],
-) -> list[trial.TrialEstimate]:
-    """Each pair's trial estimate from its windows: counted and reference windows summed per
-    service day (:func:`trial.daily_many`), then :func:`trial.estimate_many`. With counted
-    windows but no day of :data:`MIN_DAY_WINDOWS`, the naive figure over them (confounded).
+def window_fields(grid: np.ndarray, label: np.ndarray, code: np.ndarray) -> np.ndarray:
+    """What each window adds to its day's :data:`FIELDS`, shape (..., W, len(FIELDS)), from
+    its sums (..., W, S) and its label and code (:func:`windows`)."""
+    out = np.zeros((*label.shape, len(FIELDS)))
 
-    Parameters
-    ----------
-    index : numpy.ndarray of int, shape (W,)
-        Window indices (starts in window lengths since 1970), the same for every pair.
-    energy : numpy.ndarray of shape (P, W, 2)
-        Coach 0's and coach 1's energy per window on each pair's headline meter. [kWh]
-    label, code : numpy.ndarray of shape (P, W)
-        From :func:`windows`.
-    window_min : float
-        Window length. [min]
-    switch_hours : list of int
-        Each pair's train's local switch hour. [h]
-    """
-    starts = pd.to_datetime(index * round(window_min * 60), unit="s", utc=True)
-    usable = code == 0
-    activated = np.where(usable, label, trial.NEITHER)
-    counts_for_days = usable & (label != UNLABELLED)
-    days: list = [None] * len(label)
-    hours = np.asarray(switch_hours)
-    for hour in np.unique(hours):
-        mine = np.flatnonzero(hours == hour)
-        found = trial.daily_many(
-            trial.service_days(starts, int(hour)),
-            energy[mine],
-            activated[mine],
-            counts_for_days[mine],
-            min_windows=MIN_DAY_WINDOWS,
-        )
-        for i, d in zip(mine, found, strict=True):
-            days[i] = d
-    out = trial.estimate_many(days)
-    counted = usable & (label >= 0)
-    for p, result in enumerate(out):
-        if result.estimator is None and counted[p].any():
-            lab = label[p, counted[p]]
-            naive = savings_pct(
-                energy[p, counted[p], lab].sum(), energy[p, counted[p], 1 - lab].sum()
-            )
-            why = "fewer than a day's windows: the saving is confounded with the coaches"
-            out[p] = trial.TrialEstimate("fixed_naive", naive, None, why, naive, result.days)
+    def put(name: str, values) -> None:
+        out[..., FIELDS_INDEX[name]] = values
+
+    counted = (code == 0) & (label >= 0)
+    one, roles = label == 1, label >= 0
+    put("windows", 1.0)
+    put("counted", counted)
+    for i, reason in enumerate(REASONS[1:], 1):
+        put(f"excluded_{reason}", code == i)
+    put("role_minutes", np.where(roles, grid[..., SUMS_INDEX["counted_minutes"]], 0.0))
+    for d in _DECKS:
+        d0 = grid[..., SUMS_INDEX[f"discomfort_0_{d}_kh"]]
+        d1 = grid[..., SUMS_INDEX[f"discomfort_1_{d}_kh"]]
+        put(f"discomfort_activated_{d}_kh", np.where(roles, np.where(one, d1, d0), 0.0))
+        put(f"discomfort_deactivated_{d}_kh", np.where(roles, np.where(one, d0, d1), 0.0))
+    put("unsplit_counted", counted & (grid[..., SUMS_INDEX["unsplit_minutes"]] > 0))
+    in_trial = (code == 0) & (label != UNLABELLED)
+    put("trial_windows", in_trial)
+    for name, g in _GROUPS.items():
+        put(f"trial_{name}_windows", in_trial & (label == g))
+    for m in METERS:
+        e0, e1 = (grid[..., c] for c in energy_columns(m))
+        put(f"{m}_activated_kwh", np.where(counted, np.where(one, e1, e0), 0.0))
+        put(f"{m}_deactivated_kwh", np.where(counted, np.where(one, e0, e1), 0.0))
+        put(f"trial_{m}_energy_0_kwh", np.where(in_trial, e0, 0.0))
+        put(f"trial_{m}_energy_1_kwh", np.where(in_trial, e1, 0.0))
     return out
 
 
-def excluded_minutes_by_reason(code: np.ndarray, window_min: float) -> dict[str, float]:
-    """Reason → minutes of the windows excluded for it, from the windows' codes in
+def day_starts(day: np.ndarray) -> np.ndarray:
+    """Where each service day starts among consecutive windows' days (W,): the windows' indices
+    at which the day changes, the first one included."""
+    return np.flatnonzero(np.r_[True, day[1:] != day[:-1]]) if len(day) else np.zeros(0, int)
+
+
+def results_from_fields(fields: np.ndarray, days: np.ndarray, window_min: float) -> list[dict]:
+    """Pairs' figures from their service days' :data:`FIELDS`: the totals on each meter, the
+    trial estimate on the headline meter (:func:`trainclimate.analysis.trial.days_from_sums`
+    and :func:`~trainclimate.analysis.trial.estimate_many`; with counted windows but no day of
+    :data:`MIN_DAY_WINDOWS`, the naive figure over them, confounded) and the
+    :func:`figures` they make.
+
+    Parameters
+    ----------
+    fields : numpy.ndarray of shape (P, D, len(FIELDS))
+        Each pair's days' fields (a day without windows: zeros).
+    days : numpy.ndarray of int, shape (P, D)
+        The days (ordinals), ascending for each pair.
+    window_min : float
+        Window length. [min]
+
+    Returns
+    -------
+    list of dict
+        Per pair: ``meter`` (the HVAC units' when every counted minute splits the floor heating
+        off, else the whole coach's), ``totals`` (meter → :class:`PairTotals`, the HVAC units'
+        only where split), ``estimate``, ``reasons`` (windows per code of :data:`REASONS`),
+        ``counted_windows`` and ``figures``.
+    """
+    f = fields.sum(axis=1)
+    column = {name: f[:, i] for name, i in FIELDS_INDEX.items()}
+    split = column["unsplit_counted"] == 0
+    meter = np.where(split, HEADLINE_METER, "hvac_and_floor")
+    trial_energy = np.where(
+        split[:, None, None],
+        fields[..., [FIELDS_INDEX[f"trial_{HEADLINE_METER}_energy_{c}_kwh"] for c in (0, 1)]],
+        fields[..., [FIELDS_INDEX[f"trial_hvac_and_floor_energy_{c}_kwh"] for c in (0, 1)]],
+    )
+    estimates = trial.estimate_many(
+        trial.days_from_sums(
+            days,
+            fields[..., FIELDS_INDEX["trial_windows"]],
+            trial_energy,
+            fields[..., [FIELDS_INDEX[f"trial_{g}_windows"] for g in _GROUPS]],
+            MIN_DAY_WINDOWS,
+        )
+    )
+    n_reasons = np.stack(
+        [column["windows"] * 0, *(column[f"excluded_{r}"] for r in REASONS[1:])], -1
+    )
+    out = []
+    for p in range(len(fields)):
+        totals = {
+            m: PairTotals(
+                energy_activated_kwh=float(column[f"{m}_activated_kwh"][p]),
+                energy_deactivated_kwh=float(column[f"{m}_deactivated_kwh"][p]),
+                windows=int(column["windows"][p]),
+                excluded_windows=int(column["windows"][p] - column["counted"][p]),
+                window_min=window_min,
+                counted_hours=float(column["role_minutes"][p] / 60.0),
+                discomfort_kh=f[p, [FIELDS_INDEX[f"discomfort_activated_{d}_kh"] for d in _DECKS]],
+                baseline_discomfort_kh=f[
+                    p, [FIELDS_INDEX[f"discomfort_deactivated_{d}_kh"] for d in _DECKS]
+                ],
+            )
+            for m in (METERS if split[p] else ("hvac_and_floor",))
+        }
+        estimate = estimates[p]
+        counted = int(column["counted"][p])
+        if estimate.estimator is None and counted:
+            t = totals[str(meter[p])]
+            naive = savings_pct(t.energy_activated_kwh, t.energy_deactivated_kwh)
+            why = "fewer than a day's windows: the saving is confounded with the coaches"
+            estimate = trial.TrialEstimate("fixed_naive", naive, None, why, naive, estimate.days)
+        result = {
+            "meter": str(meter[p]),
+            "totals": totals,
+            "estimate": estimate,
+            "reasons": n_reasons[p].astype(np.int64),
+            "counted_windows": counted,
+        }
+        result["figures"] = figures(result, window_min)
+        out.append(result)
+    return out
+
+
+def excluded_minutes_by_reason(n_windows: np.ndarray, window_min: float) -> dict[str, float]:
+    """Reason → minutes of the windows excluded for it, from how many windows have each code of
     :data:`REASONS` (by name). [min]"""
-    n = np.bincount(code, minlength=len(REASONS))
-    found = {str(REASONS[i]): float(n[i] * window_min) for i in range(1, len(REASONS)) if n[i]}
+    found = {
+        str(REASONS[i]): float(n_windows[i] * window_min)
+        for i in range(1, len(REASONS))
+        if n_windows[i]
+    }
     return dict(sorted(found.items()))
 
 
@@ -397,37 +523,44 @@ def pair_results(
     list of dict
         Per pair: ``index``, ``grid``, ``label``, ``code`` (the reason a window is excluded,
         in :data:`REASONS`, 0 where it counts; :func:`reasons` by name), ``counted`` (arrays
-        per window), ``meter`` (the HVAC units' when every counted minute splits the floor
-        heating off, else the whole coach's), ``totals`` (meter → :class:`PairTotals`),
-        ``estimate`` (:class:`~trainclimate.analysis.trial.TrialEstimate`) and its ``figures``
-        (:func:`figures`). (Codes, not names, so that a kept result holds no object per window
-        for the garbage collector to walk.)
+        per window), ``chart`` (the counted windows' indices and each meter's activated and
+        deactivated energy in them, :data:`CHART_FIELDS`, (k, 4) [kWh]) and what
+        :func:`results_from_fields` gives: ``meter``, ``totals`` (meter →
+        :class:`PairTotals`), ``estimate``
+        (:class:`~trainclimate.analysis.trial.TrialEstimate`), ``reasons``,
+        ``counted_windows`` and ``figures`` (:func:`figures`). Their totals are summed per
+        service day, then over the days. (Codes, not names, so that a kept result holds no
+        object per window for the garbage collector to walk.)
     """
     label, code = windows(grids, counts, window_min)
     counted = (code == 0) & (label >= 0)
-    split = ~np.any(counted & (grids[..., SUMS_INDEX["unsplit_minutes"]] > 0), axis=-1)
-    totals = {m: _totals(grids, label, counted, window_min, energy_columns(m)) for m in METERS}
-    headline = np.where(
-        split[:, None, None],
-        grids[..., list(energy_columns(HEADLINE_METER))],
-        grids[..., list(energy_columns("hvac_and_floor"))],
-    )
-    estimates = _estimates(index, headline, label, code, window_min, switch_hours)
-    out = []
-    for p in range(len(grids)):
-        meters = METERS if split[p] else ("hvac_and_floor",)
-        result = {
-            "index": index,
-            "grid": grids[p],
-            "label": label[p],
-            "code": code[p],
-            "counted": counted[p],
-            "meter": HEADLINE_METER if split[p] else "hvac_and_floor",
-            "totals": {m: totals[m][p] for m in meters},
-            "estimate": estimates[p],
-        }
-        result["figures"] = figures(result, window_min)
-        out.append(result)
+    per_window = window_fields(grids, label, code)
+    out: list = [None] * len(grids)
+    starts = pd.to_datetime(index * round(window_min * 60), unit="s", utc=True)
+    hours = np.asarray(switch_hours)
+    for hour in np.unique(hours):
+        mine = np.flatnonzero(hours == hour)
+        day = trial.service_days(starts, int(hour))
+        first = day_starts(day)
+        fields = (
+            np.add.reduceat(per_window[mine], first, axis=1)
+            if len(first)
+            else np.zeros((len(mine), 0, len(FIELDS)))
+        )
+        found = results_from_fields(
+            fields, np.broadcast_to(day[first], fields.shape[:2]), window_min
+        )
+        for p, result in zip(mine, found, strict=True):
+            chart = per_window[p][counted[p]][:, CHART_FIELDS]
+            out[p] = {
+                "index": index,
+                "grid": grids[p],
+                "label": label[p],
+                "code": code[p],
+                "counted": counted[p],
+                "chart": (index[counted[p]], chart),
+                **result,
+            }
     return out
 
 
@@ -474,8 +607,8 @@ def figures(result: dict, window_min: float) -> dict:
         "avg_hourly_violation_activated_k": t.avg_hourly_violation_k,
         "avg_hourly_violation_deactivated_k": t.baseline_violation_k,
         "excluded_minutes": t.excluded_minutes,
-        "excluded_minutes_by_reason": excluded_minutes_by_reason(result["code"], window_min),
-        "counted_windows": int(result["counted"].sum()),
+        "excluded_minutes_by_reason": excluded_minutes_by_reason(result["reasons"], window_min),
+        "counted_windows": result["counted_windows"],
         "counted_hours": t.counted_hours,
         **estimate,
     }

@@ -24,6 +24,7 @@ from typing import Any, cast
 from sqlalchemy import CursorResult, Result, delete, text
 from sqlalchemy.orm import Session
 
+from trainclimate.service.store import pair_days, rollups
 from trainclimate.service.store.models import Telemetry
 
 #: The partitioned table and its default partition.
@@ -148,7 +149,8 @@ def raw_retention(session: Session, raw_days: float, now: datetime) -> dict:
     partition that straddles it and from the default partition, then every monthly partition
     entirely before the cut-off is dropped (its rows counted first): last, so the exclusive lock
     a drop takes on ``telemetry`` is held only until the commit that follows. On SQLite the rows
-    before the cut-off are deleted.
+    before the cut-off are deleted. The pair days that begin before the cut-off are dropped
+    (:func:`.pair_days.forget_all`): they are made again from the rollups.
 
     Returns ``cutoff`` (datetime, UTC), ``partitions_dropped`` (names, oldest first),
     ``rows_dropped`` (the rows they held), ``rows_deleted`` and ``database`` (``postgresql`` or
@@ -167,6 +169,8 @@ def raw_retention(session: Session, raw_days: float, now: datetime) -> dict:
             session.execute(text(f'DROP TABLE "{name}"'))
     else:
         deleted = _rowcount(session.execute(delete(Telemetry).where(Telemetry.time < cutoff)))
+    # a day summed from minutes now dropped would no longer be the rollups' figures
+    pair_days.forget_all(session, before_window=rollups.window_of(cutoff) + 1)
     return {
         "cutoff": cutoff,
         "partitions_dropped": whole,

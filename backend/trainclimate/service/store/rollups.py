@@ -203,6 +203,11 @@ def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
     return session.scalar(select(func.count()).select_from(WindowRollup)) or 0
 
 
+def window_of(time: datetime) -> int:
+    """The window of the row stamped ``time``: that of the minute (time − 1 min, time]."""
+    return (round(time.timestamp()) // 60 - 1) // WINDOW_MIN
+
+
 def _index(when: datetime) -> int:
     """The window that starts at ``when`` (a window boundary)."""
     return round(when.timestamp()) // _WINDOW_S

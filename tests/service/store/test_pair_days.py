@@ -1,0 +1,269 @@
+"""Pair days on SQLite and PostgreSQL: the fleet summary read from them equals the summary read
+from the rollups alone, over ranges that start and end anywhere in a day and on its switch hour,
+on data with role changes at any window (one just before the switch hour, whose lead-in runs into
+the next day), hours without setpoints, fallbacks, reference windows, gaps, a lost link, a coach
+out of regular mode and an override; a late row drops the pair days it changes and the next
+build makes them again, as it does the days retention cuts into; the scheduler makes them a few
+at a time."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+
+from helpers.service import flat_row
+from trainclimate.service.scheduler import Scheduler
+from trainclimate.service.store import (
+    comparison,
+    fleet_summary,
+    pair_days,
+    partitions,
+    setpoint_rollups,
+)
+from trainclimate.service.store.commands import ingest
+from trainclimate.service.store.db import Database, migrate
+from trainclimate.service.store.models import Coach, Override, PairDay, Setpoint, Train
+from trainclimate.service.store.telemetry import insert_rows
+
+#: Midnight UTC; the service days switch at 02:00 UTC (03:00 in Zurich in winter).
+START = datetime(2024, 11, 4, tzinfo=UTC)
+DAYS = 5
+MINUTES = DAYS * 1440 + 300
+#: What each window's setpoints say: the layer on A (B on T_rule, layer off), on B, on neither
+#: (reference), a fallback on A, the HVAC out of regular mode, the layer on both, no setpoint.
+ROLES = ("A", "B", "reference", "fallback", "slumber", "both", "none")
+#: The minute of day 2 left out of the load, posted late.
+LATE_MINUTE = 2 * 1440 + 700
+
+
+def _plan(rng) -> list[str]:
+    """Each 30-minute window's roles, in blocks of 1–8 windows, with a change at 01:30 UTC on
+    day 1 (the last window of service day 0)."""
+    out: list[str] = []
+    while len(out) < MINUTES // 30 + 2:
+        out += [str(rng.choice(ROLES, p=[0.33, 0.33, 0.1, 0.06, 0.06, 0.06, 0.06]))] * int(
+            rng.integers(1, 9)
+        )
+    last_window = (1440 + 90) // 30  # 01:30 UTC on day 1
+    out[last_window - 4 : last_window] = ["A"] * 4
+    out[last_window : last_window + 6] = ["B"] * 6
+    return out
+
+
+def _setpoints(coach: str, side: str, plan: list[str]) -> list[dict]:
+    rows = []
+    for m in range(0, MINUTES, 5):
+        role = plan[m // 30]
+        if role == "none":
+            continue
+        if role in (side, "both"):
+            source, reason = "ddpc", "ok"
+        elif role == "fallback" and side == "A":
+            source, reason = "fallback", "stale_data"
+        elif role == "slumber":
+            source, reason = "rule", "not_regular"
+        else:
+            source, reason = "rule", "inactive"
+        tick = START + timedelta(minutes=m)
+        rows.append(
+            {"coach_id": coach, "tick": tick, "t_rule_c": 22.0, "t_ref_c": 22.0}
+            | {"source": source, "reason": reason}
+        )
+    return rows
+
+
+def _telemetry(rng, side: str, split: bool) -> list[dict]:
+    rows = []
+    warm = rng.random(MINUTES + 1) < 0.02
+    for m in range(1, MINUTES + 1):
+        if rng.random() < 0.003 or (side == "A" and m == LATE_MINUTE):
+            continue  # a gap (and the late minute)
+        power = (8.0 if side == "A" else 10.0) + rng.normal(0.0, 0.5)
+        values = {
+            "power_kw": power,
+            "floor_power_kw": 1.5 if split else None,
+            "t_room_mid_c": 23.8 if warm[m] else 21.5,
+            "connected": not (side == "B" and 3000 <= m <= 3002),
+            "mode": "slumber" if side == "A" and 4400 <= m <= 4460 else "regular",
+        }
+        rows.append(flat_row(START + timedelta(minutes=m), **values))
+    return rows
+
+
+@pytest.fixture
+def fleet(db_url):
+    """Two trains (X with the floor heating's share reported, Y without) over five service
+    days, an override on Y-A over day 3; no pair days."""
+    migrate(db_url)
+    db = Database(db_url)
+    rng = np.random.default_rng(7)
+    with db.transaction() as s:
+        for train, split in (("X", True), ("Y", False)):
+            s.add(Train(id=train, name=train))
+            s.flush()
+            plan = _plan(rng)
+            for side in ("A", "B"):
+                cid = f"{train}-{side}"
+                s.add(Coach(id=cid, train_id=train, fleet="live", ddpc_active=side == "A"))
+                s.flush()
+                insert_rows(s, cid, _telemetry(rng, side, split))
+                rows = _setpoints(cid, side, plan)
+                s.execute(Setpoint.__table__.insert(), rows)
+                setpoint_rollups.add(s, rows)
+                s.get(Coach, cid).last_tick = START + timedelta(minutes=MINUTES)
+        t = START + timedelta(days=3, hours=5)
+        s.add(
+            Override(
+                coach_id="Y-A",
+                t_ref_c=21.0,
+                starts_at=t,
+                ends_at=t + timedelta(minutes=40),
+                reason="test",
+                created_by="test",
+            )
+        )
+    yield db
+    db.dispose()
+
+
+def _summaries(db) -> dict:
+    """The fleet summary over ranges that start and end anywhere and on a switch hour."""
+    out = {}
+    with db.transaction() as s:
+        for end_min in (MINUTES, 4 * 1440 + 120, 3 * 1440 + 977, 2 * 1440 + 120 + 30):
+            end = START + timedelta(minutes=end_min)
+            for hours in (6, 24, 30, 48, 72, 98, 120):
+                out[(end_min, hours)] = fleet_summary.summary(s, [], hours, end)
+    return out
+
+
+def _comparisons(db, summaries: dict) -> dict:
+    """Each train's pair comparison (:func:`.comparison.comparison`, every window of the range
+    at once) over each range of ``summaries``, as the summary's train entries show it."""
+    out = {}
+    with db.transaction() as s:
+        for key, summary in summaries.items():
+            trains = []
+            for entry in summary["trains"]:
+                c = comparison.comparison(
+                    s, s.get(Train, entry["id"]), entry["start"], entry["end"]
+                )
+                trains.append({k: c[k] for k in entry if k not in SHOWN_ONLY})
+            out[key] = {"trains": trains}
+    return out
+
+
+def _figures(summaries: dict) -> dict:
+    """The summaries' train entries without what the comparison shows otherwise."""
+    return {
+        key: {"trains": [{k: v for k, v in t.items() if k not in SHOWN_ONLY} for t in s["trains"]]}
+        for key, s in summaries.items()
+    }
+
+
+#: A summary's train entry's keys that are not figures.
+SHOWN_ONLY = {"id", "name", "plan", "coaches", "activated", "deactivated", "start", "end"}
+
+
+def _flat(value, path=()) -> dict:
+    if isinstance(value, dict):
+        return {k: v for key in value for k, v in _flat(value[key], (*path, key)).items()}
+    if isinstance(value, list | tuple):
+        return {k: v for i, x in enumerate(value) for k, v in _flat(x, (*path, i)).items()}
+    return {path: value}
+
+
+def _assert_same(got: dict, want: dict) -> None:
+    for key in want:
+        g, w = _flat(got[key]), _flat(want[key])
+        assert g.keys() == w.keys(), key
+        for path, value in w.items():
+            if isinstance(value, float):
+                assert g[path] == pytest.approx(value, rel=1e-9, abs=1e-9), (key, path)
+            else:
+                assert g[path] == value, (key, path)
+
+
+def _build(db) -> int:
+    with db.transaction() as s:
+        return pair_days.build(s, pair_days.fleet_pairs(s, START + timedelta(days=DAYS)))
+
+
+def test_the_summary_from_pair_days_equals_the_rollups(fleet, monkeypatch):
+    want = _summaries(fleet)
+    # read day by day from the rollups, each train's figures are its comparison's, whose
+    # windows are taken all at once (the range's start is not a day's)
+    _assert_same(_figures(want), _comparisons(fleet, want))
+    trains = want[(MINUTES, 120)]["trains"]
+    assert [t["counted_windows"] for t in trains] != [0, 0]
+    assert {r for t in trains for r in t["excluded_minutes_by_reason"]} >= {
+        "plan_switch",
+        "fallback",
+        "no_setpoint",
+        "mixed_roles",
+        "missing_data",
+        "disconnected",
+        "override",
+        "not_regular",
+    }
+    # service days 0 … 4 are over (the data runs to 05:00 UTC on day 5); day −1 holds the first
+    # two hours
+    assert _build(fleet) == 2 * 6
+    assert _build(fleet) == 0  # nothing more is due
+    used = []
+    assemble = pair_days._assemble
+
+    def spied(days):
+        used.extend(d for mine in days for d in mine if not isinstance(d, pair_days.Day))
+        return assemble(days)
+
+    monkeypatch.setattr(pair_days, "_assemble", spied)
+    got = _summaries(fleet)
+    _assert_same(got, want)
+    _assert_same(_figures(got), _comparisons(fleet, got))
+    assert len(used) > 20  # whole days were read from their pair days
+
+
+def test_a_late_row_drops_the_days_it_changes_and_they_are_made_again(fleet):
+    assert _build(fleet) == 12
+    late = START + timedelta(minutes=LATE_MINUTE)
+    with fleet.transaction() as s:
+        ingest(s, "X-A", [flat_row(late, power_kw=30.0)])
+    with fleet.transaction() as s:
+        kept = {(d.coach_0, d.day) for d in s.query(PairDay)}
+    late_day = pair_days.trial.service_day(pair_days.pd.Timestamp(late), 3).toordinal()
+    assert ("X-A", late_day) not in kept and ("X-A", late_day - 1) in kept
+    assert ("Y-A", late_day) in kept  # the other train's are unchanged
+    # read from the rollups where the pair day is gone, and equal to them once made again
+    with fleet.transaction() as s:
+        pair_days.forget_all(s)
+    want = _summaries(fleet)
+    assert _build(fleet) == 12
+    with fleet.transaction() as s:
+        pair_days.forget(s, {"X-A": pair_days.rollups.window_of(late)})
+    _assert_same(_summaries(fleet), want)
+    assert _build(fleet) >= 1
+    _assert_same(_summaries(fleet), want)
+
+
+def test_the_scheduler_makes_them_a_few_at_a_time(fleet, settings):
+    keeper = Scheduler(fleet, settings)
+    assert keeper.keep_pair_days(max_days=5) == 5
+    assert keeper.keep_pair_days(max_days=100) == 7
+    assert keeper.keep_pair_days() == 0
+    with fleet.transaction() as s:
+        assert s.query(PairDay).count() == 12
+
+
+def test_retention_drops_the_days_before_the_cutoff(fleet):
+    assert _build(fleet) == 12
+    with fleet.transaction() as s:
+        partitions.raw_retention(s, 2, START + timedelta(days=4))
+    cutoff_window = pair_days.rollups.window_of(START + timedelta(days=2))
+    with fleet.transaction() as s:
+        assert min(d.first_window for d in s.query(PairDay)) > cutoff_window
+    assert _build(fleet) == 2  # each pair's day the cutoff falls in, from its rollups
+    got = _summaries(fleet)
+    _assert_same(_figures(got), _comparisons(fleet, got))
