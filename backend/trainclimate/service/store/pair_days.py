@@ -17,7 +17,7 @@ A pair day is made once both coaches' newest telemetry and last tick are past th
 (:func:`build`: the scheduler keeps them, a few each loop; ``trainclimate bench`` builds them
 for data loaded around the service). What can still change a past day drops its pair days
 (:func:`forget`): a row arriving late for it, an override over it, raw minutes dropped by
-retention, rollups rebuilt. A range's days without a pair day are read from the rollups, so
+retention (:func:`forget_all`). A range's days without a pair day are read from the rollups, so
 a pair day missing costs time, never a figure.
 """
 
@@ -58,8 +58,6 @@ _WINDOW_S = WINDOW_MIN * 60
 #: The windows a change of the activated coach marks as lead-in: states whose last change is
 #: this many windows back or more are the same.
 _LEAD = int(np.ceil(pair_trial.LEAD_IN_MIN / WINDOW_MIN))
-#: Pairs whose days are built together (bounds the arrays).
-_CHUNK_PAIRS = 32
 #: Days of a pair built together (bounds the arrays).
 _CHUNK_DAYS = 31
 
@@ -319,16 +317,19 @@ def forget(session: Session, coach_windows: dict[str, int]) -> None:
         return
     t = _table()
     ends_after = t.c.first_window + t.c.windows
-    session.execute(
-        delete(t).where(
+
+    def of_coach(coach: str, window: int):
+        # a service day starts at most a day before the UTC date of its windows: an index range
+        since = pd.Timestamp(window * _WINDOW_S, unit="s").toordinal() - 1
+        return and_(
             or_(
-                *(
-                    and_(or_(t.c.coach_0 == c, t.c.coach_1 == c), ends_after > w)
-                    for c, w in coach_windows.items()
-                )
-            )
+                and_(t.c.coach_0 == coach, t.c.day >= since),
+                and_(t.c.coach_1 == coach, t.c.day >= since),
+            ),
+            ends_after > window,
         )
-    )
+
+    session.execute(delete(t).where(or_(*(of_coach(c, w) for c, w in coach_windows.items()))))
 
 
 def forget_all(session: Session, before_window: int | None = None) -> None:
