@@ -39,6 +39,29 @@ def test_the_lead_in_marks_the_windows_after_each_change_of_roles():
     assert pair_trial.lead_in(label[:0], 30.0).shape == (0,)
 
 
+def test_the_lead_in_taken_in_parts_is_the_lead_in_taken_whole():
+    rng = np.random.default_rng(5)
+    choices = np.array([0, 1, trial.NEITHER, UNLABELLED])
+    labels = choices[rng.choice(4, size=(300, 30), p=[0.3, 0.3, 0.1, 0.3])]
+    for lead_in_min in (60.0, 30.0, 100.0):
+        whole = pair_trial.lead_in(labels, 30.0, lead_in_min)
+        # every pair cut at its own point: the first part from nothing before it, the second
+        # from the state the first one leaves
+        for cut in (0, 1, 2, 7, 29, 30):
+            state = pair_trial.lead_state(labels[:, :cut])
+            second = pair_trial.lead_in(labels[:, cut:], 30.0, lead_in_min, state)
+            first = pair_trial.lead_in(labels[:, :cut], 30.0, lead_in_min)
+            np.testing.assert_array_equal(np.concatenate([first, second], axis=1), whole)
+    # by hand: a change in the last window of the first part runs into the second
+    state = pair_trial.lead_state(np.array([0, 0, 1]))
+    assert (int(state[0]), int(state[1])) == (1, 1)
+    assert pair_trial.lead_in(np.array([1, 1, 1]), 30.0, entering=state).tolist() == [1, 0, 0]
+    # and nothing labelled in a part carries the state before it through
+    state = pair_trial.lead_state(np.array([UNLABELLED] * 3), state)
+    assert (int(state[0]), int(state[1])) == (1, 4)
+    assert pair_trial.lead_in(np.array([0, 0]), 30.0, entering=state).tolist() == [1, 1]
+
+
 def _pair(rng, n: int) -> tuple[np.ndarray, np.ndarray]:
     """A pair's windows: clean 30-minute sums with some gaps and lost links, and setpoint
     counts whose roles swap every 48 windows, with fallbacks and missing ticks."""

@@ -236,6 +236,9 @@ def lead_state(label: np.ndarray, entering: tuple | None = None) -> tuple[np.nda
     the next one the last change was (large if none)."""
     prev0, age0 = NO_STATE if entering is None else entering
     w = label.shape[-1]
+    if w == 0:
+        shape = label.shape[:-1]
+        return np.broadcast_to(prev0, shape).copy(), np.broadcast_to(age0, shape).copy()
     labelled = label != UNLABELLED
     last = np.where(labelled, np.arange(w), -1).max(axis=-1, initial=-1)
     prev = np.where(
