@@ -522,9 +522,10 @@ def _windows_from_pair_days(
     """The windows of segments from their stored pair days: the partial ones (``partial``), or
     those at ``at[i]`` for the pairs ``only``."""
     wanted: dict[tuple, list[tuple[int, int]]] = {}
+    these = set(only or ())
     for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
         segs = layout[i][1]
-        chosen = range(len(segs)) if partial else [at[i]] if i in set(only or ()) else []
+        chosen = range(len(segs)) if partial else [at[i]] if i in these else []
         for k in chosen:
             seg = segs[k]
             if (i, k) in windows or (partial and seg.whole):

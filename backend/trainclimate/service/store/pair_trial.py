@@ -297,7 +297,6 @@ def windows(
     counts: np.ndarray,
     window_min: float,
     lead_in_min: float = LEAD_IN_MIN,
-    entering: tuple | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each window's label and reason to exclude it (see the module docstring).
 
@@ -311,8 +310,6 @@ def windows(
         Window length. [min]
     lead_in_min : float
         See :func:`lead_in`. [min]
-    entering : tuple, optional
-        The lead-in state before the first window (:func:`lead_state`).
 
     Returns
     -------
@@ -322,7 +319,7 @@ def windows(
         reference estimate only).
     """
     label, code = base_windows(sums, counts, window_min)
-    return label, with_lead_in(label, code, window_min, lead_in_min, entering)
+    return label, with_lead_in(label, code, window_min, lead_in_min)
 
 
 _DECKS = ("up", "mid", "low")
