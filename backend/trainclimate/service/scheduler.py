@@ -78,8 +78,11 @@ from trainclimate.service.store.models import (
 from trainclimate.service.store.telemetry import Samples, controller_samples, load_rows
 
 log = logging.getLogger(__name__)
-#: Pair days made in one loop at most (a few tens of milliseconds of work each).
+#: Pair days made at a time at most (a few milliseconds of work each, in one transaction).
 PAIR_DAYS_PER_LOOP = 16
+#: Wall time between two rounds of making pair days: a day is over once a day, and each round
+#: reads every train's state (on SQLite its writes wait for the telemetry's). [s]
+PAIR_DAYS_EVERY_S = 60.0
 
 
 def floor_tick(time: datetime, period: timedelta) -> datetime:
@@ -117,6 +120,8 @@ class Scheduler:
         #: train → the newest service day stored for it (``trial_days``), once committed: a
         #: tick of a day already stored needs no statement to record it
         self._days: dict[str, plans.PlanDay] = {}
+        #: when :meth:`keep_pair_days` last ran (monotonic [s]; −∞: never)
+        self._pair_days_at = float("-inf")
 
     # --- the model -------------------------------------------------------------------------
     def refresh_model(self, session: Session) -> None:
@@ -439,8 +444,9 @@ class Scheduler:
     def keep_pair_days(self, max_days: int = PAIR_DAYS_PER_LOOP) -> int:
         """Make up to ``max_days`` of the pair days now due (:func:`.pair_days.build`: service
         days over for both coaches of a train), in their own transaction; how many were made.
-        A failure is logged and left for the next loop (the summary reads the days without
+        A failure is logged and left for the next round (the summary reads the days without
         pair days from the rollups meanwhile)."""
+        self._pair_days_at = time.monotonic()
         try:
             with self.db.transaction() as session:
                 pairs = pair_days.fleet_pairs(session, utcnow())
@@ -448,6 +454,11 @@ class Scheduler:
         except Exception:
             log.exception("making the pair days failed; retrying in the next loop")
             return 0
+
+    def pair_days_due(self) -> bool:
+        """Whether :data:`PAIR_DAYS_EVERY_S` have passed since :meth:`keep_pair_days` last ran
+        (the loops call it then)."""
+        return time.monotonic() - self._pair_days_at >= PAIR_DAYS_EVERY_S
 
     # --- the loops' heartbeats ---------------------------------------------------------------
     def beat(self, loop: str, period_wall_s: float) -> None:
@@ -479,7 +490,8 @@ class Scheduler:
         while not stop.is_set():
             try:
                 self.run_live_once()
-                self.keep_pair_days()
+                if self.pair_days_due():
+                    self.keep_pair_days()
                 self.beat("live", self.period_s)
                 self.metrics.database_up = True
             except OperationalError as exc:

@@ -362,7 +362,8 @@ class DemoFleet:
                     self.advance()
                     self.scheduler.beat(FLEET, self.period.total_seconds() / self.speedup)
                     continue
-                self.scheduler.keep_pair_days()  # while caught up with the clock
+                if self.scheduler.pair_days_due():  # while caught up with the clock
+                    self.scheduler.keep_pair_days()
                 self.scheduler.beat(FLEET, self.period.total_seconds() / self.speedup)
             except OperationalError as exc:
                 log.warning("database unavailable, retrying: %s", str(exc).splitlines()[0])

@@ -14,7 +14,7 @@ and a day is read from its row only when the state it is entered in is the one i
 from — else (and for a range's partial first and last days) from its windows.
 
 A pair day is made once both coaches' newest telemetry and last tick are past the day's end
-(:func:`build`: the scheduler keeps them, a few each loop; ``trainclimate bench`` builds them
+(:func:`build`: the scheduler keeps them, a few a minute; ``trainclimate bench`` builds them
 for data loaded around the service). What can still change a past day drops its pair days
 (:func:`forget`): a row arriving late for it, an override over it, raw minutes dropped by
 retention (:func:`forget_all`). A range's days without a pair day are read from the rollups, so
