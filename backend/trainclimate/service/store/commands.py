@@ -17,6 +17,7 @@ from trainclimate.service.store.models import (
     ApiToken,
     AuditLog,
     Coach,
+    CoachFeed,
     Override,
     PredictorModel,
     Telemetry,
@@ -217,9 +218,12 @@ def ingest(
     if backfill is not None:
         backfill.check(session, coach.id, rows)
     newest = max(r["time"] for r in rows)
+    before = session.scalar(select(CoachFeed.newest).where(CoachFeed.coach_id == coach.id))
     stored = insert_rows(session, coach.id, rows)
-    # a row for a day already summed (arriving late) makes that day's pair days stale
-    pair_days.forget(session, {coach.id: rollups.window_of(min(r["time"] for r in rows))})
+    first = min(r["time"] for r in rows)
+    if before is not None and first <= before:
+        # a row arriving late, for a day maybe summed already, makes its pair days stale
+        pair_days.forget(session, {coach.id: rollups.window_of(first)})
     liveness.note_arrival(session, coach.id, newest, utcnow())
     return stored, len(rows) - stored
 
