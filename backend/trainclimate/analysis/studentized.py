@@ -22,14 +22,14 @@ def resample_counts(
     n_a: int, n_b: int, n_resamples: int, seed: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """The counts matrices of scipy.stats.bootstrap's resamples of two groups of ``n_a`` and
-    ``n_b`` days: row r, column j holds how often day j is drawn in resample r, shapes
-    (n_resamples, n_a) and (n_resamples, n_b), read-only (they are cached)."""
+    ``n_b`` days: row j, column r holds how often day j is drawn in resample r, shapes
+    (n_a, n_resamples) and (n_b, n_resamples), read-only (they are cached)."""
     rng = np.random.default_rng(seed)
     out = []
     for n in (n_a, n_b):
         drawn = rng.integers(0, n, (n_resamples, n)) + n * np.arange(n_resamples)[:, None]
         counts = np.bincount(drawn.ravel(), minlength=n_resamples * n).astype(float)
-        counts = counts.reshape(n_resamples, n)
+        counts = np.ascontiguousarray(counts.reshape(n_resamples, n).T)  # rows: the days
         counts.flags.writeable = False
         out.append(counts)
     return out[0], out[1]
@@ -46,15 +46,15 @@ def pivot_quantiles(
     for x, counts in ((a, counts_a), (b, counts_b)):
         centred = np.asarray(x)
         centred = centred - centred.mean(axis=1, keepdims=True)
-        n = centred.shape[1]
-        # (pairs, resamples): the resample's mean less the group's, C·x / n, and the variance
+        rows, n = centred.shape
+        # (rows, resamples): the resample's mean less the group's, C·x / n, and the variance
         # of the resample's mean, var / n = (C·x² − n·mean²) / (n (n − 1)) with var the sample
-        # variance (ddof 1); the divisors are applied to x, before the products
-        mean = (centred / n) @ counts.T
+        # variance (ddof 1); the divisors are applied to x, before the products, which are one
         scaled = centred / (n * (n - 1))
-        var_mean = (scaled * centred) @ counts.T - (scaled @ counts.T) * mean
+        stacked = np.concatenate([centred / n, scaled * centred, scaled]) @ counts
+        mean, squares, sums = stacked[:rows], stacked[rows : 2 * rows], stacked[2 * rows :]
         # rounding leaves a resample without spread a little off 0, or below: clipped, as np.var
-        moments.append((mean, np.maximum(var_mean, 0.0)))
+        moments.append((mean, np.maximum(squares - sums * mean, 0.0)))
     (mean_a, var_a), (mean_b, var_b) = moments
     # (θ* − θ) / se* = coef (mean_a − mean_b) / (|coef| √(var_a + var_b)): |coef| cancels
     sign = np.sign(coef)[:, None]
@@ -66,12 +66,13 @@ def pivot_quantiles(
 def quantiles(t: np.ndarray) -> np.ndarray:
     """The quantiles :data:`QUANTILES` of each row of ``t``, shape (rows, 4): those of
     ``numpy.quantile`` (linear interpolation between the neighbouring order statistics, from
-    the nearer one), read off the sorted rows, which is faster than its partition per row."""
-    ordered = np.sort(t, axis=1)
+    the nearer one), read off each row partitioned at those order statistics, in one call."""
     position = np.asarray(QUANTILES) * (t.shape[1] - 1)
     below = np.floor(position).astype(np.int64)
     above = np.minimum(below + 1, t.shape[1] - 1)
     frac = position - below
+    # the order statistics at these places only (what a sort would put there, exactly)
+    ordered = np.partition(t, np.unique(np.r_[below, above]), axis=1)
     low, high = ordered[:, below], ordered[:, above]
     step = high - low
     return np.where(frac >= 0.5, high - step * (1.0 - frac), low + step * frac)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers.service import PG_SKIP, PG_URL, drop_pg_database, pg_database
 from trainclimate.service.store.telemetry import VALUE_COLS, CoachRows, controller_samples
 
 PERIOD_S = 300.0
@@ -164,8 +165,9 @@ def test_load_rows_reads_arrays_from_either_database(db_url):
             s.flush()
             rows = [flat_row(at(m)) for m in (1, 2, 3)]
             rows[1].update(power_kw=None, mode="slumber")
-            insert_rows(s, "T-A", [*rows, flat_row(at(3.5))])
             insert_rows(s, "T-B", [flat_row(at(2), t_room_up_c=23.25)])
+            insert_rows(s, "T-A", [flat_row(at(3.5))])  # stored before the rows it follows
+            insert_rows(s, "T-A", rows)
         with db.transaction() as s:
             got = load_rows(s, ["T-A", "T-B", "T-C"], at(1), at(3.5))
     finally:
@@ -176,3 +178,41 @@ def test_load_rows_reads_arrays_from_either_database(db_url):
     assert a.regular.tolist() == [False, True, True]
     assert b.column("t_room_up_c").tolist() == [23.25] and b.values.shape == (1, len(VALUE_COLS))
     assert c.time_s.shape == (0,) and c.values.shape == (0, len(VALUE_COLS))
+
+
+@pytest.mark.skipif(not PG_URL, reason=PG_SKIP)
+def test_packed_rows_are_the_query_s_rows_and_refuse_a_null():
+    """PostgreSQL packs the rows into one value: read back they are the query's, as integers
+    and floats to the bit; none is an empty array; a NULL, which would drop its row from the
+    packing, is an error rather than a row lost."""
+    from psycopg import sql
+
+    from trainclimate.service.store.binary_rows import RowShapeError, packed_rows
+    from trainclimate.service.store.db import Database
+
+    dtype = np.dtype([("k", np.int64), ("x", np.float64)])
+    url, name = pg_database()
+    db = Database(url)
+    try:
+        with db.transaction() as s:
+            got = packed_rows(
+                s,
+                sql.SQL(
+                    "SELECT i, i / 7.0::float8 FROM generate_series(-3::int8, 1099511627776, 274877906944) i"
+                ),
+                dtype,
+            )
+            order = np.argsort(got["k"])
+            assert got["k"][order].tolist() == [-3 + i * 2**38 for i in range(5)]
+            assert got["x"][order].tolist() == [(-3 + i * 2**38) / 7.0 for i in range(5)]
+            assert got.dtype == dtype
+            assert packed_rows(
+                s, sql.SQL("SELECT 1::int8, 1.0::float8 WHERE false"), dtype
+            ).shape == (0,)
+            with pytest.raises(RowShapeError, match="NULL"):
+                packed_rows(
+                    s, sql.SQL("SELECT 1::int8, NULL::float8 UNION ALL SELECT 2, 2.0"), dtype
+                )
+    finally:
+        db.dispose()
+        drop_pg_database(name)

@@ -36,7 +36,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
 from trainclimate.service.store import (
-    binary_copy,
+    binary_rows,
     pair_trial,
     pair_windows,
     plans,
@@ -378,7 +378,7 @@ def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[t
     if not keys:
         return {}
     t = _table()
-    rows = binary_copy.rows(
+    rows = binary_rows.rows(
         session,
         select(
             t.c.coach_0,
@@ -409,7 +409,7 @@ def _stored_windows(session: Session, wanted: list[tuple]) -> dict[tuple, tuple]
         return {}
     t = _table()
     days = [k[3] for k in wanted]
-    rows = binary_copy.rows(
+    rows = binary_rows.rows(
         session,
         select(
             t.c.coach_0,

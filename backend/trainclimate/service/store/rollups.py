@@ -43,7 +43,7 @@ from sqlalchemy import cast as sql_cast
 from sqlalchemy.orm import Session
 
 from trainclimate.coach.setpoint import COMFORT_BAND_K
-from trainclimate.service.store import binary_copy
+from trainclimate.service.store import binary_rows
 from trainclimate.service.store.models import CoachFeed, Telemetry, UTCDateTime, WindowRollup
 from trainclimate.service.store.pair_trial import SUMS, SUMS_INDEX
 from trainclimate.service.store.records import TelemetryRecord
@@ -237,7 +237,7 @@ def pair_grids(
         return {}, []
     coaches = sorted({c for p in pairs for c in p[:2]})
     position = {c: i for i, c in enumerate(coaches)}
-    rows = binary_copy.coach_windows(
+    rows = binary_rows.coach_windows(
         session,
         _table(WindowRollup),
         [*MASKS, *TOTALS],

@@ -21,7 +21,7 @@ from sqlalchemy import Table, and_, case, delete, func, select
 from sqlalchemy.orm import Session
 from sqlalchemy.sql.expression import ColumnElement
 
-from trainclimate.service.store import binary_copy
+from trainclimate.service.store import binary_rows
 from trainclimate.service.store.models import Setpoint, SetpointRollup
 from trainclimate.service.store.sqltime import EpochSeconds
 from trainclimate.service.store.upsert import accumulate
@@ -109,8 +109,8 @@ def rebuild(session: Session) -> int:
 def read_rows(session: Session, coaches: list[str], lo_w: int, hi_w: int) -> np.ndarray:
     """The ``coaches``' counts of windows ``lo_w`` ≤ w < ``hi_w`` as one structured array
     (fields ``coach`` — the position in ``coaches`` —, ``window`` and :data:`COUNTS`), in no
-    particular order (:func:`.binary_copy.coach_windows`)."""
-    return binary_copy.coach_windows(session, _table(), list(COUNTS), coaches, lo_w, hi_w)
+    particular order (:func:`.binary_rows.coach_windows`)."""
+    return binary_rows.coach_windows(session, _table(), list(COUNTS), coaches, lo_w, hi_w)
 
 
 def read(

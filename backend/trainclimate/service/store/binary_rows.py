@@ -1,11 +1,10 @@
-"""Many rows read from PostgreSQL straight into numpy: a ``COPY (SELECT …) TO STDOUT (FORMAT
-BINARY)`` whose columns are all 8-byte integers or floats, never NULL, parsed with one structured
-dtype — no Python object per row or value. The fleet summary reads its window rollups this way
-(hundreds of thousands of rows) and the scheduler its coaches' telemetry at every tick.
-
-The format: an 11-byte signature, 4 bytes of flags, a 4-byte header-extension length and the
-extension; then per row a 2-byte field count and per field a 4-byte length and the value
-(big-endian); a 2-byte −1 at the end (PostgreSQL documentation, "COPY", *Binary Format*).
+"""Many rows read from PostgreSQL straight into numpy: columns that are all 8-byte integers or
+floats, never NULL, packed by the server into one ``bytea`` (each row's values in their binary
+send format, big-endian, rows one after the other: ``int8send``/``float8send`` and
+``string_agg``) and read with one structured dtype — one value for the client to receive instead
+of a message per row (a binary COPY's), and no Python object per row or value. The fleet summary
+reads its window rollups this way (tens of thousands of rows) and the scheduler its coaches'
+telemetry at every tick.
 """
 
 from __future__ import annotations
@@ -17,43 +16,35 @@ from sqlalchemy import Float, Select, Table, case, select
 from sqlalchemy.orm import Session
 
 
-class CopyShapeError(ValueError):
-    """A binary COPY's rows are not the 8-byte, non-NULL columns they were read as."""
+class RowShapeError(ValueError):
+    """Packed rows are not the 8-byte, non-NULL columns they were read as."""
 
 
-def parse(data: bytes, dtype: np.dtype) -> np.ndarray:
-    """The rows of binary COPY output ``data`` as ``dtype`` (its fields in the columns' order,
-    each ``int64`` or ``float64``); :class:`CopyShapeError` if a row is not of that shape
-    (a NULL, another width)."""
-    header = 11 + 4 + 4 + int.from_bytes(data[15:19], "big")
-    body = data[header:-2]
+def packed_rows(session: Session, query: sql.Composable, dtype: np.dtype) -> np.ndarray:
+    """The rows of ``query`` (a SELECT whose columns are ``dtype``'s fields in order, each
+    ``int64`` or ``float64``, never NULL) read in the session's transaction as one packed
+    ``bytea`` (PostgreSQL only), in no particular order. :class:`RowShapeError` if a value was
+    NULL (its row would be missing from the packed ones: the server's count tells)."""
     names = dtype.names or ()
-    fields: list[tuple[str, str]] = [("n", ">i2")]
-    for name in names:
-        kind = ">i8" if dtype[name].kind == "i" else ">f8"
-        fields += [(f"{name}_len", ">i4"), (name, kind)]
-    wire = np.dtype(fields)
-    if len(body) % wire.itemsize:
-        raise CopyShapeError("the COPY's rows are not of the expected shape")
-    rows = np.frombuffer(body, wire)
-    if np.any(rows["n"] != len(names)) or any(np.any(rows[f"{n}_len"] != 8) for n in names):
-        raise CopyShapeError("the COPY's rows are not of the expected shape")
-    out = np.empty(len(rows), dtype)
-    for name in names:
-        out[name] = rows[name]
-    return out
-
-
-def copy_rows(session: Session, query: sql.Composable, dtype: np.dtype) -> np.ndarray:
-    """The rows of ``query`` (a SELECT whose columns are ``dtype``'s fields, 8 bytes each,
-    never NULL) read in the session's transaction with a binary COPY (PostgreSQL only)."""
-    statement = sql.SQL("COPY ({}) TO STDOUT (FORMAT BINARY)").format(query)
+    packed = sql.SQL(" || ").join(
+        sql.SQL("{}(q.{})").format(
+            sql.SQL("int8send" if dtype[name].kind == "i" else "float8send"), sql.Identifier(name)
+        )
+        for name in names
+    )
+    statement = sql.SQL(
+        "SELECT count(*), coalesce(string_agg({packed}, ''::bytea), ''::bytea) "
+        "FROM ({query}) AS q({names})"
+    ).format(packed=packed, query=query, names=sql.SQL(", ").join(sql.Identifier(n) for n in names))
     raw = session.connection().connection.driver_connection
     if raw is None:
-        raise CopyShapeError("no driver connection to COPY through")
-    with raw.cursor() as cursor, cursor.copy(statement) as copy:
-        data = b"".join(bytes(block) for block in copy)
-    return parse(data, dtype)
+        raise RowShapeError("no driver connection to read through")
+    with raw.cursor(binary=True) as cursor:
+        n, data = cursor.execute(statement).fetchone()
+    wire = np.dtype([(name, ">i8" if dtype[name].kind == "i" else ">f8") for name in names])
+    if len(data) != n * wire.itemsize:
+        raise RowShapeError("a packed row is missing: a value was NULL")
+    return np.frombuffer(data, wire).astype(dtype)
 
 
 def coach_windows(
@@ -62,8 +53,8 @@ def coach_windows(
     """The rows of a per-coach, per-window table (``coach_id``, ``window``: the window rollups)
     for ``coaches`` and windows lo_w ≤ w < hi_w, as one structured array — fields ``coach``
     (the position in ``coaches``), ``window`` and ``columns`` (float64 for a float column,
-    int64 for the others) — in no particular order: on PostgreSQL one binary COPY, elsewhere
-    the driver's tuples."""
+    int64 for the others) — in no particular order: on PostgreSQL packed
+    (:func:`packed_rows`), elsewhere the driver's tuples."""
     dtype = np.dtype(
         [("coach", np.int64), ("window", np.int64)]
         + [(c, np.float64 if isinstance(table.c[c].type, Float) else np.int64) for c in columns]
@@ -94,7 +85,7 @@ def coach_windows(
         lo=sql.Literal(int(lo_w)),
         hi=sql.Literal(int(hi_w)),
     )
-    return copy_rows(session, query, dtype)
+    return packed_rows(session, query, dtype)
 
 
 def rows(session: Session, statement: Select) -> list:
@@ -108,6 +99,6 @@ def rows(session: Session, statement: Select) -> list:
     )
     raw = session.connection().connection.driver_connection
     if raw is None:
-        raise CopyShapeError("no driver connection to read through")
+        raise RowShapeError("no driver connection to read through")
     with raw.cursor(binary=True, row_factory=namedtuple_row) as cursor:
         return cursor.execute(str(compiled), compiled.params).fetchall()
