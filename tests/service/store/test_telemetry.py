@@ -198,7 +198,8 @@ def test_packed_rows_are_the_query_s_rows_and_refuse_a_null():
             got = packed_rows(
                 s,
                 sql.SQL(
-                    "SELECT i, i / 7.0::float8 FROM generate_series(-3::int8, 1099511627776, 274877906944) i"
+                    "SELECT i, i / 7.0::float8 "
+                    "FROM generate_series(-3::int8, 1099511627776, 274877906944) i"
                 ),
                 dtype,
             )
