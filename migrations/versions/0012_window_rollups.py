@@ -48,7 +48,7 @@ def upgrade() -> None:
     )
     from trainclimate.service.store import rollups  # the sums as the service computes them
 
-    rollups.rebuild(Session(bind=op.get_bind()))
+    rollups.rebuild(Session(bind=op.get_bind()), firsts=False)  # 0017 adds the first rows
 
 
 def downgrade() -> None:

@@ -38,7 +38,7 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 #: The newest revision.
-HEAD = "0016"
+HEAD = "0017"
 TABLES = {
     "pair_days",
     "setpoint_rollups",
@@ -310,7 +310,8 @@ def test_liveness_moves_to_a_table_of_its_own(db_url):
 
 def test_rollups_are_computed_for_the_telemetry_already_stored(db_url):
     """0012 adds the window rollups and comfort states and computes them from the telemetry a
-    database at 0011 holds: the rows stamped 06:01–06:03 are bits 0–2 of their window."""
+    database at 0011 holds: the rows stamped 06:01–06:03 are bits 0–2 of their window; 0017
+    each coach's oldest row."""
     from sqlalchemy import create_engine, text
 
     migrate(db_url, "0011")
@@ -344,6 +345,7 @@ def test_rollups_are_computed_for_the_telemetry_already_stored(db_url):
             assert rollup.energy_kwh == pytest.approx(3 * 6.0 / 60)
             comfort = s.get(CoachFeed, "A")
             assert comfort.newest == comfort.last_ok == t0 + timedelta(minutes=3)
+            assert comfort.first == t0 + timedelta(minutes=1)  # 0017, from the rows stored
     finally:
         db.dispose()
     downgrade(db_url, "0011")

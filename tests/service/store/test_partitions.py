@@ -12,7 +12,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import inspect, select, text
+from sqlalchemy import insert, inspect, select, text
 from sqlalchemy.exc import OperationalError
 
 from helpers.service import flat_row
@@ -81,6 +81,7 @@ def test_retention_drops_old_months_and_deletes_older_rows(one_coach_database):
             }
         kept = rollups(s)
         assert len(kept[0]) == 192  # an hour apart: a window each
+        assert s.get(CoachFeed, "T-A").first == SEP + timedelta(days=9)
     now = datetime(2024, 11, 19, 12, 0, tzinfo=UTC)
     with one_coach_database.transaction() as s:
         report = partitions.raw_retention(s, 30, now)
@@ -95,6 +96,7 @@ def test_retention_drops_old_months_and_deletes_older_rows(one_coach_database):
     with one_coach_database.transaction() as s:
         times = s.scalars(select(Telemetry.time).order_by(Telemetry.time)).all()
         assert len(times) == 96 and times[0] == OCT + timedelta(days=24)
+        assert s.get(CoachFeed, "T-A").first == times[0]  # where its data now begins
         assert where(s) == (
             {"telemetry_y2024m10": 48, "telemetry_y2024m11": 48} if pg else {"telemetry": 96}
         )
@@ -110,6 +112,19 @@ def test_retention_drops_old_months_and_deletes_older_rows(one_coach_database):
             0,
             0,
         )
+
+
+def test_a_coach_whose_rows_are_all_dropped_begins_again_with_its_next(one_coach_database):
+    with one_coach_database.transaction() as s:
+        insert_rows(s, "T-A", hourly(OCT, 3))
+    with one_coach_database.transaction() as s:
+        partitions.raw_retention(s, 1, NOV)
+    with one_coach_database.transaction() as s:
+        feed = s.get(CoachFeed, "T-A")
+        assert feed.first is None and feed.newest == OCT + timedelta(hours=2)
+        insert_rows(s, "T-A", [flat_row(NOV)])
+    with one_coach_database.transaction() as s:
+        assert s.get(CoachFeed, "T-A").first == NOV
 
 
 def test_a_row_outside_every_month_goes_to_the_default_partition(one_coach_database):
@@ -171,7 +186,9 @@ def test_the_migration_partitions_a_table_with_rows_and_back(db_url):
             ),
             {"t": SEP},
         )
-        insert_rows(s, "T-A", [*hourly(SEP + timedelta(days=28), 30), *hourly(OCT, 5)])
+        # the rows alone (the feed's columns at 0012 are not the model's either)
+        rows = [*hourly(SEP + timedelta(days=28), 30), *hourly(OCT, 5)]
+        s.execute(insert(Telemetry.__table__), [{**r, "coach_id": "T-A"} for r in rows])
     db.dispose()
     engine = make_engine(db_url)
     everything = text("SELECT * FROM telemetry ORDER BY id")

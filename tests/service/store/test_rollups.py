@@ -9,12 +9,12 @@ from datetime import timedelta
 
 import numpy as np
 import pytest
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from helpers.service import T0, at, flat_row, registered, sim_rows
 from trainclimate.service.store import fleet_summary, pair_windows, rollups
 from trainclimate.service.store.db import Database
-from trainclimate.service.store.models import CoachFeed, Override, WindowRollup
+from trainclimate.service.store.models import CoachFeed, Override, Telemetry, WindowRollup
 from trainclimate.service.store.pair_trial import SUMS
 from trainclimate.service.store.telemetry import insert_rows
 
@@ -137,7 +137,18 @@ def test_the_rollups_kept_at_ingest_equal_a_rebuild_from_the_raw_minutes(two_pai
                 )
                 for r in s.scalars(select(WindowRollup))
             }
-            comfort = {r.coach_id: (r.newest, r.last_ok) for r in s.scalars(select(CoachFeed))}
+            comfort = {
+                r.coach_id: (r.first, r.newest, r.last_ok) for r in s.scalars(select(CoachFeed))
+            }
+            # the oldest and the newest row of each coach, as the telemetry has them
+            span = s.execute(
+                select(
+                    Telemetry.coach_id, func.min(Telemetry.time), func.max(Telemetry.time)
+                ).group_by(Telemetry.coach_id)
+            ).all()
+            assert {cid: c[:2] for cid, c in comfort.items()} == {
+                cid: (lo, hi) for cid, lo, hi in span
+            }
         return windows, comfort
 
     kept_windows, kept_comfort = read()

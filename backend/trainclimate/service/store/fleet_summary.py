@@ -23,7 +23,6 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pandas as pd
 from sqlalchemy import (
-    func,
     select,
 )
 from sqlalchemy.orm import Session
@@ -43,23 +42,25 @@ from trainclimate.service.store.models import (
     CoachFeed,
     FleetClock,
     PairGuard,
-    Telemetry,
     Train,
 )
 from trainclimate.service.store.records import CoachView
 
 
 def _coach_times(session: Session, coaches: list) -> dict[str, tuple]:
-    """Each coach's first and newest telemetry time: two index probes per coach, in one
-    statement (one plan for all coaches)."""
-    if not coaches:
-        return {}
-    of_coach = Telemetry.coach_id == Coach.id
-    first = select(func.min(Telemetry.time)).where(of_coach).scalar_subquery()
-    newest = select(func.max(Telemetry.time)).where(of_coach).scalar_subquery()
+    """Each coach's first and newest telemetry time, as its feed keeps them
+    (:class:`~.models.CoachFeed`: one row per coach, whatever the history kept); (None, None)
+    for a coach without telemetry."""
     ids = {c.id for c in coaches}
-    rows = session.execute(select(Coach.id, first, newest).where(queries.among(Coach.id, ids)))
-    return {cid: (t0, t1) for cid, t0, t1 in rows if cid in ids}
+    times: dict[str, tuple] = dict.fromkeys(ids, (None, None))
+    if ids:
+        rows = session.execute(
+            select(CoachFeed.coach_id, CoachFeed.first, CoachFeed.newest).where(
+                queries.among(CoachFeed.coach_id, ids)
+            )
+        )
+        times |= {cid: (first, newest) for cid, first, newest in rows}
+    return times
 
 
 #: Pairs analysed together (bounds the arrays: 128 pairs × 30 days of windows ≈ 45 MB, where

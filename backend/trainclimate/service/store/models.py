@@ -230,12 +230,15 @@ class CoachFeed(Base):
     """A coach's telemetry as it stands, kept as rows arrive (:mod:`.rollups`): the time of its
     newest row, of its newest row within comfort (every deck within T_rule ± T_max, or not in
     regular mode) — so the attention list reads two times per coach instead of its last hours
-    of rows — and ``late_rows``, the rows stored in batches that reached back to or before its
-    newest row (rows arriving late: what can change a range already summed)."""
+    of rows — ``late_rows``, the rows stored in batches that reached back to or before its
+    newest row (rows arriving late: what can change a range already summed), and ``first``, the
+    time of its oldest row stored (None once a retention has dropped them all): where its data
+    begins, read by the fleet summary without probing every partition of the telemetry."""
 
     __tablename__ = "coach_feed"
     coach_id: Mapped[str] = mapped_column(ForeignKey("coaches.id"), primary_key=True)
     newest: Mapped[datetime] = mapped_column(UTCDateTime)
+    first: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     last_ok: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     late_rows: Mapped[int] = mapped_column(BigInteger, default=0)
 

@@ -149,8 +149,9 @@ def raw_retention(session: Session, raw_days: float, now: datetime) -> dict:
     partition that straddles it and from the default partition, then every monthly partition
     entirely before the cut-off is dropped (its rows counted first): last, so the exclusive lock
     a drop takes on ``telemetry`` is held only until the commit that follows. On SQLite the rows
-    before the cut-off are deleted. The pair days that begin before the cut-off are dropped
-    (:func:`.pair_days.forget_all`): they are made again from the rollups.
+    before the cut-off are deleted. The coaches' oldest rows are read again where they were
+    dropped (:func:`.rollups.recount_firsts`), and the pair days that begin before the cut-off
+    are dropped (:func:`.pair_days.forget_all`): they are made again from the rollups.
 
     Returns ``cutoff`` (datetime, UTC), ``partitions_dropped`` (names, oldest first),
     ``rows_dropped`` (the rows they held), ``rows_deleted`` and ``database`` (``postgresql`` or
@@ -169,6 +170,7 @@ def raw_retention(session: Session, raw_days: float, now: datetime) -> dict:
             session.execute(text(f'DROP TABLE "{name}"'))
     else:
         deleted = _rowcount(session.execute(delete(Telemetry).where(Telemetry.time < cutoff)))
+    rollups.recount_firsts(session, before=cutoff)
     # a day summed from minutes now dropped would no longer be the rollups' figures
     pair_days.forget_all(session, before_window=rollups.window_of(cutoff) + 1)
     return {

@@ -14,8 +14,8 @@ a minute one coach has and the other not, a link lost on one coach only, an over
 from the raw minutes (:func:`.pair_windows.window_sums`); such windows are few.
 
 Each coach's feed (:class:`~.models.CoachFeed`: its newest row and its newest row within
-comfort, for the attention list; the rows that arrived late, for the read cache) is kept the
-same way.
+comfort, for the attention list; the rows that arrived late, for the read cache; its oldest
+row, for the fleet summary) is kept the same way.
 
 After raw minutes are dropped (``trainclimate retention``), their windows' rollups stay: a window
 that needed its raw minutes and has none left has no sums, and is excluded as one without data.
@@ -38,6 +38,7 @@ from sqlalchemy import (
     literal,
     or_,
     select,
+    update,
 )
 from sqlalchemy import cast as sql_cast
 from sqlalchemy.orm import Session
@@ -133,23 +134,25 @@ def add_rows(session: Session, rows_by_coach: dict[str, list[TelemetryRecord]]) 
         if not rows:
             continue
         windows += [{"coach_id": coach_id, **inc} for inc in increments(rows)]
-        first = min(r["time"] for r in rows)
-        late = case((feed.c.newest >= literal(first, UTCDateTime()), len(rows)), else_=0)
+        first = literal(min(r["time"] for r in rows), UTCDateTime())
+        late = case((feed.c.newest >= first, len(rows)), else_=0)
         keep_latest(
             session,
             feed,
-            {"coach_id": coach_id, **comfort_state(rows), "late_rows": 0},
+            {"coach_id": coach_id, **comfort_state(rows), "late_rows": 0, "first": first},
             ["coach_id"],
             ["newest", "last_ok"],
             late_rows=feed.c.late_rows + late,
+            first=case((feed.c.first <= first, feed.c.first), else_=first),  # NULL: none kept
         )
     accumulate(session, _table(WindowRollup), windows, ["coach_id", "window"], [*MASKS, *TOTALS])
 
 
-def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
+def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K, firsts: bool = True) -> int:
     """Recompute every rollup and feed state (no row late) from the stored telemetry, in the
     database (for data loaded around the ingest path, e.g. with COPY, and the migration that
-    adds them).
+    adds them); with ``firsts`` each coach's oldest row too (False for that migration, which
+    predates the column).
     Returns how many window rollups there are."""
     t = Telemetry.__table__
     minute = (EpochSeconds(t.c.time) - 60) // 60
@@ -194,13 +197,29 @@ def rebuild(session: Session, t_max_k: float = COMFORT_BAND_K) -> int:
         _table(CoachFeed)
         .insert()
         .from_select(
-            ["coach_id", "newest", "last_ok", "late_rows"],
+            ["coach_id", "newest", "last_ok", "late_rows", *(["first"] if firsts else [])],
             select(
-                t.c.coach_id, func.max(t.c.time), func.max(case((within, t.c.time))), literal(0)
+                t.c.coach_id,
+                func.max(t.c.time),
+                func.max(case((within, t.c.time))),
+                literal(0),
+                *([func.min(t.c.time)] if firsts else []),
             ).group_by(t.c.coach_id),
         )
     )
     return session.scalar(select(func.count()).select_from(WindowRollup)) or 0
+
+
+def recount_firsts(session: Session, before: datetime) -> None:
+    """Each coach's oldest row (:class:`~.models.CoachFeed` ``first``) read again from the
+    telemetry where it was before ``before`` (rows before it have just been dropped); None for a
+    coach with none left."""
+    feed = _table(CoachFeed)
+    t = Telemetry.__table__
+    oldest = select(func.min(t.c.time)).where(t.c.coach_id == feed.c.coach_id).scalar_subquery()
+    session.execute(
+        update(feed).where(feed.c.first < literal(before, UTCDateTime())).values(first=oldest)
+    )
 
 
 def window_of(time: datetime) -> int:
