@@ -4,7 +4,9 @@ send format, big-endian, rows one after the other: ``int8send``/``float8send`` a
 ``string_agg``) and read with one structured dtype — one value for the client to receive instead
 of a message per row (a binary COPY's), and no Python object per row or value. The fleet summary
 reads its window rollups this way (tens of thousands of rows) and the scheduler its coaches'
-telemetry at every tick.
+telemetry at every tick. A value is at most 1 GB in PostgreSQL: one read holds up to about 10 M
+rows of 12 columns, far more than either reads (a 31-day summary of 900 coaches without pair
+days: 1.3 M window rollups).
 """
 
 from __future__ import annotations
