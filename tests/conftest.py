@@ -53,15 +53,18 @@ def small_predictor_file(small_predictor, tmp_path_factory) -> Path:
 
 
 #: Test files marked ``slow`` whole (paths under tests/): those driving a real browser, service
-#: processes, brokers or Dask clusters, the README's commands, the wheel; and those whose
-#: simulations or data take seconds a test (closed-loop runs, the paper's experiments, a generated
-#: fleet, a dataset built for the CLI, calibration, the demo fleet, retraining, fuzzing the API,
-#: the load benchmark).
+#: processes, brokers, Prometheus or Dask clusters, the README's commands, the wheel; and those
+#: whose simulations or data take seconds a test (closed-loop runs, the paper's experiments, a
+#: generated fleet, a dataset built for the CLI, calibration, the demo fleet, retraining, fuzzing
+#: the API, the load, calibration, study and replica benchmarks).
 SLOW_FILES = (
     "analysis/test_experiment.py",
     "analysis/test_experiment_report.py",
     "analysis/test_paper_conditions.py",
+    "bench/test_calibration.py",
     "bench/test_load.py",
+    "bench/test_replicas.py",
+    "bench/test_study.py",
     "control/test_cli_simulate.py",
     "control/test_closed_loop.py",
     "control/test_simulate.py",
@@ -69,6 +72,7 @@ SLOW_FILES = (
     "predict/test_cli_predictor.py",
     "predict/test_real_data.py",
     "service/api/test_schemathesis.py",
+    "service/test_alerts.py",
     "service/test_compose.py",
     "service/test_concurrent_writes.py",
     "service/test_dashboard.py",
@@ -79,7 +83,9 @@ SLOW_FILES = (
     "service/test_demo.py",
     "service/test_docs_pages.py",
     "service/test_feed_liveness.py",
+    "service/test_gateway_backoff.py",
     "service/test_model_lifecycle.py",
+    "service/test_mqtt.py",
     "service/test_processes.py",
     "service/test_replica_failover.py",
     "service/test_replica_pause.py",
