@@ -7,7 +7,7 @@ The tests' small predictor, fitted once a session for every directory (:mod:`hel
 says on what): ``training_trajectories``, ``small_predictor`` and ``small_predictor_file``.
 
 And the ``slow`` marker of whole files and of the tests that start service processes: ``make
-check`` runs ``-m "not slow"``, ``make test`` everything."""
+check`` runs ``-m "not slow"``, ``make test`` everything, the slow files first."""
 
 from pathlib import Path
 from types import SimpleNamespace
@@ -101,12 +101,20 @@ SLOW_FIXTURES = frozenset({"servers", "clean_day"})
 
 
 def pytest_collection_modifyitems(config, items):
-    """Mark ``slow`` the tests of :data:`SLOW_FILES` and those using :data:`SLOW_FIXTURES`."""
+    """Mark ``slow`` the tests of :data:`SLOW_FILES` and those using :data:`SLOW_FIXTURES`; and
+    order the files for ``--dist loadfile`` (each file on one worker, so that its module
+    fixtures are built once; the files handed out in this order): the slow files first, then
+    those with a slow test, then the rest, each file's tests in their order. The long files
+    start early, and the short ones fill the end of a run on both workers."""
     here = Path(__file__).parent
     missing = [name for name in SLOW_FILES if not (here / name).is_file()]
     if missing:
         raise pytest.UsageError(f"tests/conftest.py SLOW_FILES names no file: {missing}")
     slow_files = {here / name for name in SLOW_FILES}
+    with_slow_tests = set()
     for item in items:
         if item.path in slow_files or SLOW_FIXTURES.intersection(item.fixturenames):
             item.add_marker(pytest.mark.slow)
+        if item.get_closest_marker("slow"):
+            with_slow_tests.add(item.path)
+    items.sort(key=lambda item: (item.path not in slow_files, item.path not in with_slow_tests))
