@@ -432,6 +432,16 @@ def test_experiment_run_warns_when_the_scenario_leaves_the_twins_range(
     winter = twin_file(tmp_path / "winter.json", [-15.0, 15.0])
     code, out, err = run_cli(capsys, small_predictor_file, *args, "--coach-params", str(winter))
     assert code == 0 and json.loads(out)["warnings"] == [] and "warning" not in err
+    # in its range, but its response to setpoint changes untested: its savings are warned of
+    one_change = {"changes": 2, "scored": 1, "minutes": 130, "response_error_pct": 4.0}
+    untested = twin_file(tmp_path / "untested.json", [-15.0, 15.0], one_change)
+    code, out, err = run_cli(capsys, small_predictor_file, *args, "--coach-params", str(untested))
+    assert code == 0, err
+    assert json.loads(out)["warnings"] == [
+        f"--coach-params {untested}: the savings predicted with the twin are not validated: its "
+        "response to a setpoint change is untested: the held-out days hold 1 scored change(s), "
+        "3 needed"
+    ]
     bad = twin_file(tmp_path / "bad.json", [15.0, "x"])
     code, out, err = run_cli(capsys, small_predictor_file, *args, "--coach-params", str(bad))
     assert code == 2 and out == "" and "validated_t_amb_c must be" in err

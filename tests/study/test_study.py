@@ -298,11 +298,13 @@ def test_a_twin_validated_for_summer_warns_in_a_january_study(
     small_predictor_file, capsys, tmp_path
 ):
     """A fleet file (calibrate --json) whose first coach's twin was validated at 15–32 °C only:
-    the January weather leaves its range, the coach without a range gets no warning."""
+    the January weather leaves its range; the second, without a range, gets no such warning,
+    but its response to setpoint changes is 40 % off: its savings are warned of."""
     fleet = tmp_path / "fleet.json"
+    off = {"changes": 5, "scored": 4, "minutes": 600, "response_error_pct": 40.2}
     coaches = [
         {"coach": "124A", "params": {}, "validated_t_amb_c": [15.0, 32.0]},
-        {"coach": "44A", "params": {}},
+        {"coach": "44A", "params": {}, "holdout": {"setpoint_response": off}},
     ]
     fleet.write_text(json.dumps({"coaches": coaches}))
     argv = study_argv(small_predictor_file, tmp_path / "out", "--workers", "1")
@@ -310,11 +312,16 @@ def test_a_twin_validated_for_summer_warns_in_a_january_study(
     argv[argv.index("--days") + 1] = "1"
     code, out, err = call(capsys, *argv)
     assert code == 0, err
-    [warning] = json.loads(out)["warnings"]
+    [savings, warning] = json.loads(out)["warnings"]
+    assert savings == (
+        "--fleet: coach 44A: the savings predicted with the twin are not validated: its energy "
+        "response to the 4 held-out setpoint changes is 40 % off (beyond 15 %)"
+    )
     assert warning.startswith("the study's weather, 124A: T_amb ")
     assert "leaves the twin's validated range 15 to 32 °C for " in warning
     assert f"trainclimate: warning: {warning}" in err
-    assert json.loads((tmp_path / "out" / "summary.json").read_text())["warnings"] == [warning]
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["warnings"] == [savings, warning]
     coaches[0]["validated_t_amb_c"] = [15.0]
     fleet.write_text(json.dumps({"coaches": coaches}))
     argv[argv.index("--out") + 1] = str(tmp_path / "bad")

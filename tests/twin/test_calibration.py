@@ -282,6 +282,7 @@ def test_calibrate_writes_a_coach_params_file_the_simulator_takes(capsys, envelo
     record = json.loads(out.read_text())["twin"]
     assert record["validated_t_amb_c"] == coach["validated_t_amb_c"]
     assert record["fitted"] == coach["fitted"] and record["warnings"] == coach["warnings"]
+    assert record["holdout"] == coach["holdout"]  # the setpoint changes' score among it
     assert set(coach["holdout"]) >= {"t_room_mae_c", "power_mae_kw", "energy_error_pct"}
     response = coach["holdout"]["setpoint_response"]
     assert set(response) >= {"changes", "scored", "minutes", "response_error_pct"}

@@ -44,41 +44,50 @@ def _coach_params(args: argparse.Namespace):
     return load_params(args.coach_params) if args.coach_params else None
 
 
-def _range_warnings(args: argparse.Namespace, names: list[str], hours: float | None = None):
-    """The warnings of the scenarios ``names`` (their first ``hours``) whose weather leaves the
-    validated ambient range of the twin in ``--coach-params`` (none without one)."""
+def _twin_warnings(args: argparse.Namespace, t_amb_of: dict) -> list[str]:
+    """The warnings of the twin in ``--coach-params`` (none without one): its savings' when its
+    calibration did not validate its response to setpoint changes, then each run ``what`` in
+    ``t_amb_of`` ({what: a function giving its ambient temperatures, °C}) whose weather leaves
+    the twin's validated ambient range."""
     from trainclimate.twin import validity
 
-    validated = validity.validated_range_of_file(args.coach_params)
-    if validated is None:
-        return []
-    found = (
-        validity.range_warning(validated, validity.scenario_t_amb(n, hours), f"scenario {n}")
-        for n in names
-    )
+    record = validity.record_of_file(args.coach_params)
+    validated = validity.validated_range(record, f"coach parameter file {args.coach_params}")
+    found = [validity.savings_warning(record, f"--coach-params {args.coach_params}")]
+    if validated is not None:
+        found += [
+            validity.range_warning(validated, t_amb(), what) for what, t_amb in t_amb_of.items()
+        ]
     return [w for w in found if w]
+
+
+def _range_warnings(args: argparse.Namespace, names: list[str], hours: float | None = None):
+    """:func:`_twin_warnings` of the scenarios ``names`` (their first ``hours``)."""
+    from trainclimate.twin import validity
+
+    return _twin_warnings(
+        args,
+        {f"scenario {n}": (lambda n=n: validity.scenario_t_amb(n, hours)) for n in names},
+    )
 
 
 def _trial_range_warnings(args: argparse.Namespace, seeds: range) -> list[str]:
-    """The warnings of the trials of ``seeds`` whose weather leaves the validated ambient range
-    of the twin in ``--coach-params`` (none without one)."""
+    """:func:`_twin_warnings` of the trials of ``seeds``."""
     from trainclimate.analysis.trial_environment import trial_environment
     from trainclimate.sim import scenarios
-    from trainclimate.twin import validity
 
-    validated = validity.validated_range_of_file(args.coach_params)
-    if validated is None:
-        return []
     scenario = scenarios.get(args.scenario)
-    found = (
-        validity.range_warning(
-            validated,
-            trial_environment(scenario, args.days, seed, args.switch_hour).t_amb_c,
-            f"the trial of {args.scenario}, seed {seed}",
-        )
-        for seed in seeds
+    return _twin_warnings(
+        args,
+        {
+            f"the trial of {args.scenario}, seed {seed}": (
+                lambda seed=seed: (
+                    trial_environment(scenario, args.days, seed, args.switch_hour).t_amb_c
+                )
+            )
+            for seed in seeds
+        },
     )
-    return [w for w in found if w]
 
 
 def cmd_experiment_run(args: argparse.Namespace) -> None:

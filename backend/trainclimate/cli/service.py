@@ -47,7 +47,9 @@ def cmd_serve(args: argparse.Namespace) -> None:
 
         # a bad file is a one-line error before anything starts
         load_params(args.coach_params)
-        validity.validated_range_of_file(args.coach_params)
+        record = validity.record_of_file(args.coach_params)
+        validity.validated_range(record, f"coach parameter file {args.coach_params}")
+        validity.savings_warning(record, f"coach parameter file {args.coach_params}")
     _check_dynsec(args, settings)
     url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{args.port}/"
     migrated_database(settings.database_url)  # else one line, not a traceback

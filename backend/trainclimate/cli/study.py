@@ -65,8 +65,10 @@ def fleet_from_file(path: str) -> tuple[tuple[str, ...], tuple[dict, ...]]:
 
 
 def _range_warnings(args: argparse.Namespace, weather, spec) -> list[str]:
-    """The warnings of the twins (``--coach-params``, or each coach of ``--fleet``) whose
-    validated ambient range (:mod:`trainclimate.twin.validity`) the study's weather leaves."""
+    """The warnings of the twins (``--coach-params``, or each coach of ``--fleet``): their
+    savings' when their calibration did not validate their response to setpoint changes, and
+    theirs whose validated ambient range (:mod:`trainclimate.twin.validity`) the study's
+    weather leaves."""
     from trainclimate.sim.params import TWIN_KEY, ParamsError
     from trainclimate.twin import validity
 
@@ -75,17 +77,20 @@ def _range_warnings(args: argparse.Namespace, weather, spec) -> list[str]:
     try:
         if args.fleet:
             coaches = json.loads(Path(args.fleet).read_text())["coaches"]
-            ranges = [
-                (c["coach"], validity.validated_range(c, f"--fleet: coach {c['coach']}"))
-                for c in coaches
-            ]
+            records = [(c["coach"], c, f"--fleet: coach {c['coach']}") for c in coaches]
         else:
             file = args.coach_params
             record = json.loads(Path(file).read_text()).get(TWIN_KEY) if file else None
-            ranges = [("the --coaches", validity.validated_range(record, f"--coach-params {file}"))]
+            records = [("the --coaches", record, f"--coach-params {file}")]
+        found = [validity.savings_warning(record, where) for _, record, where in records]
+        found += [
+            validity.range_warning(
+                validity.validated_range(record, where), t_amb, f"the study's weather, {who}"
+            )
+            for who, record, where in records
+        ]
     except ParamsError as exc:
         raise UsageError(str(exc)) from None
-    found = (validity.range_warning(r, t_amb, f"the study's weather, {who}") for who, r in ranges)
     return [w for w in found if w]
 
 

@@ -134,7 +134,12 @@ async def lifespan(app: FastAPI):
     scheduler.beat("live", scheduler.period_s)  # counted as running from its start
     if settings.fleet == "demo":
         coach = load_params(settings.demo_coach_params) if settings.demo_coach_params else None
-        validated = validity.validated_range_of_file(settings.demo_coach_params)
+        record = validity.record_of_file(settings.demo_coach_params)
+        where = f"coach parameter file {settings.demo_coach_params}"
+        validated = validity.validated_range(record, where)
+        unvalidated = validity.savings_warning(record, where)
+        if unvalidated:
+            log.warning("the demo fleet's coaches: %s", unvalidated)
         fleet = demo.DemoFleet(
             db, scheduler, settings.speedup, coach_params=coach, validated_t_amb_c=validated
         )

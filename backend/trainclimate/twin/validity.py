@@ -1,16 +1,20 @@
 """A calibrated twin's file and validity: the ambient range its calibration validated it for,
 carried in its coach-params file, the warning a scenario gets when its weather leaves that range,
-and the twin with a fitted knob moved to an end of its 95 % interval.
+the warning every use of its savings gets when its response to setpoint changes was not
+validated, and the twin with a fitted knob moved to an end of its 95 % interval.
 
 The file ``calibrate --out`` writes is a coach-params file with one more key, :data:`TWIN_KEY`
 (``"twin"``), which :func:`~trainclimate.sim.params.load_params` skips::
 
     {"c_room_j_k": [...], ..., "twin": {"coach": "124A+124B",
      "validated_t_amb_c": [-2.0, 31.5], "fitted": {...}, "not_identified": [...],
+     "holdout": {..., "setpoint_response": {"scored": 4, "response_error_pct": 8.1, ...}},
      "warnings": [...]}}
 
 ``validated_t_amb_c`` is ``[low, high]`` in °C, or null when the calibration validated the twin
-at no ambient temperature. A fleet file (``calibrate --json``) carries the same key on each coach.
+at no ambient temperature. ``holdout`` is the twin's score on the held-out days, among it the
+setpoint changes' (:func:`trainclimate.twin.response.score`). A fleet file (``calibrate
+--json``) carries the same keys on each coach.
 """
 
 from __future__ import annotations
@@ -22,9 +26,10 @@ import numpy as np
 
 from trainclimate.sim.params import TWIN_KEY, CoachParams, ParamsError
 from trainclimate.twin.knobs import QUANTITIES, apply
+from trainclimate.twin.response import MAX_RESPONSE_ERROR_PCT, MIN_CHANGES
 
 #: The calibration's record kept beside the parameters in a twin's coach-params file.
-RECORD = ("coach", "validated_t_amb_c", "fitted", "not_identified", "warnings")
+RECORD = ("coach", "validated_t_amb_c", "fitted", "not_identified", "holdout", "warnings")
 
 
 def params_file(coach: dict) -> dict:
@@ -59,14 +64,59 @@ def validated_range(record: object, where: str) -> list[float] | None:
     return [float(value[0]), float(value[1])]
 
 
-def validated_range_of_file(path: str | Path | None) -> list[float] | None:
-    """The validated ambient range of the twin in coach-params file ``path`` (None: no file,
-    or a file not written by a calibration). Read after :func:`load_params` accepted the file.
-    """
+def record_of_file(path: str | Path | None) -> dict | None:
+    """The calibration's record in coach-params file ``path`` (None: no file, or a file not
+    written by a calibration). Read after :func:`load_params` accepted the file."""
     if path is None:
         return None
-    data = json.loads(Path(path).read_text())
-    return validated_range(data.get(TWIN_KEY), f"coach parameter file {path}")
+    record = json.loads(Path(path).read_text()).get(TWIN_KEY)
+    return record if isinstance(record, dict) else None
+
+
+def savings_warning(record: object, what: str) -> str | None:
+    """The warning of every saving predicted with the twin ``what`` whose calibration's
+    ``record`` (a ``"twin"`` object or a fleet file's coach) did not validate its response to
+    setpoint changes — the response a saving rests on: fewer than
+    :data:`~trainclimate.twin.response.MIN_CHANGES` changes scored on the held-out days, or a
+    response error beyond :data:`~trainclimate.twin.response.MAX_RESPONSE_ERROR_PCT`. None
+    when validated, or when the record holds no such score (a file of an older calibration, a
+    coach-params file of one's own).
+
+    Raises
+    ------
+    ParamsError
+        If the record's score is not a count of scored changes and a response error (%, or
+        null without one).
+    """
+    holdout = record.get("holdout") if isinstance(record, dict) else None
+    score = holdout.get("setpoint_response") if isinstance(holdout, dict) else None
+    if score is None:
+        return None
+    scored = score.get("scored") if isinstance(score, dict) else None
+    error = score.get("response_error_pct") if isinstance(score, dict) else None
+    if not (
+        isinstance(scored, int)
+        and not isinstance(scored, bool)
+        and scored >= 0
+        and (error is None or (isinstance(error, int | float) and np.isfinite(error)))
+    ):
+        raise ParamsError(
+            f"{what}: holdout.setpoint_response must hold scored (a count) and "
+            f"response_error_pct (%, or null), got {score!r}"
+        )
+    if scored < MIN_CHANGES:
+        why = (
+            f"its response to a setpoint change is untested: the held-out days hold {scored} "
+            f"scored change(s), {MIN_CHANGES} needed"
+        )
+    elif error is not None and error > MAX_RESPONSE_ERROR_PCT:
+        why = (
+            f"its energy response to the {scored} held-out setpoint changes is {error:.0f} % "
+            f"off (beyond {MAX_RESPONSE_ERROR_PCT:g} %)"
+        )
+    else:
+        return None
+    return f"{what}: the savings predicted with the twin are not validated: {why}"
 
 
 def range_warning(validated: list[float] | None, t_amb_c: np.ndarray, what: str) -> str | None:
