@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
+from trainclimate.analysis import studentized
 from trainclimate.analysis.trial import (
     NEITHER,
     TrialDays,
@@ -313,3 +314,30 @@ def test_estimating_many_pairs_at_once_is_estimating_each():
     assert estimate_many([]) == []
     with pytest.raises(ValueError, match="at least one resample"):
         estimate_many(pairs, n_resamples=0)
+
+
+@pytest.mark.parametrize(
+    ("n_a", "n_b", "distinct"), [(3, 3, True), (3, 5, True), (4, 4, True), (12, 14, False)]
+)
+def test_distinct_resamples_give_the_quantiles_of_all_resamples(n_a, n_b, distinct):
+    """With few days each distinct resample is computed once and counted as often as drawn: the
+    same order statistics, so the same quantiles as every resample computed (±inf included);
+    with many days, where most resamples differ, they are computed as drawn."""
+    counts_a, counts_b = studentized.resample_counts(n_a, n_b, 4999, 0)
+    distinct_a, distinct_b, draws = studentized.distinct_resamples(n_a, n_b, 4999, 0)
+    if not distinct:
+        assert draws is None and distinct_a is counts_a and distinct_b is counts_b
+        return
+    assert draws.sum() == 4999 and len(draws) < 4999 / 2
+    seen = {tuple(c) for c in np.concatenate([counts_a, counts_b]).T}
+    assert {tuple(c) for c in np.concatenate([distinct_a, distinct_b]).T} == seen
+    rng = np.random.default_rng(n_a * n_b)
+    a = rng.normal(0.05, 0.02, (3, n_a))
+    b = rng.normal(-0.05, 0.02, (3, n_b))
+    a[2] = 0.1  # no spread in a: a resample of b's one day, repeated, studentizes to ±inf
+    coef = np.array([0.5, -1.0, 0.5])
+    full = studentized.pivot_quantiles(a, b, coef, counts_a, counts_b)
+    got = studentized.pivot_quantiles(a, b, coef, distinct_a, distinct_b, draws)
+    np.testing.assert_allclose(got, full, rtol=1e-12, atol=0)
+    # 1/9 of the resamples of 3 days are ±inf, and pull the outer quantiles out of range
+    assert (np.abs(full[2]) > 1e300).any() == (n_b == 3)

@@ -3,8 +3,11 @@ resample drawn as :func:`scipy.stats.bootstrap` draws it (``default_rng(seed).in
 (n_resamples, n))``, the first group then the second), written as a counts matrix C (how often
 each observation is drawn), so that a resample's mean is C·x / n and its variance follows from
 C·x² (Efron & Tibshirani 1993, *An Introduction to the Bootstrap*, ch. 6): a matrix product
-instead of a gathered copy per resample. :mod:`.trial` uses it for the pair trials' intervals;
-the tests hold it equal to scipy's.
+instead of a gathered copy per resample. With few days most resamples repeat one another (of 3
+days there are 10 distinct resamples, of 4 days 35): each distinct pair of the groups' columns
+is then computed once and counted as often as it was drawn, which gives the same order
+statistics, so the same quantiles. :mod:`.trial` uses it for the pair trials' intervals; the
+tests hold it equal to scipy's.
 """
 
 from __future__ import annotations
@@ -35,13 +38,37 @@ def resample_counts(
     return out[0], out[1]
 
 
+@functools.lru_cache(maxsize=64)
+def distinct_resamples(
+    n_a: int, n_b: int, n_resamples: int, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The resamples of :func:`resample_counts`, each distinct one (the same columns of both
+    groups) once, with how often it was drawn: counts matrices (n_a, k) and (n_b, k) and the
+    draws (k,), which add up to ``n_resamples``. Where fewer than half the resamples would
+    go (many days), the resamples as drawn and None. Read-only (they are cached)."""
+    counts_a, counts_b = resample_counts(n_a, n_b, n_resamples, seed)
+    distinct, draws = np.unique(np.concatenate([counts_a, counts_b]).T, axis=0, return_counts=True)
+    if 2 * len(draws) > n_resamples:
+        return counts_a, counts_b, None
+    out = [np.ascontiguousarray(distinct[:, :n_a].T), np.ascontiguousarray(distinct[:, n_a:].T)]
+    for x in (*out, draws):
+        x.flags.writeable = False
+    return out[0], out[1], draws
+
+
 def pivot_quantiles(
-    a: np.ndarray, b: np.ndarray, coef: np.ndarray, counts_a: np.ndarray, counts_b: np.ndarray
+    a: np.ndarray,
+    b: np.ndarray,
+    coef: np.ndarray,
+    counts_a: np.ndarray,
+    counts_b: np.ndarray,
+    draws: np.ndarray | None = None,
 ) -> np.ndarray:
     """The quantiles :data:`QUANTILES` of each row's studentized bootstrap distribution
     (θ* − θ) / se* of θ = coef (mean a − mean b), shape (rows, 4), from the counts matrices of
-    the groups' resamples (:func:`resample_counts`; ``a`` (rows, n_a), ``b`` (rows, n_b),
-    ``coef`` (rows,)). A resample without spread studentizes to ±inf (0/0 to 0)."""
+    the groups' resamples (:func:`resample_counts`, or the distinct ones and their ``draws``,
+    :func:`distinct_resamples`; ``a`` (rows, n_a), ``b`` (rows, n_b), ``coef`` (rows,)). A
+    resample without spread studentizes to ±inf (0/0 to 0)."""
     moments = []
     for x, counts in ((a, counts_a), (b, counts_b)):
         centred = np.asarray(x)
@@ -60,19 +87,30 @@ def pivot_quantiles(
     sign = np.sign(coef)[:, None]
     with np.errstate(all="ignore"):
         t_star = sign * (mean_a - mean_b) / np.sqrt(var_a + var_b)
-    return quantiles(np.nan_to_num(t_star, nan=0.0))
+    return quantiles(np.nan_to_num(t_star, nan=0.0), draws)
 
 
-def quantiles(t: np.ndarray) -> np.ndarray:
-    """The quantiles :data:`QUANTILES` of each row of ``t``, shape (rows, 4): those of
-    ``numpy.quantile`` (linear interpolation between the neighbouring order statistics, from
-    the nearer one), read off each row partitioned at those order statistics, in one call."""
-    position = np.asarray(QUANTILES) * (t.shape[1] - 1)
+def quantiles(t: np.ndarray, draws: np.ndarray | None = None) -> np.ndarray:
+    """The quantiles :data:`QUANTILES` of each row of ``t`` (each column counted ``draws``
+    times; default once), shape (rows, 4): those of ``numpy.quantile`` of the values so
+    counted (linear interpolation between the neighbouring order statistics, from the nearer
+    one). Without ``draws``, read off each row partitioned at those order statistics, in one
+    call; with them, off each row sorted, the k-th order statistic the first value whose
+    draws so far exceed k."""
+    n = t.shape[1] if draws is None else int(draws.sum())
+    position = np.asarray(QUANTILES) * (n - 1)
     below = np.floor(position).astype(np.int64)
-    above = np.minimum(below + 1, t.shape[1] - 1)
+    above = np.minimum(below + 1, n - 1)
     frac = position - below
-    # the order statistics at these places only (what a sort would put there, exactly)
-    ordered = np.partition(t, np.unique(np.r_[below, above]), axis=1)
-    low, high = ordered[:, below], ordered[:, above]
+    if draws is None:
+        # the order statistics at these places only (what a sort would put there, exactly)
+        ordered = np.partition(t, np.unique(np.r_[below, above]), axis=1)
+        low, high = ordered[:, below], ordered[:, above]
+    else:
+        order = np.argsort(t, axis=1)
+        drawn = np.cumsum(draws[order], axis=1)  # (rows, distinct): order statistics so far
+        rows = np.arange(len(t))[:, None]
+        at = [order[rows, (drawn[:, :, None] <= k).sum(axis=1)] for k in (below, above)]
+        low, high = t[rows, at[0]], t[rows, at[1]]
     step = high - low
     return np.where(frac >= 0.5, high - step * (1.0 - frac), low + step * frac)

@@ -504,14 +504,14 @@ def estimate_many(
             sizes = (len(prepared.a), len(prepared.b))
             pending.setdefault(sizes, []).append((i, prepared))
     for (n_a, n_b), group in pending.items():
-        counts_a, counts_b = studentized.resample_counts(n_a, n_b, n_resamples, seed)
+        counts_a, counts_b, draws = studentized.distinct_resamples(n_a, n_b, n_resamples, seed)
         # one pair per product: the matrix library's rounding depends on a product's shape, and
         # a pair's interval must not depend on the pairs it is computed with
         for i, p in group:
             out[i] = _interval(
                 p,
                 studentized.pivot_quantiles(
-                    p.a[None], p.b[None], np.array([p.coef]), counts_a, counts_b
+                    p.a[None], p.b[None], np.array([p.coef]), counts_a, counts_b, draws
                 )[0],
                 target_half_width_pct,
             )
