@@ -4,6 +4,7 @@ and simulated trials beside their truth."""
 from __future__ import annotations
 
 import argparse
+import functools
 
 import numpy as np
 
@@ -61,17 +62,16 @@ def _twin_warnings(args: argparse.Namespace, t_amb_of: dict) -> list[str]:
     return [w for w in found if w]
 
 
-def _range_warnings(args: argparse.Namespace, names: list[str], hours: float | None = None):
+def _scenario_warnings(args: argparse.Namespace, names: list[str], hours: float | None = None):
     """:func:`_twin_warnings` of the scenarios ``names`` (their first ``hours``)."""
     from trainclimate.twin import validity
 
     return _twin_warnings(
-        args,
-        {f"scenario {n}": (lambda n=n: validity.scenario_t_amb(n, hours)) for n in names},
+        args, {f"scenario {n}": functools.partial(validity.scenario_t_amb, n, hours) for n in names}
     )
 
 
-def _trial_range_warnings(args: argparse.Namespace, seeds: range) -> list[str]:
+def _trial_warnings(args: argparse.Namespace, seeds: range) -> list[str]:
     """:func:`_twin_warnings` of the trials of ``seeds``."""
     from trainclimate.analysis.trial_environment import trial_environment
     from trainclimate.sim import scenarios
@@ -102,7 +102,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> None:
     if not 0 <= args.coach_spread < 1:
         raise UsageError("--coach-spread must lie in [0, 1)")
     out_file(args.html, "the HTML report")
-    warnings = _range_warnings(args, [args.scenario], args.hours)
+    warnings = _scenario_warnings(args, [args.scenario], args.hours)
     pair = run_pair(
         args.scenario,
         predictor_from(args),
@@ -182,7 +182,7 @@ def cmd_experiment_trial(args: argparse.Namespace) -> None:
     base = _coach_params(args)
     predictor = predictor_from(args)
     seeds = range(args.seed, args.seed + args.seeds)
-    warnings = _trial_range_warnings(args, seeds)
+    warnings = _trial_warnings(args, seeds)
     with progress_bar(len(seeds) * args.days, f"trial {args.scenario}", "day") as bar:
 
         def progress(days: float) -> None:
@@ -232,7 +232,7 @@ def cmd_experiment_ablation(args: argparse.Namespace) -> None:
 
     out = out_dir(args.out, "the ablation table")
     base = _coach_params(args)
-    warnings = _range_warnings(args, list(EXPERIMENTS))
+    warnings = _scenario_warnings(args, list(EXPERIMENTS))
     predictor = predictor_from(args)
     with progress_bar(len(EXPERIMENTS), "ablation", "experiment") as bar:
         rows = run_ablation(
@@ -266,7 +266,7 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
         return cmd_experiment_ablation(args)
     out = out_dir(args.out, "the experiment reports")
     base = _coach_params(args)
-    warnings = _range_warnings(args, list(EXPERIMENTS))
+    warnings = _scenario_warnings(args, list(EXPERIMENTS))
     predictor = predictor_from(args)
     rows = []
     with progress_bar(len(EXPERIMENTS), "paired experiments", "experiment") as bar:
