@@ -64,7 +64,7 @@ def fleet_from_file(path: str) -> tuple[tuple[str, ...], tuple[dict, ...]]:
     return tuple(ids), tuple(params)
 
 
-def _range_warnings(args: argparse.Namespace, weather, spec) -> list[str]:
+def _twin_warnings(args: argparse.Namespace, weather, spec) -> list[str]:
     """The warnings of the twins (``--coach-params``, or each coach of ``--fleet``): their
     savings' when their calibration did not validate their response to setpoint changes, and
     theirs whose validated ambient range (:mod:`trainclimate.twin.validity`) the study's
@@ -206,7 +206,7 @@ def cmd_study_fleet(args: argparse.Namespace) -> None:
         check_scheduler(args.scheduler)
     except StudyError as exc:
         raise UsageError(str(exc)) from None
-    warnings = _range_warnings(args, weather, spec)
+    warnings = _twin_warnings(args, weather, spec)
     record = _twin_record(args) if args.twin_ends else None
     out = out_dir(args.out, "the study's results")
     html = None
