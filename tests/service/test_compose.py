@@ -315,9 +315,11 @@ def test_the_compose_setup_runs_as_local_processes(tmp_path, small_predictor_fil
             else:
                 assert not c["ddpc_active"] and "inactive" in reasons, (c["id"], reasons)
                 assert reasons <= {"inactive", "stale"}, (c["id"], reasons)
-        # train 126's rows came through the broker, each once, nothing dropped
+        # train 126's rows came through the broker, each stored once, nothing dropped (a
+        # confirmation slower than the gateway's wait has it send its oldest row again, which
+        # the service counts as a duplicate and does not store: the outcome is judged)
         feed = httpx.get(health).json()["mqtt"]
-        assert (feed["rows_stored"], feed["duplicates"], feed["dropped"]) == (2 * minutes, 0, {})
+        assert (feed["rows_stored"], feed["dropped"]) == (2 * minutes, {})
         assert feed["connected"] and feed["setpoints_published"] > 0
         for train in ("124", "125", "126"):
             reply = httpx.get(f"{api}/trains/{train}/comparison", headers=headers)
