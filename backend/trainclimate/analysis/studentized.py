@@ -44,8 +44,8 @@ def distinct_resamples(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The resamples of :func:`resample_counts`, each distinct one (the same columns of both
     groups) once, with how often it was drawn: counts matrices (n_a, k) and (n_b, k) and the
-    draws (k,), which add up to ``n_resamples``. Where fewer than half the resamples would
-    go (many days), the resamples as drawn and None. Read-only (they are cached)."""
+    draws (k,), which add up to ``n_resamples``. Where more than half the resamples are
+    distinct (many days), the resamples as drawn and None. Read-only (they are cached)."""
     counts_a, counts_b = resample_counts(n_a, n_b, n_resamples, seed)
     distinct, draws = np.unique(np.concatenate([counts_a, counts_b]).T, axis=0, return_counts=True)
     if 2 * len(draws) > n_resamples:
