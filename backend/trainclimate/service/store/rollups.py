@@ -23,6 +23,7 @@ that needed its raw minutes and has none left has no sums, and is excluded as on
 
 from __future__ import annotations
 
+import functools
 from datetime import UTC, datetime
 from typing import cast
 
@@ -32,6 +33,7 @@ from sqlalchemy import (
     Integer,
     Table,
     and_,
+    bindparam,
     case,
     delete,
     func,
@@ -122,29 +124,40 @@ def comfort_state(rows: list[TelemetryRecord], t_max_k: float = COMFORT_BAND_K) 
     return {"newest": max(r["time"] for r in rows), "last_ok": max(ok, default=None)}
 
 
+@functools.cache
+def _feed_upsert(dialect: str):
+    """The statement that adds a coach's new rows to its feed state (bound: ``coach_id``,
+    ``newest``, ``last_ok``, ``first``, and ``n_rows``, which count as late if they reach back
+    to or before the newest row stored)."""
+    feed = _table(CoachFeed)
+    first = bindparam("first", type_=UTCDateTime())
+    late = case((feed.c.newest >= first, bindparam("n_rows", type_=Integer())), else_=0)
+    return keep_latest(
+        dialect,
+        feed,
+        ["coach_id", "newest", "last_ok", "late_rows", "first"],
+        ["coach_id"],
+        ["newest", "last_ok"],
+        late_rows=feed.c.late_rows + late,
+        first=case((feed.c.first <= first, feed.c.first), else_=first),  # NULL: none kept
+    )
+
+
 def add_rows(session: Session, rows_by_coach: dict[str, list[TelemetryRecord]]) -> None:
     """Add newly stored telemetry (coach id → its rows, each stored for the first time) to the
     coaches' window rollups and feed states (:class:`~.models.CoachFeed`), in the caller's
     transaction, coach by coach and window by window (two writers take the rows' locks in one
     order). A coach's rows that reach back to or before its newest row stored count as late."""
     windows = []
-    feed = _table(CoachFeed)
+    feed = _feed_upsert(session.get_bind().dialect.name)
     for coach_id in sorted(rows_by_coach):
         rows = rows_by_coach[coach_id]
         if not rows:
             continue
         windows += [{"coach_id": coach_id, **inc} for inc in increments(rows)]
-        first = literal(min(r["time"] for r in rows), UTCDateTime())
-        late = case((feed.c.newest >= first, len(rows)), else_=0)
-        keep_latest(
-            session,
-            feed,
-            {"coach_id": coach_id, **comfort_state(rows), "late_rows": 0, "first": first},
-            ["coach_id"],
-            ["newest", "last_ok"],
-            late_rows=feed.c.late_rows + late,
-            first=case((feed.c.first <= first, feed.c.first), else_=first),  # NULL: none kept
-        )
+        first = min(r["time"] for r in rows)
+        state = {"coach_id": coach_id, **comfort_state(rows), "late_rows": 0, "first": first}
+        session.execute(feed, {**state, "n_rows": len(rows)})
     accumulate(session, _table(WindowRollup), windows, ["coach_id", "window"], [*MASKS, *TOTALS])
 
 

@@ -4,13 +4,21 @@ coach and its train, a telemetry minute sent twice — both succeed; one of them
 
 from __future__ import annotations
 
-from sqlalchemy import Table, func
+import functools
+
+from sqlalchemy import Table, bindparam, func
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
+# The statements are built once per table and columns and kept (building one — its EXCLUDED
+# alias above all — costs more than running it); each run binds its rows' values.
 
-def _insert(session: Session, table: Table):
-    dialect = session.get_bind().dialect.name
+
+def _dialect(session: Session) -> str:
+    return session.get_bind().dialect.name
+
+
+def _insert(dialect: str, table: Table):
     return (postgresql.insert if dialect == "postgresql" else sqlite.insert)(table)
 
 
@@ -21,26 +29,28 @@ def insert_new(session: Session, table: Table, rows: list[dict], keys: list[str]
     return len(insert_new_keys(session, table, rows, keys, key))
 
 
+@functools.lru_cache(maxsize=64)
+def _insert_new(dialect: str, table: Table, keys: tuple[str, ...], column: str):
+    stmt = _insert(dialect, table).on_conflict_do_nothing(index_elements=list(keys))
+    return stmt.returning(table.c[column])
+
+
 def insert_new_keys(
     session: Session, table: Table, rows: list[dict], keys: list[str], column: str
 ) -> list:
     """:func:`insert_new`, returning the ``column`` of each row inserted."""
     if not rows:
         return []
-    stmt = _insert(session, table).on_conflict_do_nothing(index_elements=keys)
-    return list(session.scalars(stmt.returning(table.c[column]), rows))
+    stmt = _insert_new(_dialect(session), table, tuple(keys), column)
+    return list(session.scalars(stmt, rows))
 
 
-def advance(session: Session, table: Table, key: dict, column: str, value) -> None:
-    """Create the row ``key`` with ``column`` = ``value``, or move its ``column`` forward to
-    ``value`` if that is later (never back), in one statement."""
-    stmt = _insert(session, table).values(**key, **{column: value})
-    newest = func.greatest if session.get_bind().dialect.name == "postgresql" else func.max
-    stmt = stmt.on_conflict_do_update(
-        index_elements=list(key),
-        set_={column: newest(table.c[column], stmt.excluded[column])},
+@functools.lru_cache(maxsize=64)
+def _accumulate(dialect: str, table: Table, keys: tuple[str, ...], add: tuple[str, ...]):
+    stmt = _insert(dialect, table)
+    return stmt.on_conflict_do_update(
+        index_elements=list(keys), set_={c: table.c[c] + stmt.excluded[c] for c in add}
     )
-    session.execute(stmt)
 
 
 def accumulate(
@@ -50,28 +60,25 @@ def accumulate(
     under the same ``keys``, in one statement."""
     if not rows:
         return
-    stmt = _insert(session, table)
-    stmt = stmt.on_conflict_do_update(
-        index_elements=keys, set_={c: table.c[c] + stmt.excluded[c] for c in add}
-    )
-    session.execute(stmt, rows)
+    session.execute(_accumulate(_dialect(session), table, tuple(keys), tuple(add)), rows)
 
 
 def keep_latest(
-    session: Session, table: Table, row: dict, keys: list[str], columns: list[str], **also
-) -> None:
-    """Insert ``row``, or move the ``columns`` of the row already stored under the same ``keys``
-    forward to its values where later (a NULL is earlier than any time) and set the columns
-    ``also`` names to their expressions, in one statement."""
-    stmt = _insert(session, table).values(**row)
-    if session.get_bind().dialect.name == "postgresql":
-        newest = {c: func.greatest(table.c[c], stmt.excluded[c]) for c in columns}  # skips NULL
+    dialect: str, table: Table, columns: list[str], keys: list[str], latest: list[str], **also
+):
+    """The statement that inserts a row of ``columns`` (bound by their names), or moves the
+    ``latest`` columns of the row already stored under the same ``keys`` forward to its values
+    where later (a NULL is earlier than any time) and sets the columns ``also`` names to their
+    expressions (which may use bound parameters of their own). Build it once and keep it."""
+    stmt = _insert(dialect, table).values({c: bindparam(c, type_=table.c[c].type) for c in columns})
+    if dialect == "postgresql":
+        newest = {c: func.greatest(table.c[c], stmt.excluded[c]) for c in latest}  # skips NULL
     else:
         newest = {
             c: func.max(
                 func.coalesce(table.c[c], stmt.excluded[c]),
                 func.coalesce(stmt.excluded[c], table.c[c]),
             )
-            for c in columns
+            for c in latest
         }
-    session.execute(stmt.on_conflict_do_update(index_elements=keys, set_={**newest, **also}))
+    return stmt.on_conflict_do_update(index_elements=keys, set_={**newest, **also})
