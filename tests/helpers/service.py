@@ -52,11 +52,13 @@ PG_URL = os.environ.get("TRAINCLIMATE_TEST_PG_URL")
 PG_SKIP = "TRAINCLIMATE_TEST_PG_URL is not set: no PostgreSQL server to test against"
 
 
-def pg_database() -> tuple[str, str]:
-    """A fresh database on the test server: (its URL, its name)."""
+def pg_database(template: str | None = None) -> tuple[str, str]:
+    """A fresh database on the test server, or a copy of the database ``template`` (which no
+    one may be connected to): (its URL, its name)."""
     name = f"tc_test_{uuid.uuid4().hex[:12]}"
+    copy = f' TEMPLATE "{template}"' if template else ""
     with psycopg.connect(PG_URL, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
+        conn.execute(f'CREATE DATABASE "{name}"{copy}')
     base = PG_URL.rsplit("/", 1)[0]
     return f"{base}/{name}", name
 

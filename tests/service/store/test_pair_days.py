@@ -8,13 +8,16 @@ at a time."""
 
 from __future__ import annotations
 
+import shutil
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from helpers.service import flat_row
+from helpers.service import PG_SKIP, PG_URL, drop_pg_database, flat_row, pg_database
 from trainclimate.service.scheduler import Scheduler
+from trainclimate.service.settings import Settings
 from trainclimate.service.store import (
     comparison,
     fleet_summary,
@@ -92,12 +95,11 @@ def _telemetry(rng, side: str, split: bool) -> list[dict]:
     return rows
 
 
-@pytest.fixture
-def fleet(db_url):
+def _load(url: str) -> None:
     """Two trains (X with the floor heating's share reported, Y without) over five service
     days, an override on Y-A over day 3; no pair days."""
-    migrate(db_url)
-    db = Database(db_url)
+    migrate(url)
+    db = Database(url)
     rng = np.random.default_rng(7)
     with db.transaction() as s:
         for train, split in (("X", True), ("Y", False)):
@@ -124,8 +126,43 @@ def fleet(db_url):
                 created_by="test",
             )
         )
+    db.dispose()
+
+
+@pytest.fixture(scope="module", params=["sqlite", "postgresql"])
+def loaded(request, tmp_path_factory):
+    """The fleet of :func:`_load`, loaded once per module into a SQLite file or a PostgreSQL
+    database (skipped without a server) that each test copies."""
+    if request.param == "sqlite":
+        path = tmp_path_factory.mktemp("pair-days") / "loaded.db"
+        _load(f"sqlite:///{path}")
+        yield path
+        return
+    if not PG_URL:
+        pytest.skip(PG_SKIP)
+    url, name = pg_database()
+    try:
+        _load(url)
+        yield name
+    finally:
+        drop_pg_database(name)
+
+
+@pytest.fixture
+def fleet(loaded, tmp_path):
+    """A copy of the loaded fleet of its own (a file copied, a database made from it as a
+    template)."""
+    if isinstance(loaded, Path):
+        url = f"sqlite:///{tmp_path / 'fleet.db'}"
+        shutil.copyfile(loaded, tmp_path / "fleet.db")
+        name = None
+    else:
+        url, name = pg_database(template=loaded)
+    db = Database(url)
     yield db
     db.dispose()
+    if name is not None:
+        drop_pg_database(name)
 
 
 def _summaries(db) -> dict:
@@ -248,7 +285,8 @@ def test_a_late_row_drops_the_days_it_changes_and_they_are_made_again(fleet):
     _assert_same(_summaries(fleet), want)
 
 
-def test_the_scheduler_makes_them_a_few_at_a_time(fleet, settings):
+def test_the_scheduler_makes_them_a_few_at_a_time(fleet, small_predictor_file):
+    settings = Settings(database_url=fleet.url, predictor_path=small_predictor_file)
     keeper = Scheduler(fleet, settings)
     assert keeper.keep_pair_days(max_days=5) == 5
     assert keeper.keep_pair_days(max_days=100) == 7
