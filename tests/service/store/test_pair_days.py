@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from helpers.service import flat_row
+from trainclimate.analysis import trial_plan
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.store import (
     comparison,
@@ -233,7 +234,7 @@ def test_a_late_row_drops_the_days_it_changes_and_they_are_made_again(fleet):
         ingest(s, "X-A", [flat_row(late, power_kw=30.0)])
     with fleet.transaction() as s:
         kept = {(d.coach_0, d.day) for d in s.query(PairDay)}
-    late_day = pair_days.trial.service_day(pair_days.pd.Timestamp(late), 3).toordinal()
+    late_day = trial_plan.service_day(pair_days.pd.Timestamp(late), 3).toordinal()
     assert ("X-A", late_day) not in kept and ("X-A", late_day - 1) in kept
     assert ("Y-A", late_day) in kept  # the other train's are unchanged
     # read from the rollups where the pair day is gone, and equal to them once made again

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial, trial_plan
 from trainclimate.service.store import pair_trial
 from trainclimate.service.store.pair_trial import COUNTS, SUMS, SUMS_INDEX, UNLABELLED
 
@@ -27,7 +27,7 @@ def _lead_in_loop(label: np.ndarray, n: int) -> np.ndarray:
 
 def test_the_lead_in_marks_the_windows_after_each_change_of_roles():
     rng = np.random.default_rng(3)
-    choices = np.array([0, 1, trial.NEITHER, UNLABELLED])
+    choices = np.array([0, 1, trial_plan.NEITHER, UNLABELLED])
     labels = choices[rng.choice(4, size=(200, 40), p=[0.4, 0.3, 0.1, 0.2])]
     for lead_in_min, n in ((60.0, 2), (30.0, 1), (100.0, 4), (3000.0, 100)):
         got = pair_trial.lead_in(labels, 30.0, lead_in_min)
@@ -41,7 +41,7 @@ def test_the_lead_in_marks_the_windows_after_each_change_of_roles():
 
 def test_the_lead_in_taken_in_parts_is_the_lead_in_taken_whole():
     rng = np.random.default_rng(5)
-    choices = np.array([0, 1, trial.NEITHER, UNLABELLED])
+    choices = np.array([0, 1, trial_plan.NEITHER, UNLABELLED])
     labels = choices[rng.choice(4, size=(300, 30), p=[0.3, 0.3, 0.1, 0.3])]
     for lead_in_min in (60.0, 30.0, 100.0):
         whole = pair_trial.lead_in(labels, 30.0, lead_in_min)
@@ -148,7 +148,7 @@ def test_days_of_many_pairs_are_each_pairs_days():
     day = np.repeat(np.arange(738000, 738006), 48)
     energy = rng.uniform(1.0, 3.0, (30, n, 2))
     energy[rng.random((30, n)) < 0.02] = 0.0
-    act = rng.choice([0, 1, trial.NEITHER], size=(30, n), p=[0.45, 0.45, 0.1])
+    act = rng.choice([0, 1, trial_plan.NEITHER], size=(30, n), p=[0.45, 0.45, 0.1])
     act[:, :96] = 0  # whole days of one label
     keep = rng.random((30, n)) < 0.7
     keep[:5, 48:94] = False  # days with two windows

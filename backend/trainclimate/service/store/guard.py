@@ -32,7 +32,7 @@ import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.analysis.guard import costs_energy, figures, step
 from trainclimate.service.store import pair_trial, pair_windows, queries
 from trainclimate.service.store.models import PairGuard
@@ -114,7 +114,7 @@ def _evaluate(
     ranges = {}
     for g in rows:
         day = due[g.train_id]
-        end = trial.day_start(day.day, day.switch_hour)
+        end = trial_plan.day_start(day.day, day.switch_hour)
         start = end - pd.Timedelta(days=LOOKBACK_DAYS)
         if g.counts_from is not None and g.counts_from > start:
             start = pd.Timestamp(g.counts_from)

@@ -34,7 +34,7 @@ import pandas as pd
 from sqlalchemy import Table, and_, delete, func, or_, select
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.service.store import (
     binary_rows,
     pair_trial,
@@ -85,8 +85,8 @@ class Day:
 
 def day_windows(day: int, switch_hour: int) -> tuple[int, int]:
     """The windows [first, end) of service day ``day`` (an ordinal) at ``switch_hour``."""
-    start = trial.day_start(pd.Timestamp.fromordinal(day).date(), switch_hour)
-    end = trial.day_start(pd.Timestamp.fromordinal(day + 1).date(), switch_hour)
+    start = trial_plan.day_start(pd.Timestamp.fromordinal(day).date(), switch_hour)
+    end = trial_plan.day_start(pd.Timestamp.fromordinal(day + 1).date(), switch_hour)
     return round(start.timestamp()) // _WINDOW_S, round(end.timestamp()) // _WINDOW_S
 
 
@@ -213,8 +213,8 @@ def build(
         end, first = ends.get((c0, c1)), [firsts.get(c) for c in (c0, c1)]
         if end is None or first[0] is None or first[1] is None:
             continue
-        day = trial.service_day(pd.Timestamp(min(first[0], first[1])), hour).toordinal()
-        last = trial.service_day(pd.Timestamp(end), hour).toordinal()
+        day = trial_plan.service_day(pd.Timestamp(min(first[0], first[1])), hour).toordinal()
+        last = trial_plan.service_day(pd.Timestamp(end), hour).toordinal()
         if day_windows(last, hour)[1] * _WINDOW_S > end.timestamp():
             last -= 1  # the day the data reaches into is not over
         state = _state(*NO_STATE)
@@ -360,7 +360,7 @@ def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, tuple[_Segmen
     (kept: the trains of a summary share their range)."""
     w_lo, n = pair_windows.range_windows(lo, hi, WINDOW_MIN)
     index = np.arange(w_lo - 1, w_lo + n + 1)
-    day = trial.service_days(pd.to_datetime(index * _WINDOW_S, unit="s", utc=True), hour)
+    day = trial_plan.service_days(pd.to_datetime(index * _WINDOW_S, unit="s", utc=True), hour)
     inner = day[1:-1]
     starts = [*pair_trial.day_starts(inner).tolist(), n]
     out = []

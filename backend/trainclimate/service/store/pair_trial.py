@@ -32,7 +32,7 @@ import pandas as pd
 from sqlalchemy import Table, select
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial, trial_plan
 from trainclimate.analysis.savings import PairTotals, savings_pct
 from trainclimate.coach.meters import HEADLINE_METER, METERS
 from trainclimate.service.store import setpoint_rollups
@@ -149,7 +149,7 @@ def labels(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     -------
     (numpy.ndarray, numpy.ndarray)
         The label per window (..., W): 0 or 1 (the coach under the layer, the other on
-        T_rule), :data:`~trainclimate.analysis.trial.NEITHER` (both on T_rule, layer off:
+        T_rule), :data:`~trainclimate.analysis.trial_plan.NEITHER` (both on T_rule, layer off:
         reference) or :data:`UNLABELLED`; and the code of the reason a window is not labelled
         (..., W) in :data:`REASONS`, 0 where it is.
     """
@@ -160,7 +160,7 @@ def labels(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     label = np.full(counts.shape[:-2], UNLABELLED)
     label[ddpc[..., 0] & rule[..., 1]] = 0
     label[ddpc[..., 1] & rule[..., 0]] = 1
-    label[rule[..., 0] & rule[..., 1]] = trial.NEITHER
+    label[rule[..., 0] & rule[..., 1]] = trial_plan.NEITHER
     conditions = [
         (ticks == 0).any(axis=-1),
         (c["override"] > 0).any(axis=-1),
@@ -323,7 +323,7 @@ def windows(
 
 
 _DECKS = ("up", "mid", "low")
-_GROUPS = {"0": 0, "1": 1, "neither": trial.NEITHER}
+_GROUPS = {"0": 0, "1": 1, "neither": trial_plan.NEITHER}
 #: What a pair's windows add up to over a service day (or any part of one): its windows, those
 #: counted and those excluded by reason; the minutes counted for comfort and the discomfort per
 #: deck of the activated and the deactivated coach over every window in which a coach ran the
@@ -540,7 +540,7 @@ def pair_results(
     hours = np.asarray(switch_hours)
     for hour in np.unique(hours):
         mine = np.flatnonzero(hours == hour)
-        day = trial.service_days(starts, int(hour))
+        day = trial_plan.service_days(starts, int(hour))
         first = day_starts(day)
         fields = (
             np.add.reduceat(per_window[mine], first, axis=1)
@@ -569,7 +569,7 @@ def pair_result(
     counts: np.ndarray,
     first: pd.Timestamp,
     window_min: float,
-    switch_hour: int = trial.DEFAULT_SWITCH_HOUR,
+    switch_hour: int = trial_plan.DEFAULT_SWITCH_HOUR,
 ) -> dict:
     """One pair's :func:`pair_results` over its windows from ``first``.
 
