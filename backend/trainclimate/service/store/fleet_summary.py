@@ -3,7 +3,7 @@ hours, pooled into the fleet's, the coaches by status, and the coaches that need
 
 A train's numbers are those of its pair comparison (:mod:`.comparison`) over the same range:
 the same 30-minute windows (aligned to the clock, the first one after the pair's data or the range
-starts), labelled and excluded the same way (:mod:`.pair_trial`: the coach that ran the layer,
+starts), labelled and excluded the same way (:mod:`.pair_labels`: the coach that ran the layer,
 a minute missing, a link lost, an override, a tick that was not DDPC on the activated coach),
 violation and discomfort over the same minutes (both coaches in regular mode, nothing affected).
 Here each train's whole service days come from its pair days (:mod:`.pair_days`, kept by the

@@ -8,7 +8,7 @@ windows themselves (each one's sums, label and own reason to be excluded), compu
 rollups exactly as the pair comparison computes them (:func:`.pair_trial.pair_results`). Only the
 lead-in after a change of the activated coach reaches across windows: a day's figures depend on
 the last labelled window before it and on a change just before it, the *state* it was entered
-in (:func:`.pair_trial.lead_state`). Each pair day records the state it was computed from and
+in (:func:`.pair_labels.lead_state`). Each pair day records the state it was computed from and
 the state it leaves; a range's days are taken in order from the state of the range's start,
 and a day is read from its row only when the state it is entered in is the one it was computed
 from — else (and for a range's partial first and last days) from its windows.
@@ -37,6 +37,7 @@ from sqlalchemy.orm import Session
 from trainclimate.analysis import trial_plan
 from trainclimate.service.store import (
     binary_rows,
+    pair_labels,
     pair_trial,
     pair_windows,
     plans,
@@ -44,12 +45,8 @@ from trainclimate.service.store import (
     rollups,
 )
 from trainclimate.service.store.models import Coach, CoachFeed, PairDay, Telemetry
-from trainclimate.service.store.pair_trial import (
-    CHART_FIELDS,
-    FIELDS,
-    NO_STATE,
-    SUMS,
-)
+from trainclimate.service.store.pair_labels import NO_STATE, SUMS
+from trainclimate.service.store.pair_trial import CHART_FIELDS, FIELDS
 from trainclimate.service.store.upsert import insert_new
 
 #: The pair days' window. [min]
@@ -57,7 +54,7 @@ WINDOW_MIN = rollups.WINDOW_MIN
 _WINDOW_S = WINDOW_MIN * 60
 #: The windows a change of the activated coach marks as lead-in: states whose last change is
 #: this many windows back or more are the same.
-_LEAD = int(np.ceil(pair_trial.LEAD_IN_MIN / WINDOW_MIN))
+_LEAD = int(np.ceil(pair_labels.LEAD_IN_MIN / WINDOW_MIN))
 #: Days of a pair built together (bounds the arrays).
 _CHUNK_DAYS = 31
 
@@ -100,12 +97,12 @@ def days_from_windows(
 ) -> list[Day]:
     """Days (or the parts of them in a range) of several pairs from their windows, as many of
     each: their ``index`` (B, W), sums ``grid`` (B, W, len(SUMS)), labels and own codes
-    (:func:`.pair_trial.base_windows`, (B, W)), each taken from its ``entering`` lead-in state
+    (:func:`.pair_labels.base_windows`, (B, W)), each taken from its ``entering`` lead-in state
     (labels and ages, (B,))."""
-    code = pair_trial.with_lead_in(label, code0, WINDOW_MIN, entering=entering)
+    code = pair_labels.with_lead_in(label, code0, WINDOW_MIN, entering=entering)
     per_window = pair_trial.window_fields(grid, label, code)
     counted = (code == 0) & (label >= 0)
-    prev, age = pair_trial.lead_state(label, entering)
+    prev, age = pair_labels.lead_state(label, entering)
     return [
         Day(
             day=day[b],
@@ -287,7 +284,7 @@ def _build_run(
     lo_w, hi_w = day_windows(days[0], hour)[0], day_windows(days[-1], hour)[1]
     lo, hi = (pd.Timestamp(w * _WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (lo_w, hi_w))
     grid, counts = pair_windows.pair_data(session, [(c0, c1, lo, hi)], WINDOW_MIN)[c0]
-    label, code0 = pair_trial.base_windows(grid, counts, WINDOW_MIN)
+    label, code0 = pair_labels.base_windows(grid, counts, WINDOW_MIN)
     index = np.arange(lo_w, hi_w)
     rows = []
     state = entering
@@ -507,7 +504,7 @@ def _windows_from_rollups(session, pairs, switch_hours, layout, stored, override
         data = pair_windows.pair_data(session, ranges, WINDOW_MIN, None, overrides)
         for (k0, k1, i), rng in zip(batch, ranges, strict=True):
             grid, counts = data[rng[0]]
-            label, code0 = pair_trial.base_windows(grid, counts, WINDOW_MIN)
+            label, code0 = pair_labels.base_windows(grid, counts, WINDOW_MIN)
             w_lo, segs = layout[i]
             base = segs[k0].a
             for k in range(k0, k1):
