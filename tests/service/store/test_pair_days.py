@@ -20,6 +20,7 @@ from trainclimate.service.store import (
     comparison,
     fleet_summary,
     pair_days,
+    pair_days_read,
     partitions,
     setpoint_rollups,
 )
@@ -214,13 +215,13 @@ def test_the_summary_from_pair_days_equals_the_rollups(fleet, monkeypatch):
     assert _build(fleet) == 2 * 6
     assert _build(fleet) == 0  # nothing more is due
     used = []
-    assemble = pair_days._assemble
+    assemble = pair_days_read._assemble
 
     def spied(days):
         used.extend(d for mine in days for d in mine if not isinstance(d, pair_days.Day))
         return assemble(days)
 
-    monkeypatch.setattr(pair_days, "_assemble", spied)
+    monkeypatch.setattr(pair_days_read, "_assemble", spied)
     got = _summaries(fleet)
     _assert_same(got, want)
     _assert_same(_figures(got), _comparisons(fleet, got))

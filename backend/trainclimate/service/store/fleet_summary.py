@@ -30,7 +30,7 @@ from sqlalchemy.orm import Session
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
 from trainclimate.coach.meters import HEADLINE_METER, METERS
-from trainclimate.service.store import pair_days, pair_windows, plans, queries
+from trainclimate.service.store import pair_days, pair_days_read, pair_windows, plans, queries
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
     attention,
@@ -79,7 +79,7 @@ def pair_results(
     cache: ReadCache | None = None,
 ) -> dict[str, dict]:
     """Each pair's figures over its range (lo, hi] with its train's switch hour
-    (:func:`.pair_days.pair_results`), those whose state (:func:`.pair_windows.pair_states`)
+    (:func:`.pair_days_read.pair_results`), those whose state (:func:`.pair_windows.pair_states`)
     is unchanged since they were computed taken from ``cache`` (a dashboard's refresh
     recomputes nothing). Coach 0's id → result (shared with the cache: not to be changed)."""
     overrides = pair_windows.overrides_over(session, pairs)
@@ -95,7 +95,7 @@ def pair_results(
     # the figures are kept, not the sums they came from: one answer per train and range
     for i in range(0, len(missing), _CHUNK):
         chunk = missing[i : i + _CHUNK]
-        found = pair_days.pair_results(
+        found = pair_days_read.pair_results(
             session, [m[0] for m in chunk], [m[1] for m in chunk], overrides
         )
         for (pair, _, state, key), result in zip(chunk, found, strict=True):
