@@ -9,15 +9,11 @@ import pytest
 from scipy import stats
 
 from trainclimate.analysis import studentized
-from trainclimate.analysis.trial import (
+from trainclimate.analysis.trial import TrialDays, daily, estimate, estimate_many, pool
+from trainclimate.analysis.trial_plan import (
     NEITHER,
-    TrialDays,
     activated,
-    daily,
     day_start,
-    estimate,
-    estimate_many,
-    pool,
     service_day,
     service_days,
 )

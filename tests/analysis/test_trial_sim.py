@@ -14,8 +14,9 @@ import pandas as pd
 import pytest
 
 from trainclimate.analysis import trial_sim
-from trainclimate.analysis.trial import TrialDays, activated, day_start, estimate
+from trainclimate.analysis.trial import TrialDays, estimate
 from trainclimate.analysis.trial_environment import day_starts, trial_environment
+from trainclimate.analysis.trial_plan import activated, day_start
 from trainclimate.analysis.trial_runs import TrialRun, summarize
 from trainclimate.analysis.trial_sim import _lead_in, _TrialFleet, simulate_trial
 from trainclimate.cli import experiment as cli_experiment

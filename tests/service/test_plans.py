@@ -21,7 +21,7 @@ from helpers.service import (
     flat_row,
     shared_coach_model,  # noqa: F401  (autouse)
 )
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.store import commands, plans
 from trainclimate.service.store.db import Database
@@ -98,7 +98,7 @@ def test_alternate_switches_the_ddpc_coach_exactly_at_the_switch_hour(
             tick = switch + timedelta(minutes=minutes)
             with caplog.at_level(logging.INFO, logger="trainclimate.service.scheduler"):
                 assert scheduler.tick_fleet("live", tick) == 2
-            day = trial.service_day(tick, 3)
+            day = trial_plan.service_day(tick, 3)
             on = ["T-A", "T-B"][day.toordinal() % 2]
             expected[tick] = {
                 c: ("ddpc", "ok") if c == on else ("rule", "inactive") for c in ("T-A", "T-B")
@@ -132,7 +132,7 @@ def test_alternate_switches_the_ddpc_coach_exactly_at_the_switch_hour(
 def test_randomized_days_are_stored_balanced_and_kept(database_with_model, settings, monkeypatch):
     """One tick a day for eight service days (no telemetry: the ticks fall back, the plan still
     sets the layer): each block of two days (ordinals 2k, 2k + 1) has each coach once, as
-    ``trial.activated`` draws it; a day once stored is applied as stored, even when the code
+    ``trial_plan.activated`` draws it; a day once stored is applied as stored, even when the code
     would now draw another coach."""
     add_train(database_with_model, "R", ["R-A", "R-B"], active=["R-A"])
     set_plan(database_with_model, "R", "randomized", seed=7)
@@ -146,7 +146,7 @@ def test_randomized_days_are_stored_balanced_and_kept(database_with_model, setti
     assert [d[1] for d in days] == [date(2024, 11, 28) + k * DAY for k in range(8)]
     coach = {"R-A": 0, "R-B": 1}
     drawn = [coach[d[4]] for d in days]
-    assert drawn == [trial.activated("randomized", d[1], 7) for d in days]
+    assert drawn == [trial_plan.activated("randomized", d[1], 7) for d in days]
     ordinal = date(2024, 11, 28).toordinal()
     assert ordinal % 2 == 0  # the days pair into blocks from the first
     assert all(sorted(drawn[i : i + 2]) == [0, 1] for i in range(0, 8, 2)), drawn
@@ -155,7 +155,7 @@ def test_randomized_days_are_stored_balanced_and_kept(database_with_model, setti
     # the code changes (another draw): the day stored goes on as stored; a new scheduler (a
     # restart) reads it back from the database
     last = days[-1]
-    monkeypatch.setattr(trial, "activated", lambda plan, day, seed=0, fixed=0: 1 - drawn[-1])
+    monkeypatch.setattr(trial_plan, "activated", lambda plan, day, seed=0, fixed=0: 1 - drawn[-1])
     restarted = Scheduler(database_with_model, settings)
     assert restarted.tick_fleet("live", first + 7 * DAY + timedelta(minutes=5)) == 2
     assert [c for c, active in layers(database_with_model).items() if active] == [last[4]]

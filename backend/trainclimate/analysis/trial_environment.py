@@ -19,7 +19,7 @@ from datetime import date, timedelta
 import numpy as np
 import pandas as pd
 
-from trainclimate.analysis.trial import DEFAULT_SWITCH_HOUR, day_start
+from trainclimate.analysis.trial_plan import DEFAULT_SWITCH_HOUR, day_start
 from trainclimate.coach.rule import MODE_REGULAR, mode_from_operation
 from trainclimate.data.fleetlogs import draw_service_day, local_hours
 from trainclimate.sim import scenarios
@@ -79,7 +79,7 @@ def day_starts(
     scenario: scenarios.Scenario, days: int, switch_hour: int = DEFAULT_SWITCH_HOUR
 ) -> pd.DatetimeIndex:
     """When each of the trial's service days starts, from the scenario's date, and when the
-    last ends: ``days + 1`` UTC times (:func:`~trainclimate.analysis.trial.day_start`)."""
+    last ends: ``days + 1`` UTC times (:func:`~trainclimate.analysis.trial_plan.day_start`)."""
     first = date.fromisoformat(scenario.date)
     return pd.DatetimeIndex(
         [day_start(first + timedelta(days=i), switch_hour) for i in range(days + 1)]

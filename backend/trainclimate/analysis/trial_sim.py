@@ -9,7 +9,7 @@ scenario's coach by :func:`~trainclimate.sim.params.diversify`, as ``experiment 
 seeds in one vectorised fleet:
 
 - the pair under each trial plan asked for, the layer on for the day's coach and switched at the
-  switch hour (:func:`~trainclimate.analysis.trial.activated`): what a trial measures;
+  switch hour (:func:`~trainclimate.analysis.trial_plan.activated`): what a trial measures;
 - each coach with the layer always on, and always off: the counterfactual, shared by the plans.
 
 **The days** are :mod:`.trial_environment`'s: the scenario's place, first date and kind of
@@ -42,13 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trainclimate.analysis.experiment import setup_for
-from trainclimate.analysis.trial import (
-    DEFAULT_SWITCH_HOUR,
-    activated,
-    daily,
-    estimate,
-    service_days,
-)
+from trainclimate.analysis.trial import daily, estimate
 from trainclimate.analysis.trial_environment import (
     FORECAST_STREAM,
     NOISE_STREAM,
@@ -57,6 +51,7 @@ from trainclimate.analysis.trial_environment import (
     day_starts,
     trial_environment,
 )
+from trainclimate.analysis.trial_plan import DEFAULT_SWITCH_HOUR, activated, service_days
 from trainclimate.analysis.trial_runs import TrialRun
 from trainclimate.coach.meters import HEADLINE_METER
 from trainclimate.coach.rule import MODE_REGULAR

@@ -296,7 +296,7 @@ def cmd_experiment_summary(args: argparse.Namespace) -> None:
 
 def _trial_options(p: argparse.ArgumentParser) -> None:
     """The options of ``experiment trial`` beside the shared ones."""
-    from trainclimate.analysis.trial import DEFAULT_SWITCH_HOUR
+    from trainclimate.analysis.trial_plan import DEFAULT_SWITCH_HOUR
     from trainclimate.analysis.trial_sim import LEAD_IN_MIN, TRIAL_PLANS
 
     p.add_argument("--days", type=int, default=14, help="service days (default 14)")

@@ -30,7 +30,7 @@ def cli_user() -> str:
 def cmd_train_plan(args: argparse.Namespace) -> None:
     """``train plan``: print the plan view; with ``--plan``, change the plan first (audited as
     the CLI user, with the admin's rights a database URL gives)."""
-    from trainclimate.analysis.trial import DEFAULT_SWITCH_HOUR, PLANS
+    from trainclimate.analysis.trial_plan import DEFAULT_SWITCH_HOUR, PLANS
     from trainclimate.service.api.schemas.trains import TrainPlanOut
     from trainclimate.service.store import commands, plans, queries
     from trainclimate.service.store.db import Database

@@ -17,7 +17,7 @@ from helpers.service import (
     register,
     shared_coach_model,  # noqa: F401  (autouse)
 )
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.service.api.schemas.trains import Plan
 from trainclimate.service.store import models
 
@@ -31,7 +31,7 @@ def audit(client, tokens, **params) -> list[dict]:
 
 
 def test_the_plans_are_named_alike_everywhere():
-    assert get_args(Plan) == trial.PLANS == models.PLANS
+    assert get_args(Plan) == trial_plan.PLANS == models.PLANS
 
 
 def test_reading_and_setting_a_plan(client, tokens):

@@ -16,12 +16,14 @@ import numpy as np
 import pytest
 
 from helpers.service import PG_SKIP, PG_URL, drop_pg_database, flat_row, pg_database
+from trainclimate.analysis import trial_plan
 from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
 from trainclimate.service.store import (
     comparison,
     fleet_summary,
     pair_days,
+    pair_days_read,
     partitions,
     setpoint_rollups,
 )
@@ -250,13 +252,13 @@ def test_the_summary_from_pair_days_equals_the_rollups(fleet, monkeypatch):
     assert _build(fleet) == 2 * 6
     assert _build(fleet) == 0  # nothing more is due
     used = []
-    assemble = pair_days._assemble
+    assemble = pair_days_read._assemble
 
     def spied(days):
         used.extend(d for mine in days for d in mine if not isinstance(d, pair_days.Day))
         return assemble(days)
 
-    monkeypatch.setattr(pair_days, "_assemble", spied)
+    monkeypatch.setattr(pair_days_read, "_assemble", spied)
     got = _summaries(fleet)
     _assert_same(got, want)
     _assert_same(_figures(got), _comparisons(fleet, got))
@@ -270,7 +272,7 @@ def test_a_late_row_drops_the_days_it_changes_and_they_are_made_again(fleet):
         ingest(s, "X-A", [flat_row(late, power_kw=30.0)])
     with fleet.transaction() as s:
         kept = {(d.coach_0, d.day) for d in s.query(PairDay)}
-    late_day = pair_days.trial.service_day(pair_days.pd.Timestamp(late), 3).toordinal()
+    late_day = trial_plan.service_day(pair_days.pd.Timestamp(late), 3).toordinal()
     assert ("X-A", late_day) not in kept and ("X-A", late_day - 1) in kept
     assert ("Y-A", late_day) in kept  # the other train's are unchanged
     # read from the rollups where the pair day is gone, and equal to them once made again

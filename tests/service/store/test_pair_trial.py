@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from trainclimate.analysis import trial
-from trainclimate.service.store import pair_trial
-from trainclimate.service.store.pair_trial import COUNTS, SUMS, SUMS_INDEX, UNLABELLED
+from trainclimate.analysis import trial, trial_plan
+from trainclimate.service.store import pair_labels, pair_trial
+from trainclimate.service.store.pair_labels import COUNTS, SUMS, SUMS_INDEX, UNLABELLED
 
 
 def _lead_in_loop(label: np.ndarray, n: int) -> np.ndarray:
@@ -27,39 +27,39 @@ def _lead_in_loop(label: np.ndarray, n: int) -> np.ndarray:
 
 def test_the_lead_in_marks_the_windows_after_each_change_of_roles():
     rng = np.random.default_rng(3)
-    choices = np.array([0, 1, trial.NEITHER, UNLABELLED])
+    choices = np.array([0, 1, trial_plan.NEITHER, UNLABELLED])
     labels = choices[rng.choice(4, size=(200, 40), p=[0.4, 0.3, 0.1, 0.2])]
     for lead_in_min, n in ((60.0, 2), (30.0, 1), (100.0, 4), (3000.0, 100)):
-        got = pair_trial.lead_in(labels, 30.0, lead_in_min)
+        got = pair_labels.lead_in(labels, 30.0, lead_in_min)
         for row, marked in zip(labels, got, strict=True):
             np.testing.assert_array_equal(marked, _lead_in_loop(row, n))
     # by hand: 0 0 – 1 1 1 0: the change to 1 marks two windows, the one back to 0 one (the end)
     label = np.array([0, 0, UNLABELLED, 1, 1, 1, 0])
-    assert pair_trial.lead_in(label, 30.0).tolist() == [0, 0, 0, 1, 1, 0, 1]
-    assert pair_trial.lead_in(label[:0], 30.0).shape == (0,)
+    assert pair_labels.lead_in(label, 30.0).tolist() == [0, 0, 0, 1, 1, 0, 1]
+    assert pair_labels.lead_in(label[:0], 30.0).shape == (0,)
 
 
 def test_the_lead_in_taken_in_parts_is_the_lead_in_taken_whole():
     rng = np.random.default_rng(5)
-    choices = np.array([0, 1, trial.NEITHER, UNLABELLED])
+    choices = np.array([0, 1, trial_plan.NEITHER, UNLABELLED])
     labels = choices[rng.choice(4, size=(300, 30), p=[0.3, 0.3, 0.1, 0.3])]
     for lead_in_min in (60.0, 30.0, 100.0):
-        whole = pair_trial.lead_in(labels, 30.0, lead_in_min)
+        whole = pair_labels.lead_in(labels, 30.0, lead_in_min)
         # every pair cut at its own point: the first part from nothing before it, the second
         # from the state the first one leaves
         for cut in (0, 1, 2, 7, 29, 30):
-            state = pair_trial.lead_state(labels[:, :cut])
-            second = pair_trial.lead_in(labels[:, cut:], 30.0, lead_in_min, state)
-            first = pair_trial.lead_in(labels[:, :cut], 30.0, lead_in_min)
+            state = pair_labels.lead_state(labels[:, :cut])
+            second = pair_labels.lead_in(labels[:, cut:], 30.0, lead_in_min, state)
+            first = pair_labels.lead_in(labels[:, :cut], 30.0, lead_in_min)
             np.testing.assert_array_equal(np.concatenate([first, second], axis=1), whole)
     # by hand: a change in the last window of the first part runs into the second
-    state = pair_trial.lead_state(np.array([0, 0, 1]))
+    state = pair_labels.lead_state(np.array([0, 0, 1]))
     assert (int(state[0]), int(state[1])) == (1, 1)
-    assert pair_trial.lead_in(np.array([1, 1, 1]), 30.0, entering=state).tolist() == [1, 0, 0]
+    assert pair_labels.lead_in(np.array([1, 1, 1]), 30.0, entering=state).tolist() == [1, 0, 0]
     # and nothing labelled in a part carries the state before it through
-    state = pair_trial.lead_state(np.array([UNLABELLED] * 3), state)
+    state = pair_labels.lead_state(np.array([UNLABELLED] * 3), state)
     assert (int(state[0]), int(state[1])) == (1, 4)
-    assert pair_trial.lead_in(np.array([0, 0]), 30.0, entering=state).tolist() == [1, 1]
+    assert pair_labels.lead_in(np.array([0, 0]), 30.0, entering=state).tolist() == [1, 1]
 
 
 def _pair(rng, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -148,7 +148,7 @@ def test_days_of_many_pairs_are_each_pairs_days():
     day = np.repeat(np.arange(738000, 738006), 48)
     energy = rng.uniform(1.0, 3.0, (30, n, 2))
     energy[rng.random((30, n)) < 0.02] = 0.0
-    act = rng.choice([0, 1, trial.NEITHER], size=(30, n), p=[0.45, 0.45, 0.1])
+    act = rng.choice([0, 1, trial_plan.NEITHER], size=(30, n), p=[0.45, 0.45, 0.1])
     act[:, :96] = 0  # whole days of one label
     keep = rng.random((30, n)) < 0.7
     keep[:5, 48:94] = False  # days with two windows

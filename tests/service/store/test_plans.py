@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pandas as pd
 import pytest
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.service.store import plans
 from trainclimate.service.store.plans import PlanDay
 
@@ -40,7 +40,7 @@ def test_the_day_and_coach_of_each_plan():
     tomorrow = NOON + timedelta(days=1)
     assert plans.plan_day("X", row("alternate"), None, PAIR, tomorrow).activated == "X-B"
     assert plans.plan_day("X", row("reference"), None, PAIR, NOON).activated is None
-    drawn = trial.activated("randomized", date(2024, 11, 28), 5)
+    drawn = trial_plan.activated("randomized", date(2024, 11, 28), 5)
     assert (
         plans.plan_day("X", row("randomized", seed=5), None, PAIR, NOON).activated
         == (PAIR[drawn][0])

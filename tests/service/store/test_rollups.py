@@ -15,7 +15,7 @@ from helpers.service import T0, at, flat_row, registered, sim_rows
 from trainclimate.service.store import fleet_summary, pair_windows, rollups
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import CoachFeed, Override, Telemetry, WindowRollup
-from trainclimate.service.store.pair_trial import SUMS
+from trainclimate.service.store.pair_labels import SUMS
 from trainclimate.service.store.telemetry import insert_rows
 
 

@@ -13,7 +13,7 @@ import pytest
 from sqlalchemy import delete, select
 
 from helpers.service import T0, at, registered
-from trainclimate.service.store import pair_trial, setpoint_rollups
+from trainclimate.service.store import pair_labels, setpoint_rollups
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import Setpoint, SetpointRollup
 from trainclimate.service.store.setpoint_rollups import COUNTS
@@ -102,10 +102,10 @@ def test_increments_count_each_source_and_reason_in_its_window():
 def test_the_rollups_count_as_the_group_by(four_coaches_database):
     _fill(four_coaches_database)
     with four_coaches_database.transaction() as s:
-        raw = pair_trial.setpoint_counts_raw(s, COACHES, T0, at(180), 30.0)
-        kept = pair_trial.setpoint_counts(s, COACHES, T0, at(180), 30.0)
-        inner = pair_trial.setpoint_counts(s, ["T-A", "U-B"], at(30), at(120), 30.0)
-        inner_raw = pair_trial.setpoint_counts_raw(s, ["T-A", "U-B"], at(30), at(120), 30.0)
+        raw = pair_labels.setpoint_counts_raw(s, COACHES, T0, at(180), 30.0)
+        kept = pair_labels.setpoint_counts(s, COACHES, T0, at(180), 30.0)
+        inner = pair_labels.setpoint_counts(s, ["T-A", "U-B"], at(30), at(120), 30.0)
+        inner_raw = pair_labels.setpoint_counts_raw(s, ["T-A", "U-B"], at(30), at(120), 30.0)
     for got, want in ((kept, raw), (inner, inner_raw)):
         assert {c: sorted(w) for c, w in got.items()} == {c: sorted(w) for c, w in want.items()}
         for c in want:
@@ -125,8 +125,8 @@ def test_the_rollups_count_as_the_group_by(four_coaches_database):
     with four_coaches_database.transaction() as s:
         s.execute(delete(SetpointRollup))
     with four_coaches_database.transaction() as s:
-        assert pair_trial.setpoint_counts(s, COACHES, T0, at(180), 30.0) == {}
-        assert pair_trial.setpoint_counts_raw(s, COACHES, T0, at(180), 30.0).keys() == raw.keys()
+        assert pair_labels.setpoint_counts(s, COACHES, T0, at(180), 30.0) == {}
+        assert pair_labels.setpoint_counts_raw(s, COACHES, T0, at(180), 30.0).keys() == raw.keys()
 
 
 def test_the_rollups_kept_equal_a_rebuild(four_coaches_database):

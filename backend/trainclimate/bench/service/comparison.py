@@ -158,12 +158,12 @@ def copy_setpoints(url: str, ids: list[str], days: int) -> int:
     Returns how many."""
     import psycopg
 
-    from trainclimate.analysis import trial
+    from trainclimate.analysis import trial_plan
 
     ticks = pd.date_range(
         DATA_START, DATA_START + pd.Timedelta(days=days), freq="5min", inclusive="left"
     )
-    even = trial.service_days(ticks) % 2 == 0
+    even = trial_plan.service_days(ticks) % 2 == 0
     stamps = [t.isoformat() for t in ticks]
     on = "\t22.0\t21.4\tddpc\toptimal\t\t{t}\n"
     off = "\t22.0\t22.0\trule\tinactive\t\t{t}\n"

@@ -10,7 +10,7 @@ from datetime import datetime, timedelta
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.coach.setpoint import U_BAND_K
 from trainclimate.service.store import guard, liveness, pair_days, plans, rollups
 from trainclimate.service.store.models import (
@@ -340,7 +340,7 @@ def set_plan(
     who: Principal,
     train_id: str,
     plan: str,
-    switch_hour: int = trial.DEFAULT_SWITCH_HOUR,
+    switch_hour: int = trial_plan.DEFAULT_SWITCH_HOUR,
     seed: int = 0,
     reason: str = "",
 ) -> dict:
@@ -358,8 +358,8 @@ def set_plan(
     train = session.scalar(select(Train).where(Train.id == train_id).with_for_update())
     if train is None:
         raise NotFoundError(f"no train {train_id!r}")
-    if plan not in trial.PLANS:
-        raise RequestError(f"unknown plan {plan!r}: expected one of {', '.join(trial.PLANS)}")
+    if plan not in trial_plan.PLANS:
+        raise RequestError(f"unknown plan {plan!r}: expected one of {', '.join(trial_plan.PLANS)}")
     if not 0 <= switch_hour <= 23 or seed < 0:
         raise RequestError("the switch hour is 0–23 and the seed ≥ 0")
     if plan != plans.FIXED and len(train.coaches) != 2:

@@ -3,7 +3,7 @@ hours, pooled into the fleet's, the coaches by status, and the coaches that need
 
 A train's numbers are those of its pair comparison (:mod:`.comparison`) over the same range:
 the same 30-minute windows (aligned to the clock, the first one after the pair's data or the range
-starts), labelled and excluded the same way (:mod:`.pair_trial`: the coach that ran the layer,
+starts), labelled and excluded the same way (:mod:`.pair_labels`: the coach that ran the layer,
 a minute missing, a link lost, an override, a tick that was not DDPC on the activated coach),
 violation and discomfort over the same minutes (both coaches in regular mode, nothing affected).
 Here each train's whole service days come from its pair days (:mod:`.pair_days`, kept by the
@@ -30,7 +30,7 @@ from sqlalchemy.orm import Session
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
 from trainclimate.coach.meters import HEADLINE_METER, METERS
-from trainclimate.service.store import pair_days, pair_windows, plans, queries
+from trainclimate.service.store import pair_days, pair_days_read, pair_windows, plans, queries
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
     attention,
@@ -79,7 +79,7 @@ def pair_results(
     cache: ReadCache | None = None,
 ) -> dict[str, dict]:
     """Each pair's figures over its range (lo, hi] with its train's switch hour
-    (:func:`.pair_days.pair_results`), those whose state (:func:`.pair_windows.pair_states`)
+    (:func:`.pair_days_read.pair_results`), those whose state (:func:`.pair_windows.pair_states`)
     is unchanged since they were computed taken from ``cache`` (a dashboard's refresh
     recomputes nothing). Coach 0's id → result (shared with the cache: not to be changed)."""
     overrides = pair_windows.overrides_over(session, pairs)
@@ -95,7 +95,7 @@ def pair_results(
     # the figures are kept, not the sums they came from: one answer per train and range
     for i in range(0, len(missing), _CHUNK):
         chunk = missing[i : i + _CHUNK]
-        found = pair_days.pair_results(
+        found = pair_days_read.pair_results(
             session, [m[0] for m in chunk], [m[1] for m in chunk], overrides
         )
         for (pair, _, state, key), result in zip(chunk, found, strict=True):

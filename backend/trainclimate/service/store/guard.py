@@ -32,9 +32,9 @@ import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.analysis.guard import costs_energy, figures, step
-from trainclimate.service.store import pair_trial, pair_windows, queries
+from trainclimate.service.store import pair_labels, pair_trial, pair_windows, queries
 from trainclimate.service.store.models import PairGuard
 from trainclimate.service.store.plans import PlanDay
 from trainclimate.service.store.upsert import insert_new
@@ -114,7 +114,7 @@ def _evaluate(
     ranges = {}
     for g in rows:
         day = due[g.train_id]
-        end = trial.day_start(day.day, day.switch_hour)
+        end = trial_plan.day_start(day.day, day.switch_hour)
         start = end - pd.Timedelta(days=LOOKBACK_DAYS)
         if g.counts_from is not None and g.counts_from > start:
             start = pd.Timestamp(g.counts_from)
@@ -131,7 +131,7 @@ def _evaluate(
         if g.tripped_at is not None:
             continue  # tripped until an operator re-enables the layer
         c0, c1, first, n, hi = ranges[g.train_id]
-        empty = (np.zeros((0, len(pair_trial.SUMS))), np.zeros((0, 2, len(pair_trial.COUNTS))))
+        empty = (np.zeros((0, len(pair_labels.SUMS))), np.zeros((0, 2, len(pair_labels.COUNTS))))
         grid, counts = data.get(c0, empty)
         result = pair_trial.pair_result(grid, counts, first, WINDOW_MIN, day.switch_hour)
         estimate = result["estimate"]

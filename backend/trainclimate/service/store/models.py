@@ -49,8 +49,8 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 ROLES = ("metrics", "gateway", "viewer", "operator", "admin")
 SOURCES = ("ddpc", "rule", "override", "fallback")
 MODES = ("regular", "slumber", "off")
-#: The trial plans the database accepts: :data:`trainclimate.analysis.trial.PLANS`, named here so
-#: the models do not import the analysis (and scipy) — a test holds the two equal.
+#: The trial plans the database accepts: :data:`trainclimate.analysis.trial_plan.PLANS`, named
+#: here so the models do not import the analysis (and scipy) — a test holds the two equal.
 PLANS = ("fixed", "alternate", "randomized", "reference")
 #: An autoincrementing 64-bit key (SQLite only autoincrements INTEGER PRIMARY KEY).
 BigKey = BigInteger().with_variant(Integer, "sqlite")

@@ -8,35 +8,31 @@ windows themselves (each one's sums, label and own reason to be excluded), compu
 rollups exactly as the pair comparison computes them (:func:`.pair_trial.pair_results`). Only the
 lead-in after a change of the activated coach reaches across windows: a day's figures depend on
 the last labelled window before it and on a change just before it, the *state* it was entered
-in (:func:`.pair_trial.lead_state`). Each pair day records the state it was computed from and
-the state it leaves; a range's days are taken in order from the state of the range's start,
-and a day is read from its row only when the state it is entered in is the one it was computed
-from — else (and for a range's partial first and last days) from its windows.
+in (:func:`.pair_labels.lead_state`). Each pair day records the state it was computed from and
+the state it leaves; a range reads a day from its row only when it enters the day in the state
+the day was computed from (:mod:`.pair_days_read`).
 
 A pair day is made once both coaches' newest telemetry and last tick are past the day's end
 (:func:`build`: the scheduler keeps them, a few a minute; ``trainclimate bench`` builds them
 for data loaded around the service). What can still change a past day drops its pair days
 (:func:`forget`): a row arriving late for it, an override over it, raw minutes dropped by
-retention (:func:`forget_all`). A range's days without a pair day are read from the rollups, so
-a pair day missing costs time, never a figure.
+retention (:func:`forget_all`).
 """
 
 from __future__ import annotations
 
-import functools
-import itertools
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 import pandas as pd
 from sqlalchemy import Table, and_, delete, func, or_, select
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.service.store import (
-    binary_rows,
+    pair_labels,
     pair_trial,
     pair_windows,
     plans,
@@ -44,29 +40,26 @@ from trainclimate.service.store import (
     rollups,
 )
 from trainclimate.service.store.models import Coach, CoachFeed, PairDay, Telemetry
-from trainclimate.service.store.pair_trial import (
-    CHART_FIELDS,
-    FIELDS,
-    NO_STATE,
-    SUMS,
-)
+from trainclimate.service.store.pair_labels import NO_STATE
+from trainclimate.service.store.pair_trial import CHART_FIELDS
 from trainclimate.service.store.upsert import insert_new
 
 #: The pair days' window. [min]
 WINDOW_MIN = rollups.WINDOW_MIN
-_WINDOW_S = WINDOW_MIN * 60
+#: The same in seconds. [s]
+WINDOW_S = WINDOW_MIN * 60
 #: The windows a change of the activated coach marks as lead-in: states whose last change is
 #: this many windows back or more are the same.
-_LEAD = int(np.ceil(pair_trial.LEAD_IN_MIN / WINDOW_MIN))
+_LEAD = int(np.ceil(pair_labels.LEAD_IN_MIN / WINDOW_MIN))
 #: Days of a pair built together (bounds the arrays).
 _CHUNK_DAYS = 31
 
 
-def _table() -> Table:
+def table() -> Table:
     return cast(Table, PairDay.__table__)
 
 
-def _state(prev, age) -> tuple[int, int]:
+def stored_state(prev, age) -> tuple[int, int]:
     """A lead-in state as stored: ages of :data:`_LEAD` windows or more are one."""
     return int(prev), int(min(int(age), _LEAD))
 
@@ -85,9 +78,9 @@ class Day:
 
 def day_windows(day: int, switch_hour: int) -> tuple[int, int]:
     """The windows [first, end) of service day ``day`` (an ordinal) at ``switch_hour``."""
-    start = trial.day_start(pd.Timestamp.fromordinal(day).date(), switch_hour)
-    end = trial.day_start(pd.Timestamp.fromordinal(day + 1).date(), switch_hour)
-    return round(start.timestamp()) // _WINDOW_S, round(end.timestamp()) // _WINDOW_S
+    start = trial_plan.day_start(pd.Timestamp.fromordinal(day).date(), switch_hour)
+    end = trial_plan.day_start(pd.Timestamp.fromordinal(day + 1).date(), switch_hour)
+    return round(start.timestamp()) // WINDOW_S, round(end.timestamp()) // WINDOW_S
 
 
 def days_from_windows(
@@ -100,19 +93,19 @@ def days_from_windows(
 ) -> list[Day]:
     """Days (or the parts of them in a range) of several pairs from their windows, as many of
     each: their ``index`` (B, W), sums ``grid`` (B, W, len(SUMS)), labels and own codes
-    (:func:`.pair_trial.base_windows`, (B, W)), each taken from its ``entering`` lead-in state
+    (:func:`.pair_labels.base_windows`, (B, W)), each taken from its ``entering`` lead-in state
     (labels and ages, (B,))."""
-    code = pair_trial.with_lead_in(label, code0, WINDOW_MIN, entering=entering)
+    code = pair_labels.with_lead_in(label, code0, WINDOW_MIN, entering=entering)
     per_window = pair_trial.window_fields(grid, label, code)
     counted = (code == 0) & (label >= 0)
-    prev, age = pair_trial.lead_state(label, entering)
+    prev, age = pair_labels.lead_state(label, entering)
     return [
         Day(
             day=day[b],
             fields=per_window[b].sum(axis=0),
             chart_windows=index[b][counted[b]],
             chart=per_window[b][counted[b]][:, CHART_FIELDS],
-            exiting=_state(prev[b], age[b]),
+            exiting=stored_state(prev[b], age[b]),
         )
         for b in range(len(day))
     ]
@@ -141,16 +134,6 @@ def _row(c0: str, c1: str, hour: int, d: Day, entering, first: int, grid, label,
         + label.astype(np.int8).tobytes()
         + code0.astype(np.int8).tobytes(),
     }
-
-
-def _unpack_windows(row) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A pair day's windows: sums (W, len(SUMS)), labels and own codes (W,)."""
-    n = row.windows
-    size = n * len(SUMS) * 8
-    grid = np.frombuffer(row.minutes, np.float64, n * len(SUMS)).reshape(n, len(SUMS))
-    label = np.frombuffer(row.minutes, np.int8, n, size).astype(np.int64)
-    code0 = np.frombuffer(row.minutes, np.int8, n, size + n).astype(np.int64)
-    return grid, label, code0
 
 
 def horizons(session: Session, pairs: list[tuple[str, str]]) -> dict[tuple[str, str], datetime]:
@@ -213,11 +196,11 @@ def build(
         end, first = ends.get((c0, c1)), [firsts.get(c) for c in (c0, c1)]
         if end is None or first[0] is None or first[1] is None:
             continue
-        day = trial.service_day(pd.Timestamp(min(first[0], first[1])), hour).toordinal()
-        last = trial.service_day(pd.Timestamp(end), hour).toordinal()
-        if day_windows(last, hour)[1] * _WINDOW_S > end.timestamp():
+        day = trial_plan.service_day(pd.Timestamp(min(first[0], first[1])), hour).toordinal()
+        last = trial_plan.service_day(pd.Timestamp(end), hour).toordinal()
+        if day_windows(last, hour)[1] * WINDOW_S > end.timestamp():
             last -= 1  # the day the data reaches into is not over
-        state = _state(*NO_STATE)
+        state = stored_state(*NO_STATE)
         have: dict[int, tuple] = {}
         span = spans.get(pair)
         if span is not None:
@@ -248,7 +231,7 @@ def build(
 
 def _spans(session: Session, pairs) -> dict[tuple, tuple[int, int, int]]:
     """Each pair's stored days: (first, last, how many)."""
-    t = _table()
+    t = table()
     wanted = set(pairs)
     rows = session.execute(
         select(
@@ -268,7 +251,7 @@ def _spans(session: Session, pairs) -> dict[tuple, tuple[int, int, int]]:
 def _states(session: Session, pair: tuple, day: int | None = None) -> dict[int, tuple]:
     """The stored days of ``pair`` (only ``day`` if given): day → (entering state, exiting
     state)."""
-    t = _table()
+    t = table()
     c0, c1, hour = pair
     query = select(
         t.c.day, t.c.entering_label, t.c.entering_age, t.c.exiting_label, t.c.exiting_age
@@ -285,9 +268,9 @@ def _build_run(
     place of its stored days ``replaced``; the state the last one leaves."""
     c0, c1, hour = pair
     lo_w, hi_w = day_windows(days[0], hour)[0], day_windows(days[-1], hour)[1]
-    lo, hi = (pd.Timestamp(w * _WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (lo_w, hi_w))
+    lo, hi = (pd.Timestamp(w * WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (lo_w, hi_w))
     grid, counts = pair_windows.pair_data(session, [(c0, c1, lo, hi)], WINDOW_MIN)[c0]
-    label, code0 = pair_trial.base_windows(grid, counts, WINDOW_MIN)
+    label, code0 = pair_labels.base_windows(grid, counts, WINDOW_MIN)
     index = np.arange(lo_w, hi_w)
     rows = []
     state = entering
@@ -299,7 +282,7 @@ def _build_run(
         )[0]
         rows.append(_row(c0, c1, hour, d, state, lo_w + a, grid[a:b], label[a:b], code0[a:b]))
         state = d.exiting
-    t = _table()
+    t = table()
     if replaced:
         session.execute(
             delete(t).where(
@@ -315,12 +298,12 @@ def forget(session: Session, coach_windows: dict[str, int]) -> None:
     something changed in): a late row, an override."""
     if not coach_windows:
         return
-    t = _table()
+    t = table()
     ends_after = t.c.first_window + t.c.windows
 
     def of_coach(coach: str, window: int):
         # a service day starts at most a day before the UTC date of its windows: an index range
-        since = pd.Timestamp(window * _WINDOW_S, unit="s").toordinal() - 1
+        since = pd.Timestamp(window * WINDOW_S, unit="s").toordinal() - 1
         return and_(
             or_(
                 and_(t.c.coach_0 == coach, t.c.day >= since),
@@ -334,287 +317,11 @@ def forget(session: Session, coach_windows: dict[str, int]) -> None:
 
 def forget_all(session: Session, before_window: int | None = None) -> None:
     """Drop every pair day (that starts before ``before_window``, if given)."""
-    t = _table()
+    t = table()
     stmt = delete(t)
     if before_window is not None:
         stmt = stmt.where(t.c.first_window < before_window)
     session.execute(stmt)
-
-
-# --- reading ------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Segment:
-    """A pair's service day as its range has it: windows [a, b) of the range, whole or not."""
-
-    day: int
-    a: int
-    b: int
-    whole: bool
-
-
-@functools.lru_cache(maxsize=64)
-def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, tuple[_Segment, ...]]:
-    """The first window of the range (lo, hi] and its service days at ``hour``, in order
-    (kept: the trains of a summary share their range)."""
-    w_lo, n = pair_windows.range_windows(lo, hi, WINDOW_MIN)
-    index = np.arange(w_lo - 1, w_lo + n + 1)
-    day = trial.service_days(pd.to_datetime(index * _WINDOW_S, unit="s", utc=True), hour)
-    inner = day[1:-1]
-    starts = [*pair_trial.day_starts(inner).tolist(), n]
-    out = []
-    for a, b in itertools.pairwise(starts):
-        d = int(inner[a])
-        out.append(
-            _Segment(d, a, b, not (a == 0 and day[0] == d) and not (b == n and day[-1] == d))
-        )
-    return w_lo, tuple(out)
-
-
-def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[tuple, Any]:
-    """The pair days of ``keys`` (coach 0, coach 1, switch hour) over the days [first, last]:
-    (coach 0, coach 1, hour, day) → row with its states, fields and chart."""
-    if not keys:
-        return {}
-    t = _table()
-    rows = binary_rows.rows(
-        session,
-        select(
-            t.c.coach_0,
-            t.c.coach_1,
-            t.c.switch_hour,
-            t.c.day,
-            t.c.first_window,
-            t.c.windows,
-            t.c.entering_label,
-            t.c.entering_age,
-            t.c.exiting_label,
-            t.c.exiting_age,
-            t.c.fields,
-            t.c.chart,
-        ).where(
-            t.c.day >= days[0],
-            t.c.day <= days[1],
-            queries.among(t.c.coach_0, {k[0] for k in keys}),
-        ),
-    )
-    return {(r[0], r[1], r[2], r[3]): r for r in rows if (r[0], r[1], r[2]) in keys}
-
-
-def _stored_windows(session: Session, wanted: list[tuple]) -> dict[tuple, tuple]:
-    """The windows of the pair days ``wanted`` (coach 0, coach 1, hour, day): key → (first
-    window, sums, labels, own codes)."""
-    if not wanted:
-        return {}
-    t = _table()
-    days = [k[3] for k in wanted]
-    rows = binary_rows.rows(
-        session,
-        select(
-            t.c.coach_0,
-            t.c.coach_1,
-            t.c.switch_hour,
-            t.c.day,
-            t.c.first_window,
-            t.c.windows,
-            t.c.minutes,
-        ).where(
-            t.c.day.in_(sorted(set(days))),
-            queries.among(t.c.coach_0, {k[0] for k in wanted}),
-        ),
-    )
-    keys = set(wanted)
-    return {
-        (r[0], r[1], r[2], r[3]): (r.first_window, *_unpack_windows(r))
-        for r in rows
-        if (r[0], r[1], r[2], r[3]) in keys
-    }
-
-
-def pair_results(
-    session: Session,
-    pairs: list[tuple[str, str, datetime, datetime]],
-    switch_hours: list[int],
-    overrides: list,
-) -> list[dict]:
-    """Each pair's figures over its range (lo, hi] of 30-minute windows as
-    :func:`.pair_trial.pair_results` gives them (``meter``, ``totals``, ``estimate``,
-    ``reasons``, ``counted_windows``, ``figures`` and ``chart``; not the arrays per window), its
-    whole service days read from their pair days where they were entered from the state the
-    range reaches them in, the others from their windows (stored with the pair day, or from the
-    rollups). In the order of ``pairs``."""
-    layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
-    keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
-    span = [s.day for _, segs in layout for s in segs]
-    stored = _stored(session, keys, (min(span), max(span))) if span else {}
-    windows: dict[tuple[int, int], tuple] = {}  # (pair, segment) → (index, grid, label, code0)
-    _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows)
-    _windows_from_pair_days(session, pairs, switch_hours, layout, windows, stored, partial=True)
-    days: list[list] = [[] for _ in pairs]  # per pair its days in order: stored rows or Days
-    state = [_state(*NO_STATE) for _ in pairs]
-    position = [0] * len(pairs)
-    while True:
-        waiting = []
-        for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
-            segs = layout[i][1]
-            while position[i] < len(segs):
-                seg = segs[position[i]]
-                row = stored.get((c0, c1, hour, seg.day)) if seg.whole else None
-                if row is None or (row.entering_label, row.entering_age) != state[i]:
-                    break
-                days[i].append(row)
-                state[i] = (row.exiting_label, row.exiting_age)
-                position[i] += 1
-            if position[i] < len(segs):
-                waiting.append(i)
-        if not waiting:
-            break
-        missing = [i for i in waiting if (i, position[i]) not in windows]
-        if missing:  # whole days entered from another state than they were made from
-            _windows_from_pair_days(
-                session, pairs, switch_hours, layout, windows, stored, only=missing, at=position
-            )
-        _compute(waiting, layout, position, windows, state, days)
-    return _assemble(days)
-
-
-def _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows) -> None:
-    """The windows of every segment without a pair day, from the rollups: each pair's
-    consecutive such segments read as one range, the pairs' first ranges together, then their
-    second ones, …"""
-    runs: list[list[tuple[int, int, int]]] = []  # per pair: (first segment, last segment + 1)
-    for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
-        mine: list[tuple[int, int, int]] = []
-        for k, seg in enumerate(layout[i][1]):
-            if (c0, c1, hour, seg.day) in stored:
-                continue
-            if mine and mine[-1][1] == k:
-                mine[-1] = (mine[-1][0], k + 1, i)
-            else:
-                mine.append((k, k + 1, i))
-        runs.append(mine)
-    for r in range(max((len(x) for x in runs), default=0)):
-        batch = [x[r] for x in runs if len(x) > r]
-        ranges = []
-        for k0, k1, i in batch:
-            w_lo, segs = layout[i]
-            a, b = segs[k0].a + w_lo, segs[k1 - 1].b + w_lo
-            lo, hi = (
-                pd.Timestamp(w * _WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (a, b)
-            )
-            ranges.append((pairs[i][0], pairs[i][1], lo, hi))
-        data = pair_windows.pair_data(session, ranges, WINDOW_MIN, None, overrides)
-        for (k0, k1, i), rng in zip(batch, ranges, strict=True):
-            grid, counts = data[rng[0]]
-            label, code0 = pair_trial.base_windows(grid, counts, WINDOW_MIN)
-            w_lo, segs = layout[i]
-            base = segs[k0].a
-            for k in range(k0, k1):
-                a, b = segs[k].a - base, segs[k].b - base
-                index = np.arange(segs[k].a, segs[k].b) + w_lo
-                windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
-
-
-def _windows_from_pair_days(
-    session, pairs, switch_hours, layout, windows, stored, partial=False, only=None, at=None
-) -> None:
-    """The windows of segments from their stored pair days: the partial ones (``partial``), or
-    those at ``at[i]`` for the pairs ``only``."""
-    wanted: dict[tuple, list[tuple[int, int]]] = {}
-    these = set(only or ())
-    for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
-        segs = layout[i][1]
-        chosen = range(len(segs)) if partial else [at[i]] if i in these else []
-        for k in chosen:
-            seg = segs[k]
-            if (i, k) in windows or (partial and seg.whole):
-                continue
-            key = (c0, c1, hour, seg.day)
-            if key in stored:
-                wanted.setdefault(key, []).append((i, k))
-    found = _stored_windows(session, list(wanted))
-    for key, places in wanted.items():
-        first, grid, label, code0 = found[key]
-        for i, k in places:
-            w_lo, segs = layout[i]
-            a, b = segs[k].a + w_lo - first, segs[k].b + w_lo - first
-            index = np.arange(segs[k].a, segs[k].b) + w_lo
-            windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
-
-
-def _compute(waiting, layout, position, windows, state, days) -> None:
-    """Take the waiting pairs' next segments from their windows, those of one length at once,
-    each from the state its pair is in; advance them."""
-    by_length: dict[int, list[int]] = {}
-    for i in waiting:
-        by_length.setdefault(len(windows[(i, position[i])][0]), []).append(i)
-    for group in by_length.values():
-        index, grid, label, code0 = (
-            np.stack([windows[(i, position[i])][j] for i in group]) for j in range(4)
-        )
-        found = days_from_windows(
-            [layout[i][1][position[i]].day for i in group],
-            index,
-            grid,
-            label,
-            code0,
-            (np.array([state[i][0] for i in group]), np.array([state[i][1] for i in group])),
-        )
-        for i, d in zip(group, found, strict=True):
-            days[i].append(d)
-            state[i] = d.exiting
-            position[i] += 1
-
-
-def _assemble(days: list[list]) -> list[dict]:
-    """Each pair's result from its days in order, stored rows (their fields and charts read all
-    at once) or :class:`Day` (:func:`.pair_trial.results_from_fields`), with its ``chart``."""
-    rows = [
-        (p, slot, d)
-        for p, mine in enumerate(days)
-        for slot, d in enumerate(mine)
-        if not isinstance(d, Day)
-    ]
-    width = max((len(d) for d in days), default=0)
-    fields = np.zeros((len(days), width, len(FIELDS)))
-    ordinals = np.zeros((len(days), width), np.int64)
-    chart_pair, chart_windows, chart = [], [], []
-    if rows:
-        at_pair, at_slot = (np.array([r[i] for r in rows]) for i in (0, 1))
-        stored = np.frombuffer(b"".join(r[2].fields for r in rows), np.float64)
-        fields[at_pair, at_slot] = stored.reshape(len(rows), len(FIELDS))
-        ordinals[at_pair, at_slot] = [r[2].day for r in rows]
-        k = fields[at_pair, at_slot, pair_trial.FIELDS_INDEX["counted"]].astype(np.int64)
-        entries = np.frombuffer(b"".join(r[2].chart for r in rows), np.float64).reshape(-1, 5)
-        chart_pair.append(np.repeat(at_pair, k))
-        chart_windows.append(
-            entries[:, 0].astype(np.int64) + np.repeat([r[2].first_window for r in rows], k)
-        )
-        chart.append(entries[:, 1:])
-    for p, mine in enumerate(days):
-        for slot, d in enumerate(mine):
-            if isinstance(d, Day):
-                fields[p, slot] = d.fields
-                ordinals[p, slot] = d.day
-                chart_pair.append(np.full(len(d.chart_windows), p))
-                chart_windows.append(d.chart_windows)
-                chart.append(d.chart)
-    out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN)
-    if chart:
-        which = np.concatenate(chart_pair)
-        order = np.argsort(which, kind="stable")
-        edges = np.searchsorted(which[order], np.arange(len(days) + 1))
-        all_windows, all_chart = np.concatenate(chart_windows)[order], np.concatenate(chart)[order]
-    else:
-        edges, all_windows, all_chart = (
-            np.zeros(len(days) + 1, int),
-            np.zeros(0, np.int64),
-            np.zeros((0, 4)),
-        )
-    for p, result in enumerate(out):
-        result["chart"] = (all_windows[edges[p] : edges[p + 1]], all_chart[edges[p] : edges[p + 1]])
-    return out
 
 
 def fleet_pairs(session: Session, at: datetime) -> list[tuple[str, str, int]]:

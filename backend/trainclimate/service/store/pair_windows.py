@@ -1,8 +1,8 @@
 """Each pair's 30-minute windows as the pair comparison, the fleet summary and the guard read
-them: per window the telemetry's sums (:data:`~.pair_trial.SUMS`) from the window rollups
+them: per window the telemetry's sums (:data:`~.pair_labels.SUMS`) from the window rollups
 (:mod:`.rollups`; the raw minutes, summed in the database in one statement over every pair, only
 for the windows the rollups cannot give exactly) and both coaches' setpoint counts
-(:data:`~.pair_trial.COUNTS`) from the setpoint rollups (:mod:`.setpoint_rollups`), as arrays over
+(:data:`~.pair_labels.COUNTS`) from the setpoint rollups (:mod:`.setpoint_rollups`), as arrays over
 each pair's range; and what they are computed from (:func:`pair_states`), for the read cache.
 """
 
@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session
 from sqlalchemy.sql.expression import ColumnElement
 
 from trainclimate.coach.setpoint import COMFORT_BAND_K
-from trainclimate.service.store import pair_trial, queries, rollups, setpoint_rollups
+from trainclimate.service.store import pair_labels, queries, rollups, setpoint_rollups
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.models import (
     Coach,
@@ -37,7 +37,7 @@ from trainclimate.service.store.models import (
     Telemetry,
     UTCDateTime,
 )
-from trainclimate.service.store.pair_trial import COUNTS, SUMS
+from trainclimate.service.store.pair_labels import COUNTS, SUMS
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 
 DECKS = ("t_room_up_c", "t_room_mid_c", "t_room_low_c")
@@ -260,7 +260,7 @@ def pair_grids(
 def pair_counts(
     session: Session, pairs: list[tuple[str, str, datetime, datetime]], window_min: float
 ) -> dict[str, np.ndarray]:
-    """Both coaches' setpoint counts (:func:`.pair_trial.setpoint_counts`) of each pair per
+    """Both coaches' setpoint counts (:func:`.pair_labels.setpoint_counts`) of each pair per
     window of its range, (W, 2, len(COUNTS)): from the setpoint rollups
     (:mod:`.setpoint_rollups`) for their 30-minute windows, else counted over the setpoints."""
     if not pairs:
@@ -268,7 +268,7 @@ def pair_counts(
     coaches = sorted({c for pair in pairs for c in pair[:2]})
     ranges = [range_windows(lo, hi, window_min) for _, _, lo, hi in pairs]
     if window_min != setpoint_rollups.WINDOW_MIN:
-        counts = pair_trial.setpoint_counts(
+        counts = pair_labels.setpoint_counts(
             session, coaches, min(p[2] for p in pairs), max(p[3] for p in pairs), window_min
         )
         out = {}

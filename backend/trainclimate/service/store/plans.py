@@ -1,5 +1,5 @@
-"""Trial plans per train (:mod:`trainclimate.analysis.trial`): the plan in force, what it makes of
-a tick, and what the API shows of it.
+"""Trial plans per train (:mod:`trainclimate.analysis.trial_plan`): the plan in force, what it
+makes of a tick, and what the API shows of it.
 
 A train's plan changes are rows of ``train_plans``; the plan in force at t is the row with the
 latest ``effective_from`` ≤ t (the newest of equals), ``fixed`` without one. A change made while
@@ -28,7 +28,7 @@ import pandas as pd
 from sqlalchemy import delete, func, or_, select
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial_plan
 from trainclimate.service.store.models import Coach, Telemetry, Train, TrainPlan, TrialDay, utcnow
 from trainclimate.service.store.queries import EARLIEST, among, fleet_clock
 from trainclimate.service.store.upsert import insert_new
@@ -57,15 +57,15 @@ class PlanDay:
 def terms(row: TrainPlan | None) -> tuple[str, int, int]:
     """(plan, switch hour [h], seed) of a plan row; ``fixed`` at the default hour without one."""
     if row is None:
-        return FIXED, trial.DEFAULT_SWITCH_HOUR, 0
+        return FIXED, trial_plan.DEFAULT_SWITCH_HOUR, 0
     return row.plan, row.switch_hour, row.seed
 
 
 @functools.lru_cache(maxsize=256)
 def day_of(time: datetime, switch_hour: int) -> date:
-    """:func:`trainclimate.analysis.trial.service_day` of ``time`` (kept: a batch of ticks asks
+    """:func:`trainclimate.analysis.trial_plan.service_day` of ``time`` (kept: a batch of ticks asks
     it of one tick for every train)."""
-    return trial.service_day(pd.Timestamp(time), switch_hour)
+    return trial_plan.service_day(pd.Timestamp(time), switch_hour)
 
 
 def first_day(row: TrainPlan) -> date:
@@ -100,7 +100,7 @@ def plan_day(
     -------
     PlanDay or None
         For ``fixed``, the coach activated now if exactly one is; for the other plans
-        :func:`trainclimate.analysis.trial.activated` of the day (coach 0 or 1, or neither).
+        :func:`trainclimate.analysis.trial_plan.activated` of the day (coach 0 or 1, or neither).
         None for a plan other than ``fixed`` on a train without exactly two coaches (no pair: the
         layer stays as set).
     """
@@ -112,8 +112,8 @@ def plan_day(
         return PlanDay(train_id, day, plan, hour, active[0] if len(active) == 1 else None, partial)
     if len(coaches) != 2:
         return None
-    k = trial.activated(plan, day, seed)
-    on = None if k == trial.NEITHER else coaches[k][0]
+    k = trial_plan.activated(plan, day, seed)
+    on = None if k == trial_plan.NEITHER else coaches[k][0]
     return PlanDay(train_id, day, plan, hour, on, partial)
 
 
@@ -179,16 +179,16 @@ def effective_from(now: datetime, current: TrainPlan | None, switch_hour: int) -
     plan's day at ``now`` — so the current day is never split, and no date is the first day of
     the change and a recorded day of the plan before it. UTC."""
     today = max(
-        trial.service_day(pd.Timestamp(now), switch_hour),
-        trial.service_day(pd.Timestamp(now), terms(current)[1]),
+        trial_plan.service_day(pd.Timestamp(now), switch_hour),
+        trial_plan.service_day(pd.Timestamp(now), terms(current)[1]),
     )
-    return trial.day_start(today + DAY, switch_hour).to_pydatetime()
+    return trial_plan.day_start(today + DAY, switch_hour).to_pydatetime()
 
 
 def next_switch(now: datetime, switch_hour: int) -> datetime:
     """The first start of a service day (``switch_hour`` local) after ``now``, UTC."""
-    today = trial.service_day(pd.Timestamp(now), switch_hour)
-    return trial.day_start(today + DAY, switch_hour).to_pydatetime()
+    today = trial_plan.service_day(pd.Timestamp(now), switch_hour)
+    return trial_plan.day_start(today + DAY, switch_hour).to_pydatetime()
 
 
 # --- reads ---------------------------------------------------------------------------------------
@@ -318,7 +318,7 @@ def forget_days(session: Session, train_id: str, since: date) -> None:
 # --- what the API shows --------------------------------------------------------------------------
 def local(time: datetime) -> str:
     """``time`` as Zurich wall time in words: ``2024-11-29 03:00 Zurich time``."""
-    return pd.Timestamp(time).tz_convert(trial.LOCAL_TZ).strftime("%Y-%m-%d %H:%M Zurich time")
+    return pd.Timestamp(time).tz_convert(trial_plan.LOCAL_TZ).strftime("%Y-%m-%d %H:%M Zurich time")
 
 
 def named(plan: str) -> str:
@@ -364,7 +364,7 @@ def view(session: Session, train: Train, message: str | None = None) -> dict:
         "train_id": train.id,
         **change(current),
         "pending": change(upcoming) if upcoming is not None else None,
-        "service_day": today.day if today else trial.service_day(pd.Timestamp(now), hour),
+        "service_day": today.day if today else trial_plan.service_day(pd.Timestamp(now), hour),
         "activated_today": today.activated if today else None,
         "clock": now,
         "next_switch": next_switch(now, hour),

@@ -6,7 +6,7 @@ A row stamped t is the minute (t − 1 min, t]: minute m = t / 60 s − 1 since 
 ⌊m / 30⌋, bit m mod 30 of the window's masks (:class:`~.models.WindowRollup`). Rows are only
 ever inserted, each (coach, time) once, so a new row adds its bit and its values to its window —
 a late row updates the window it belongs to like any other. What a pair comparison needs of a
-window (:data:`~.pair_trial.SUMS`) follows from both coaches' rollups exactly whenever the two
+window (:data:`~.pair_labels.SUMS`) follows from both coaches' rollups exactly whenever the two
 coaches have the same minutes (``present``), the same minutes that count for comfort
 (present, connected, powered, regular) and no override touches the window: the counts come
 from the masks, the energies and the discomfort from each coach's own sums. Any other window —
@@ -48,7 +48,7 @@ from sqlalchemy.orm import Session
 from trainclimate.coach.setpoint import COMFORT_BAND_K
 from trainclimate.service.store import binary_rows
 from trainclimate.service.store.models import CoachFeed, Telemetry, UTCDateTime, WindowRollup
-from trainclimate.service.store.pair_trial import SUMS, SUMS_INDEX
+from trainclimate.service.store.pair_labels import SUMS, SUMS_INDEX
 from trainclimate.service.store.records import TelemetryRecord
 from trainclimate.service.store.sqltime import EpochSeconds, OnMinute
 from trainclimate.service.store.upsert import accumulate, keep_latest
@@ -248,7 +248,7 @@ def _index(when: datetime) -> int:
 def pair_grids(
     session: Session, pairs: list[tuple[str, str, datetime, datetime]], overrides: list
 ) -> tuple[dict[str, np.ndarray], list[tuple[str, str, datetime, datetime]]]:
-    """Per pair the :data:`~.pair_trial.SUMS` of each window of its range, from the rollups
+    """Per pair the :data:`~.pair_labels.SUMS` of each window of its range, from the rollups
     where they give them exactly (see the module's description).
 
     Parameters
@@ -338,7 +338,7 @@ def _chunk_grids(chunk, w_lo, w_hi, position, rows, masks, totals, overrides):
 
 
 def _sums(mask_a: np.ndarray, mask_b: np.ndarray, tot_a: np.ndarray, tot_b: np.ndarray):
-    """The :data:`~.pair_trial.SUMS` of windows where both coaches have the same minutes and
+    """The :data:`~.pair_labels.SUMS` of windows where both coaches have the same minutes and
     the same minutes that count for comfort, and no override: one row per window, from the two
     coaches' masks (:data:`MASKS` columns) and totals (:data:`TOTALS` columns)."""
     present = mask_a[:, 0]

@@ -7,7 +7,7 @@ A setpoint issued at tick t acts from t: its window is ⌊t / 30 min⌋ (t in wh
 once, so a new setpoint adds one to its window's counts — a tick issued late updates the window
 it belongs to like any other. What each count counts (:data:`COUNTS`) is defined once here
 (:data:`CONDITIONS`), for the counts kept in Python (:func:`increments`) and those summed in the
-database (:func:`aggregates`: the rebuild and :func:`.pair_trial.setpoint_counts` over the raw
+database (:func:`aggregates`: the rebuild and :func:`.pair_labels.setpoint_counts` over the raw
 setpoints alike).
 """
 

@@ -9,7 +9,7 @@ from pydantic import BaseModel, Field
 
 from trainclimate.service.api.schemas.base import Strict
 
-#: The trial plans (:data:`trainclimate.analysis.trial.PLANS`).
+#: The trial plans (:data:`trainclimate.analysis.trial_plan.PLANS`).
 Plan = Literal["fixed", "alternate", "randomized", "reference"]
 PLAN_DESCRIPTION = (
     "fixed (the layer stays on the coach operators activated), alternate (coach 0 and 1 by id on "

@@ -1,0 +1,318 @@
+"""A range read from the pair days (:mod:`.pair_days`): each pair's figures over (lo, hi] of
+30-minute windows, its whole service days from their pair days, the rest from their windows.
+
+A range's days are taken in order from the state of the range's start, and a day is read from
+its row only when the state it is entered in is the one it was computed from — else (and for a
+range's partial first and last days) from its windows. A range's days without a pair day are
+read from the rollups, so a pair day missing costs time, never a figure.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from trainclimate.analysis import trial_plan
+from trainclimate.service.store import binary_rows, pair_labels, pair_trial, pair_windows, queries
+from trainclimate.service.store.pair_days import (
+    WINDOW_MIN,
+    WINDOW_S,
+    Day,
+    days_from_windows,
+    stored_state,
+    table,
+)
+from trainclimate.service.store.pair_labels import NO_STATE, SUMS
+from trainclimate.service.store.pair_trial import FIELDS
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """A pair's service day as its range has it: windows [a, b) of the range, whole or not."""
+
+    day: int
+    a: int
+    b: int
+    whole: bool
+
+
+@functools.lru_cache(maxsize=64)
+def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, tuple[_Segment, ...]]:
+    """The first window of the range (lo, hi] and its service days at ``hour``, in order
+    (kept: the trains of a summary share their range)."""
+    w_lo, n = pair_windows.range_windows(lo, hi, WINDOW_MIN)
+    index = np.arange(w_lo - 1, w_lo + n + 1)
+    day = trial_plan.service_days(pd.to_datetime(index * WINDOW_S, unit="s", utc=True), hour)
+    inner = day[1:-1]
+    starts = [*pair_trial.day_starts(inner).tolist(), n]
+    out = []
+    for a, b in itertools.pairwise(starts):
+        d = int(inner[a])
+        out.append(
+            _Segment(d, a, b, not (a == 0 and day[0] == d) and not (b == n and day[-1] == d))
+        )
+    return w_lo, tuple(out)
+
+
+def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[tuple, Any]:
+    """The pair days of ``keys`` (coach 0, coach 1, switch hour) over the days [first, last]:
+    (coach 0, coach 1, hour, day) → row with its states, fields and chart."""
+    if not keys:
+        return {}
+    t = table()
+    rows = binary_rows.rows(
+        session,
+        select(
+            t.c.coach_0,
+            t.c.coach_1,
+            t.c.switch_hour,
+            t.c.day,
+            t.c.first_window,
+            t.c.windows,
+            t.c.entering_label,
+            t.c.entering_age,
+            t.c.exiting_label,
+            t.c.exiting_age,
+            t.c.fields,
+            t.c.chart,
+        ).where(
+            t.c.day >= days[0],
+            t.c.day <= days[1],
+            queries.among(t.c.coach_0, {k[0] for k in keys}),
+        ),
+    )
+    return {(r[0], r[1], r[2], r[3]): r for r in rows if (r[0], r[1], r[2]) in keys}
+
+
+def _unpack_windows(row) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A pair day's windows: sums (W, len(SUMS)), labels and own codes (W,)."""
+    n = row.windows
+    size = n * len(SUMS) * 8
+    grid = np.frombuffer(row.minutes, np.float64, n * len(SUMS)).reshape(n, len(SUMS))
+    label = np.frombuffer(row.minutes, np.int8, n, size).astype(np.int64)
+    code0 = np.frombuffer(row.minutes, np.int8, n, size + n).astype(np.int64)
+    return grid, label, code0
+
+
+def _stored_windows(session: Session, wanted: list[tuple]) -> dict[tuple, tuple]:
+    """The windows of the pair days ``wanted`` (coach 0, coach 1, hour, day): key → (first
+    window, sums, labels, own codes)."""
+    if not wanted:
+        return {}
+    t = table()
+    days = [k[3] for k in wanted]
+    rows = binary_rows.rows(
+        session,
+        select(
+            t.c.coach_0,
+            t.c.coach_1,
+            t.c.switch_hour,
+            t.c.day,
+            t.c.first_window,
+            t.c.windows,
+            t.c.minutes,
+        ).where(
+            t.c.day.in_(sorted(set(days))),
+            queries.among(t.c.coach_0, {k[0] for k in wanted}),
+        ),
+    )
+    keys = set(wanted)
+    return {
+        (r[0], r[1], r[2], r[3]): (r.first_window, *_unpack_windows(r))
+        for r in rows
+        if (r[0], r[1], r[2], r[3]) in keys
+    }
+
+
+def pair_results(
+    session: Session,
+    pairs: list[tuple[str, str, datetime, datetime]],
+    switch_hours: list[int],
+    overrides: list,
+) -> list[dict]:
+    """Each pair's figures over its range (lo, hi] of 30-minute windows as
+    :func:`.pair_trial.pair_results` gives them (``meter``, ``totals``, ``estimate``,
+    ``reasons``, ``counted_windows``, ``figures`` and ``chart``; not the arrays per window), its
+    whole service days read from their pair days where they were entered from the state the
+    range reaches them in, the others from their windows (stored with the pair day, or from the
+    rollups). In the order of ``pairs``."""
+    layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
+    keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
+    span = [s.day for _, segs in layout for s in segs]
+    stored = _stored(session, keys, (min(span), max(span))) if span else {}
+    windows: dict[tuple[int, int], tuple] = {}  # (pair, segment) → (index, grid, label, code0)
+    _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows)
+    _windows_from_pair_days(session, pairs, switch_hours, layout, windows, stored, partial=True)
+    days: list[list] = [[] for _ in pairs]  # per pair its days in order: stored rows or Days
+    state = [stored_state(*NO_STATE) for _ in pairs]
+    position = [0] * len(pairs)
+    while True:
+        waiting = []
+        for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
+            segs = layout[i][1]
+            while position[i] < len(segs):
+                seg = segs[position[i]]
+                row = stored.get((c0, c1, hour, seg.day)) if seg.whole else None
+                if row is None or (row.entering_label, row.entering_age) != state[i]:
+                    break
+                days[i].append(row)
+                state[i] = (row.exiting_label, row.exiting_age)
+                position[i] += 1
+            if position[i] < len(segs):
+                waiting.append(i)
+        if not waiting:
+            break
+        missing = [i for i in waiting if (i, position[i]) not in windows]
+        if missing:  # whole days entered from another state than they were made from
+            _windows_from_pair_days(
+                session, pairs, switch_hours, layout, windows, stored, only=missing, at=position
+            )
+        _compute(waiting, layout, position, windows, state, days)
+    return _assemble(days)
+
+
+def _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows) -> None:
+    """The windows of every segment without a pair day, from the rollups: each pair's
+    consecutive such segments read as one range, the pairs' first ranges together, then their
+    second ones, …"""
+    runs: list[list[tuple[int, int, int]]] = []  # per pair: (first segment, last segment + 1)
+    for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
+        mine: list[tuple[int, int, int]] = []
+        for k, seg in enumerate(layout[i][1]):
+            if (c0, c1, hour, seg.day) in stored:
+                continue
+            if mine and mine[-1][1] == k:
+                mine[-1] = (mine[-1][0], k + 1, i)
+            else:
+                mine.append((k, k + 1, i))
+        runs.append(mine)
+    for r in range(max((len(x) for x in runs), default=0)):
+        batch = [x[r] for x in runs if len(x) > r]
+        ranges = []
+        for k0, k1, i in batch:
+            w_lo, segs = layout[i]
+            a, b = segs[k0].a + w_lo, segs[k1 - 1].b + w_lo
+            lo, hi = (
+                pd.Timestamp(w * WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (a, b)
+            )
+            ranges.append((pairs[i][0], pairs[i][1], lo, hi))
+        data = pair_windows.pair_data(session, ranges, WINDOW_MIN, None, overrides)
+        for (k0, k1, i), rng in zip(batch, ranges, strict=True):
+            grid, counts = data[rng[0]]
+            label, code0 = pair_labels.base_windows(grid, counts, WINDOW_MIN)
+            w_lo, segs = layout[i]
+            base = segs[k0].a
+            for k in range(k0, k1):
+                a, b = segs[k].a - base, segs[k].b - base
+                index = np.arange(segs[k].a, segs[k].b) + w_lo
+                windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
+
+
+def _windows_from_pair_days(
+    session, pairs, switch_hours, layout, windows, stored, partial=False, only=None, at=None
+) -> None:
+    """The windows of segments from their stored pair days: the partial ones (``partial``), or
+    those at ``at[i]`` for the pairs ``only``."""
+    wanted: dict[tuple, list[tuple[int, int]]] = {}
+    these = set(only or ())
+    for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
+        segs = layout[i][1]
+        chosen = range(len(segs)) if partial else [at[i]] if i in these else []
+        for k in chosen:
+            seg = segs[k]
+            if (i, k) in windows or (partial and seg.whole):
+                continue
+            key = (c0, c1, hour, seg.day)
+            if key in stored:
+                wanted.setdefault(key, []).append((i, k))
+    found = _stored_windows(session, list(wanted))
+    for key, places in wanted.items():
+        first, grid, label, code0 = found[key]
+        for i, k in places:
+            w_lo, segs = layout[i]
+            a, b = segs[k].a + w_lo - first, segs[k].b + w_lo - first
+            index = np.arange(segs[k].a, segs[k].b) + w_lo
+            windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
+
+
+def _compute(waiting, layout, position, windows, state, days) -> None:
+    """Take the waiting pairs' next segments from their windows, those of one length at once,
+    each from the state its pair is in; advance them."""
+    by_length: dict[int, list[int]] = {}
+    for i in waiting:
+        by_length.setdefault(len(windows[(i, position[i])][0]), []).append(i)
+    for group in by_length.values():
+        index, grid, label, code0 = (
+            np.stack([windows[(i, position[i])][j] for i in group]) for j in range(4)
+        )
+        found = days_from_windows(
+            [layout[i][1][position[i]].day for i in group],
+            index,
+            grid,
+            label,
+            code0,
+            (np.array([state[i][0] for i in group]), np.array([state[i][1] for i in group])),
+        )
+        for i, d in zip(group, found, strict=True):
+            days[i].append(d)
+            state[i] = d.exiting
+            position[i] += 1
+
+
+def _assemble(days: list[list]) -> list[dict]:
+    """Each pair's result from its days in order, stored rows (their fields and charts read all
+    at once) or :class:`~.pair_days.Day` (:func:`.pair_trial.results_from_fields`), with its
+    ``chart``."""
+    rows = [
+        (p, slot, d)
+        for p, mine in enumerate(days)
+        for slot, d in enumerate(mine)
+        if not isinstance(d, Day)
+    ]
+    width = max((len(d) for d in days), default=0)
+    fields = np.zeros((len(days), width, len(FIELDS)))
+    ordinals = np.zeros((len(days), width), np.int64)
+    chart_pair, chart_windows, chart = [], [], []
+    if rows:
+        at_pair, at_slot = (np.array([r[i] for r in rows]) for i in (0, 1))
+        stored = np.frombuffer(b"".join(r[2].fields for r in rows), np.float64)
+        fields[at_pair, at_slot] = stored.reshape(len(rows), len(FIELDS))
+        ordinals[at_pair, at_slot] = [r[2].day for r in rows]
+        k = fields[at_pair, at_slot, pair_trial.FIELDS_INDEX["counted"]].astype(np.int64)
+        entries = np.frombuffer(b"".join(r[2].chart for r in rows), np.float64).reshape(-1, 5)
+        chart_pair.append(np.repeat(at_pair, k))
+        chart_windows.append(
+            entries[:, 0].astype(np.int64) + np.repeat([r[2].first_window for r in rows], k)
+        )
+        chart.append(entries[:, 1:])
+    for p, mine in enumerate(days):
+        for slot, d in enumerate(mine):
+            if isinstance(d, Day):
+                fields[p, slot] = d.fields
+                ordinals[p, slot] = d.day
+                chart_pair.append(np.full(len(d.chart_windows), p))
+                chart_windows.append(d.chart_windows)
+                chart.append(d.chart)
+    out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN)
+    if chart:
+        which = np.concatenate(chart_pair)
+        order = np.argsort(which, kind="stable")
+        edges = np.searchsorted(which[order], np.arange(len(days) + 1))
+        all_windows, all_chart = np.concatenate(chart_windows)[order], np.concatenate(chart)[order]
+    else:
+        edges, all_windows, all_chart = (
+            np.zeros(len(days) + 1, int),
+            np.zeros(0, np.int64),
+            np.zeros((0, 4)),
+        )
+    for p, result in enumerate(out):
+        result["chart"] = (all_windows[edges[p] : edges[p + 1]], all_chart[edges[p] : edges[p + 1]])
+    return out
