@@ -6,8 +6,9 @@ need data build a small dataset themselves.
 The tests' small predictor, fitted once a session for every directory (:mod:`helpers.training`
 says on what): ``training_trajectories``, ``small_predictor`` and ``small_predictor_file``.
 
-And the ``slow`` marker of whole files and of the tests that start service processes: ``make
-check`` runs ``-m "not slow"``, ``make test`` everything, the slow files first."""
+And the ``slow`` marker of whole files and of the tests that start service processes, and the
+``postgresql`` marker of the tests run against the PostgreSQL server: ``make check`` runs ``-m
+"not slow and not postgresql"``, ``make test`` everything, the slow files first."""
 
 from pathlib import Path
 from types import SimpleNamespace
@@ -15,6 +16,7 @@ from types import SimpleNamespace
 import pytest
 
 from helpers import training
+from helpers.service import PG_SKIP
 from trainclimate.data import cache
 from trainclimate.predict import TransientPredictor
 from trainclimate.predict.artifact import save_predictor
@@ -100,8 +102,19 @@ SLOW_FILES = (
 SLOW_FIXTURES = frozenset({"servers", "clean_day"})
 
 
+def _on_postgresql(item) -> bool:
+    """Whether a test runs against the PostgreSQL server: a fixture's ``postgresql`` variant
+    (``db_url``'s), or a test skipped without the server."""
+    callspec = getattr(item, "callspec", None)
+    params = callspec.params.values() if callspec is not None else ()
+    if any(isinstance(value, str) and value == "postgresql" for value in params):
+        return True
+    return any(m.kwargs.get("reason") == PG_SKIP for m in item.iter_markers("skipif"))
+
+
 def pytest_collection_modifyitems(config, items):
-    """Mark ``slow`` the tests of :data:`SLOW_FILES` and those using :data:`SLOW_FIXTURES`; and
+    """Mark ``slow`` the tests of :data:`SLOW_FILES` and those using :data:`SLOW_FIXTURES`,
+    ``postgresql`` those run against the PostgreSQL server; and
     order the files for ``--dist loadfile`` (each file on one worker, so that its module
     fixtures are built once; the files handed out in this order): the slow files first, then
     those with a slow test, then the rest, each file's tests in their order. The long files
@@ -115,6 +128,8 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.path in slow_files or SLOW_FIXTURES.intersection(item.fixturenames):
             item.add_marker(pytest.mark.slow)
+        if _on_postgresql(item):
+            item.add_marker(pytest.mark.postgresql)
         if item.get_closest_marker("slow"):
             with_slow_tests.add(item.path)
     items.sort(key=lambda item: (item.path not in slow_files, item.path not in with_slow_tests))

@@ -10,6 +10,7 @@ from trainclimate.bench import service
 from trainclimate.cli import main
 
 
+@pytest.mark.slow  # every part of the service benchmark, the 1 000-coach tick among them
 def test_the_service_benchmark_runs_at_a_small_scale():
     if not PG_URL:
         pytest.skip(PG_SKIP)

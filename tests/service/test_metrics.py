@@ -87,6 +87,7 @@ def demo(db_url, small_predictor_file):
         yield client
 
 
+@pytest.mark.slow  # the demo fleet served until its first DDPC setpoints
 def test_the_series_after_the_demo_ticks_match_the_database(demo):
     headers = make_tokens(demo.app, "metrics", "viewer")
     with demo.app.state.db.sessions() as s:

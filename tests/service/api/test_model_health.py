@@ -238,6 +238,7 @@ def test_refusals(client, tokens, settings, app_database):
     assert none.status_code == 404 and none.json() == {"detail": "no active model"}
 
 
+@pytest.mark.slow  # the demo fleet in closed loop for 2.5 simulated hours
 def test_the_demo_fleets_predictions(client, tokens, app_database, settings):
     """The demo fleet in closed loop for 2.5 simulated hours (30 periods): the scheduler's stored
     predictions, paired here independently by the rows' times, give the answer's MAE per step;
