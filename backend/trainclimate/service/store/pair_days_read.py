@@ -62,6 +62,12 @@ def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, tuple[_Segmen
     return w_lo, tuple(out)
 
 
+def _placed(t) -> tuple:
+    """A pair day's columns that say whose it is and which windows it holds: coach 0, coach 1,
+    switch hour, day, first window, windows."""
+    return t.c.coach_0, t.c.coach_1, t.c.switch_hour, t.c.day, t.c.first_window, t.c.windows
+
+
 def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[tuple, Any]:
     """The pair days of ``keys`` (coach 0, coach 1, switch hour) over the days [first, last]:
     (coach 0, coach 1, hour, day) → row with its states, fields and chart."""
@@ -71,12 +77,7 @@ def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[t
     rows = binary_rows.rows(
         session,
         select(
-            t.c.coach_0,
-            t.c.coach_1,
-            t.c.switch_hour,
-            t.c.day,
-            t.c.first_window,
-            t.c.windows,
+            *_placed(t),
             t.c.entering_label,
             t.c.entering_age,
             t.c.exiting_label,
@@ -112,12 +113,7 @@ def _stored_windows(session: Session, wanted: list[tuple]) -> dict[tuple, tuple]
     rows = binary_rows.rows(
         session,
         select(
-            t.c.coach_0,
-            t.c.coach_1,
-            t.c.switch_hour,
-            t.c.day,
-            t.c.first_window,
-            t.c.windows,
+            *_placed(t),
             t.c.minutes,
         ).where(
             t.c.day.in_(sorted(set(days))),
