@@ -63,7 +63,7 @@ from trainclimate.service import logs, policy
 from trainclimate.service.metrics import Metrics
 from trainclimate.service.policy import Decision
 from trainclimate.service.settings import LOOP_READY_MIN_S, Settings
-from trainclimate.service.store import guard, pair_days, plans, setpoint_rollups
+from trainclimate.service.store import fleet_days, guard, pair_days, plans, setpoint_rollups
 from trainclimate.service.store.db import Database
 from trainclimate.service.store.models import (
     Coach,
@@ -443,14 +443,18 @@ class Scheduler:
     # --- the pair days --------------------------------------------------------------------
     def keep_pair_days(self, max_days: int = PAIR_DAYS_PER_LOOP) -> int:
         """Make up to ``max_days`` of the pair days now due (:func:`.pair_days.build`: service
-        days over for both coaches of a train), in their own transaction; how many were made.
+        days over for both coaches of a train), then up to as many fleet days missing
+        (:func:`.fleet_days.build`), in their own transaction; how many pair days were made.
         A failure is logged and left for the next round (the summary reads the days without
-        pair days from the rollups meanwhile)."""
+        pair days from the rollups meanwhile, and pools the charts of those without a fleet
+        day itself)."""
         self._pair_days_at = time.monotonic()
         try:
             with self.db.transaction() as session:
                 pairs = pair_days.fleet_pairs(session, utcnow())
-                return pair_days.build(session, pairs, max_days)
+                made = pair_days.build(session, pairs, max_days)
+                fleet_days.build(session, max_days)
+                return made
         except Exception:
             log.exception("making the pair days failed; retrying in the next loop")
             return 0

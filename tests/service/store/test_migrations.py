@@ -38,8 +38,9 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 #: The newest revision.
-HEAD = "0017"
+HEAD = "0018"
 TABLES = {
+    "fleet_days",
     "pair_days",
     "setpoint_rollups",
     "window_rollups",
@@ -63,6 +64,7 @@ TABLES = {
 
 #: The tables before 0008.
 BEFORE_0008 = TABLES - {
+    "fleet_days",
     "pair_days",
     "setpoint_rollups",
     "train_plans",
@@ -350,7 +352,7 @@ def test_rollups_are_computed_for_the_telemetry_already_stored(db_url):
         db.dispose()
     downgrade(db_url, "0011")
     assert schema(db_url) == (
-        TABLES - {"window_rollups", "coach_feed", "setpoint_rollups", "pair_days"},
+        TABLES - {"window_rollups", "coach_feed", "setpoint_rollups", "pair_days", "fleet_days"},
         "0011",
     )
 
@@ -412,4 +414,4 @@ def test_setpoint_rollups_are_counted_from_the_setpoints_already_stored(db_url):
         ("B", 0): (1, 1, 0, 0, 0, 0, 0),
     }
     downgrade(db_url, "0014")
-    assert schema(db_url) == (TABLES - {"setpoint_rollups", "pair_days"}, "0014")
+    assert schema(db_url) == (TABLES - {"setpoint_rollups", "pair_days", "fleet_days"}, "0014")

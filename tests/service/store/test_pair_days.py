@@ -1,14 +1,16 @@
-"""Pair days on SQLite and PostgreSQL: the fleet summary read from them equals the summary read
-from the rollups alone, over ranges that start and end anywhere in a day and on its switch hour,
-on data with role changes at any window (one just before the switch hour, whose lead-in runs into
-the next day), hours without setpoints, fallbacks, reference windows, gaps, a lost link, a coach
-out of regular mode and an override; a late row drops the pair days it changes and the next
-build makes them again, as it does the days retention cuts into; the scheduler makes them a few
-at a time."""
+"""Pair days and fleet days on SQLite and PostgreSQL: the fleet summary read from them equals the
+summary read from the rollups alone, over ranges that start and end anywhere in a day and on its
+switch hour, on data with role changes at any window (one just before the switch hour, whose
+lead-in runs into the next day), hours without setpoints, fallbacks, reference windows, gaps, a
+lost link, a coach out of regular mode and an override; a fleet day is used only where it pools
+exactly the pair days read; a late row drops the pair days it changes and their fleet days, and
+the next build makes them again, as it does the days retention cuts into; the scheduler makes
+them a few at a time."""
 
 from __future__ import annotations
 
 import shutil
+from collections import Counter
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -21,15 +23,24 @@ from trainclimate.service.scheduler import Scheduler
 from trainclimate.service.settings import Settings
 from trainclimate.service.store import (
     comparison,
+    fleet_days,
     fleet_summary,
     pair_days,
     pair_days_read,
     partitions,
     setpoint_rollups,
 )
+from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.commands import ingest
 from trainclimate.service.store.db import Database, migrate
-from trainclimate.service.store.models import Coach, Override, PairDay, Setpoint, Train
+from trainclimate.service.store.models import (
+    Coach,
+    FleetDay,
+    Override,
+    PairDay,
+    Setpoint,
+    Train,
+)
 from trainclimate.service.store.telemetry import insert_rows
 
 #: Midnight UTC; the service days switch at 02:00 UTC (03:00 in Zurich in winter).
@@ -287,23 +298,122 @@ def test_a_late_row_drops_the_days_it_changes_and_they_are_made_again(fleet):
     _assert_same(_summaries(fleet), want)
 
 
+def _fleet_days(db) -> dict[int, tuple]:
+    """The fleet days stored: day → (pairs pooled, digest)."""
+    with db.transaction() as s:
+        return {d.day: (d.pairs, d.digest) for d in s.query(FleetDay)}
+
+
+def test_fleet_days_pool_exactly_the_pair_days_read(fleet, monkeypatch):
+    assert _build(fleet) == 12
+    want = _summaries(fleet)  # each pair day's chart pooled by the summary itself
+    with fleet.transaction() as s:
+        assert fleet_days.build(s) == 6  # both trains switch at the same hour: 6 service days
+        assert fleet_days.build(s) == 0
+    stored = _fleet_days(fleet)
+    assert {n for n, _ in stored.values()} == {2}
+    read, by_pairs = [], []  # the pair days read whole, those whose charts were pooled here
+    charts, pair_charts = fleet_days.charts, fleet_days._pair_charts
+
+    def spied_charts(session, keys):
+        read.extend(keys)
+        return charts(session, keys)
+
+    def spied_pair_charts(session, keys):
+        by_pairs.append(keys)
+        return pair_charts(session, keys)
+
+    monkeypatch.setattr(fleet_days, "charts", spied_charts)
+    monkeypatch.setattr(fleet_days, "_pair_charts", spied_pair_charts)
+    got = _summaries(fleet)
+    _assert_same(got, want)
+    # a day's chart comes from its fleet day unless a range read only one train's pair day
+    # for it (the other train's entered from another lead-in state: read from its windows)
+    assert all(
+        len({k[:2] for k in keys if k[3] == d}) == 1 for keys in by_pairs for *_, d, _ in keys
+    )
+    assert len(read) > 60 and sum(map(len, by_pairs)) < 0.1 * len(read)
+    assert sum(w["trains"] == 2 for w in got[(MINUTES, 120)]["windows"]) > 20
+    # a fleet day that does not pool the pair days read is not used: their charts are
+    day = Counter(k[3] for k in read).most_common(1)[0][0]
+    with fleet.transaction() as s:
+        s.query(FleetDay).filter(FleetDay.day == day).update({"digest": FleetDay.digest + 1})
+    by_pairs.clear()
+    _assert_same(_summaries(fleet), want)
+    assert day in {k[3] for keys in by_pairs for k in keys}
+    # a late row drops its pair day and that day's fleet day; both are made again
+    late = START + timedelta(minutes=LATE_MINUTE)
+    with fleet.transaction() as s:
+        ingest(s, "X-A", [flat_row(late, power_kw=30.0)])
+    late_day = trial_plan.service_day(pair_days.pd.Timestamp(late), 3).toordinal()
+    kept = _fleet_days(fleet)
+    assert late_day not in kept and late_day - 1 in kept
+    with fleet.transaction() as s:
+        pair_days.forget_all(s)
+    want = _summaries(fleet)
+    assert _build(fleet) == 12 and _fleet_days(fleet) == {}
+    with fleet.transaction() as s:
+        assert fleet_days.build(s, max_days=2) == 2
+        assert fleet_days.build(s) == 4
+    assert _fleet_days(fleet).keys() == stored.keys()
+    read.clear()
+    by_pairs.clear()
+    _assert_same(_summaries(fleet), want)
+    assert len(read) > 60 and sum(map(len, by_pairs)) < 0.1 * len(read)
+
+
+def test_a_summary_is_read_again_when_a_pair_day_changes_under_it(fleet, monkeypatch):
+    """A pair day rebuilt between a summary's reads of its fields and of its chart: the chart
+    read finds the digest it read gone, and the summary is read again, without the cache."""
+    assert _build(fleet) == 12
+    with fleet.transaction() as s:
+        want = fleet_summary.summary(s, [], 72, START + timedelta(minutes=MINUTES))
+        lo, hi = START + timedelta(days=1), START + timedelta(days=4)
+        read = pair_days_read.pair_results(s, [("X-A", "X-B", lo, hi)], [3], [])[0]
+    key = read["chart_days"][0][:4]  # a whole day read from its pair day
+    with pytest.raises(pair_days.PairDaysChangedError), fleet.transaction() as s:
+        fleet_days.charts(s, [(*key, 12345)])
+    charts, calls = fleet_days.charts, []
+
+    def changed_once(session, read):
+        calls.append(len(read))
+        if len(calls) == 1:
+            raise pair_days.PairDaysChangedError("rebuilt meanwhile")
+        return charts(session, read)
+
+    monkeypatch.setattr(fleet_days, "charts", changed_once)
+    cache = ReadCache(16)
+    with fleet.transaction() as s:
+        got = fleet_summary.summary(s, [], 72, START + timedelta(minutes=MINUTES), cache)
+    _assert_same({0: got}, {0: want})
+    assert len(calls) == 2
+
+
 def test_the_scheduler_makes_them_a_few_at_a_time(fleet, small_predictor_file):
     settings = Settings(database_url=fleet.url, predictor_path=small_predictor_file)
     keeper = Scheduler(fleet, settings)
     assert keeper.keep_pair_days(max_days=5) == 5
+    with fleet.transaction() as s:
+        made = [d.day for d in s.query(PairDay)]
+    # each day whose pair days were made has its fleet day, pooling those made
+    assert {d: n for d, (n, _) in _fleet_days(fleet).items()} == {d: made.count(d) for d in made}
     assert keeper.keep_pair_days(max_days=100) == 7
     assert keeper.keep_pair_days() == 0
     with fleet.transaction() as s:
         assert s.query(PairDay).count() == 12
+    assert [n for n, _ in _fleet_days(fleet).values()] == [2] * 6
 
 
 def test_retention_drops_the_days_before_the_cutoff(fleet):
     assert _build(fleet) == 12
     with fleet.transaction() as s:
+        assert fleet_days.build(s) == 6
+    with fleet.transaction() as s:
         partitions.raw_retention(s, 2, START + timedelta(days=4))
     cutoff_window = pair_days.rollups.window_of(START + timedelta(days=2))
     with fleet.transaction() as s:
         assert min(d.first_window for d in s.query(PairDay)) > cutoff_window
+        assert min(d.first_window for d in s.query(FleetDay)) > cutoff_window
     assert _build(fleet) == 2  # each pair's day the cutoff falls in, from its rollups
     got = _summaries(fleet)
     _assert_same(_figures(got), _comparisons(fleet, got))

@@ -36,13 +36,14 @@ FLOOR = (
 
 
 def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) -> dict:
-    """Load ``pairs`` × ``days`` of 1-minute rows with binary COPY and build their window rollups
-    and pair days (:mod:`~trainclimate.service.store.pair_days`), then time ``samples`` requests per
+    """Load ``pairs`` × ``days`` of 1-minute rows with binary COPY and build their window rollups,
+    pair days (:mod:`~trainclimate.service.store.pair_days`) and fleet days
+    (:mod:`~trainclimate.service.store.fleet_days`), then time ``samples`` requests per
     point: the fleet summary over each of :data:`SUMMARY_H` refreshed (the data's end, each window
     in turn, after one untimed round that fills the read cache) and over new ranges (random ends),
     the pair comparison over each of :data:`COMPARISON_H` (random trains and ends), and the rollup
     floor over each summary window. ``progress(1)`` after the load and after the requests."""
-    from trainclimate.service.store import pair_days, rollups, setpoint_rollups
+    from trainclimate.service.store import fleet_days, pair_days, rollups, setpoint_rollups
     from trainclimate.service.store.db import Database
 
     ids = pair_ids("C", pairs)[0]
@@ -61,6 +62,10 @@ def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) ->
     with db.transaction() as session:  # as the scheduler keeps them, all at once
         n_days = pair_days.build(session, pair_days.fleet_pairs(session, end.to_pydatetime()))
     days_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    with db.transaction() as session:
+        n_fleet_days = fleet_days.build(session)
+    fleet_days_s = time.perf_counter() - t0
     db.dispose()
     t0 = time.perf_counter()
     sql(url, "VACUUM ANALYZE", autocommit=True)
@@ -125,6 +130,7 @@ def run(url: str, model: Path, pairs: int, days: int, samples: int, progress) ->
         "table": table_size(url),
         "rollups": {"rows": n_rollups, "build_s": rollup_s, "total_mb": rollup_mb},
         "pair_days": {"rows": n_days, "build_s": days_s, "total_mb": days_mb},
+        "fleet_days": {"rows": n_fleet_days, "build_s": fleet_days_s},
         "copy": {
             "rows": n_rows,
             "seconds": copy_s,

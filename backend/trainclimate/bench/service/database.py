@@ -16,6 +16,7 @@ _COPY_SIGNATURE = b"PGCOPY\n\xff\r\n\x00" + bytes(8)  # binary COPY header (no f
 #: Empties every table the benchmark writes.
 RESET = (
     "TRUNCATE telemetry, window_rollups, coach_feed, setpoints, setpoint_rollups, pair_days, "
+    "fleet_days, "
     "overrides, "
     "coach_liveness, coaches, trains, fleet_clocks, "
     "audit_log "

@@ -30,7 +30,14 @@ from sqlalchemy.orm import Session
 from trainclimate.analysis import trial
 from trainclimate.analysis.savings import PairTotals
 from trainclimate.coach.meters import HEADLINE_METER, METERS
-from trainclimate.service.store import pair_days, pair_days_read, pair_windows, plans, queries
+from trainclimate.service.store import (
+    fleet_days,
+    pair_days,
+    pair_days_read,
+    pair_windows,
+    plans,
+    queries,
+)
 from trainclimate.service.store.attention import (
     VIOLATION_LOOKBACK_MIN,
     attention,
@@ -105,7 +112,29 @@ def pair_results(
     return out
 
 
+#: Reads of a summary at most, when a pair day it read is rebuilt meanwhile.
+_ATTEMPTS = 3
+
+
 def summary(
+    session: Session,
+    views: list[CoachView],
+    hours: float,
+    end: datetime | None = None,
+    cache: ReadCache | None = None,
+) -> dict:
+    """:func:`read_summary`, read again without the cache (up to :data:`_ATTEMPTS` times in
+    all) if a pair day or fleet day it read changed before it had read all it needed of them
+    (:class:`.pair_days.PairDaysChangedError`: a concurrent rebuild)."""
+    for attempt in range(_ATTEMPTS - 1):
+        try:
+            return read_summary(session, views, hours, end, cache if attempt == 0 else None)
+        except pair_days.PairDaysChangedError:
+            continue
+    return read_summary(session, views, hours, end)
+
+
+def read_summary(
     session: Session,
     views: list[CoachView],
     hours: float,
@@ -190,7 +219,7 @@ def summary(
         fleet = {m: fleet[m] + r["totals"][m] for m in fleet}
         chart_w, chart_e = r["chart"]
         counted_w.append(chart_w)
-        counted_e.append(chart_e[:, chart_columns].T)
+        counted_e.append(chart_e[:, chart_columns])
         out_trains.append(
             {
                 "id": t.id,
@@ -204,16 +233,21 @@ def summary(
                 **r["figures"],
             }
         )
-    # the counted windows' energies, pooled per window over the trains that count it
-    all_w = np.concatenate(counted_w) if counted_w else np.zeros(0, np.int64)
-    all_e = np.concatenate(counted_e, axis=1) if counted_e else np.zeros((2, 0))
+    # the counted windows' energies, pooled per window over the trains that count it: those
+    # of the days read whole from their pair days already pooled per day (the fleet days)
+    day_w, day_n, day_e = fleet_days.charts(
+        session, [d for *_, r in results for d in r["chart_days"]]
+    )
+    all_w = np.concatenate([*counted_w, day_w])
+    all_n = np.concatenate([np.ones(len(all_w) - len(day_w)), day_n])
+    all_e = np.concatenate([*counted_e, day_e[:, chart_columns]]).T
     # the windows are integers: binned by their offset from the first (a sort costs more)
     first_w = int(all_w.min()) if len(all_w) else 0
     offset = all_w - first_w
-    per_window = np.bincount(offset)
+    per_window = np.bincount(offset, all_n)
     present = np.flatnonzero(per_window)
     starts, n_trains = present + first_w, per_window[present]
-    pooled_e = np.stack([np.bincount(offset, e)[present] for e in all_e])
+    pooled_e = np.stack([np.bincount(offset, e, minlength=len(per_window))[present] for e in all_e])
     totals = fleet[fleet_meter]
     pooled = trial.pool([r[-1]["estimate"] for r in results])
     naive = totals.savings_pct

@@ -202,9 +202,11 @@ class PairDay(Base):
     ordinal); its windows [``first_window``, ``first_window`` + ``windows``) (windows since
     1970); the lead-in state it was computed from and the one it leaves (the last labelled
     window's label, and how many windows back the last change was, capped at the lead-in's);
-    ``fields`` (float64 per :data:`~.pair_trial.FIELDS`), ``chart`` (the counted windows'
-    offsets, int16, then their energies per meter and role, float64 × 4) and ``minutes`` (each
-    window's sums, float64 × len(SUMS), label and own code, int8)."""
+    ``fields`` (float64 per :data:`~.pair_trial.FIELDS`), ``chart`` (per counted window its
+    offset from ``first_window`` and its energies per meter and role, float64 × 5),
+    ``chart_digest`` (a 63-bit hash of the day's key and chart, :func:`.pair_days.digest`: what
+    the fleet days check their members by) and ``minutes`` (each window's sums, float64 ×
+    len(SUMS), label and own code, int8)."""
 
     __tablename__ = "pair_days"
     day: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
@@ -219,11 +221,30 @@ class PairDay(Base):
     exiting_age: Mapped[int] = mapped_column(Integer)
     fields: Mapped[bytes] = mapped_column(LargeBinary)
     chart: Mapped[bytes] = mapped_column(LargeBinary)
+    chart_digest: Mapped[int] = mapped_column(BigInteger)
     minutes: Mapped[bytes] = mapped_column(LargeBinary)
     __table_args__ = (
         Index("ix_pair_days_coach_0", "coach_0", "day"),
         Index("ix_pair_days_coach_1", "coach_1", "day"),
     )
+
+
+class FleetDay(Base):
+    """The fleet chart of one service ``day`` (an ordinal) at ``switch_hour`` [h]
+    (:mod:`trainclimate.service.store.fleet_days`): the charts of every pair day stored for it
+    pooled per window — ``chart``, per window of [``first_window``, ``first_window`` +
+    ``windows``) the pairs that count it and their energies per meter and role, float64 × 5 —
+    with how many pair days it pools (``pairs``) and the sum of their chart digests modulo
+    2⁶³ (``digest``), by which a summary checks that it pools exactly the pair days it read."""
+
+    __tablename__ = "fleet_days"
+    day: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    switch_hour: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    first_window: Mapped[int] = mapped_column(BigInteger)
+    windows: Mapped[int] = mapped_column(Integer)
+    pairs: Mapped[int] = mapped_column(Integer)
+    digest: Mapped[int] = mapped_column(BigInteger)
+    chart: Mapped[bytes] = mapped_column(LargeBinary)
 
 
 class CoachFeed(Base):

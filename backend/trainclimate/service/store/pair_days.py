@@ -16,11 +16,13 @@ A pair day is made once both coaches' newest telemetry and last tick are past th
 (:func:`build`: the scheduler keeps them, a few a minute; ``trainclimate bench`` builds them
 for data loaded around the service). What can still change a past day drops its pair days
 (:func:`forget`): a row arriving late for it, an override over it, raw minutes dropped by
-retention (:func:`forget_all`).
+retention (:func:`forget_all`). Every pair day written or dropped drops its day's fleet chart
+(:mod:`.fleet_days`), which is made again from the pair days then stored.
 """
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from datetime import datetime
 from typing import cast
@@ -39,7 +41,7 @@ from trainclimate.service.store import (
     queries,
     rollups,
 )
-from trainclimate.service.store.models import Coach, CoachFeed, PairDay, Telemetry
+from trainclimate.service.store.models import Coach, CoachFeed, FleetDay, PairDay, Telemetry
 from trainclimate.service.store.pair_labels import NO_STATE
 from trainclimate.service.store.pair_trial import CHART_FIELDS
 from trainclimate.service.store.upsert import insert_new
@@ -55,8 +57,20 @@ _LEAD = int(np.ceil(pair_labels.LEAD_IN_MIN / WINDOW_MIN))
 _CHUNK_DAYS = 31
 
 
+class PairDaysChangedError(RuntimeError):
+    """A pair day or fleet day read by a summary changed before the summary had read all it
+    needed of it (a concurrent rebuild): the summary is read again."""
+
+
 def table() -> Table:
     return cast(Table, PairDay.__table__)
+
+
+def digest(c0: str, c1: str, hour: int, day: int, chart: bytes) -> int:
+    """A 63-bit hash of a pair day's key and chart (BLAKE2b): a fleet day's members add up to
+    its digest (modulo 2⁶³), so that a summary can tell whether it pools the pair days read."""
+    key = f"{c0}\x00{c1}\x00{hour}\x00{day}\x00".encode()
+    return int.from_bytes(hashlib.blake2b(key + chart, digest_size=8).digest(), "little") >> 1
 
 
 def stored_state(prev, age) -> tuple[int, int]:
@@ -116,7 +130,7 @@ def days_from_windows(
 
 def _row(c0: str, c1: str, hour: int, d: Day, entering, first: int, grid, label, code0) -> dict:
     """A :class:`~.models.PairDay` row of day ``d`` over windows [first, first + len(grid))."""
-    chart = np.column_stack([d.chart_windows - first, d.chart]).astype(np.float64)
+    chart = np.column_stack([d.chart_windows - first, d.chart]).astype(np.float64).tobytes()
     return {
         "coach_0": c0,
         "coach_1": c1,
@@ -129,7 +143,8 @@ def _row(c0: str, c1: str, hour: int, d: Day, entering, first: int, grid, label,
         "exiting_label": d.exiting[0],
         "exiting_age": d.exiting[1],
         "fields": d.fields.astype(np.float64).tobytes(),
-        "chart": chart.tobytes(),
+        "chart": chart,
+        "chart_digest": digest(c0, c1, hour, d.day, chart),
         "minutes": grid.astype(np.float64).tobytes()
         + label.astype(np.int8).tobytes()
         + code0.astype(np.int8).tobytes(),
@@ -290,7 +305,19 @@ def _build_run(
             )
         )
     insert_new(session, t, rows, ["coach_0", "coach_1", "switch_hour", "day"])
+    _drop_fleet_days(session, {(hour, day) for day in days})
     return state
+
+
+def _drop_fleet_days(session: Session, days: set[tuple[int, int]]) -> None:
+    """Drop the fleet charts of ``days`` (switch hour, day): their pair days changed."""
+    by_hour: dict[int, list[int]] = {}
+    for hour, day in days:
+        by_hour.setdefault(hour, []).append(day)
+    for hour, ds in by_hour.items():
+        session.execute(
+            delete(FleetDay).where(FleetDay.switch_hour == hour, FleetDay.day.in_(sorted(ds)))
+        )
 
 
 def forget(session: Session, coach_windows: dict[str, int]) -> None:
@@ -312,16 +339,21 @@ def forget(session: Session, coach_windows: dict[str, int]) -> None:
             ends_after > window,
         )
 
-    session.execute(delete(t).where(or_(*(of_coach(c, w) for c, w in coach_windows.items()))))
+    gone = session.execute(
+        delete(t)
+        .where(or_(*(of_coach(c, w) for c, w in coach_windows.items())))
+        .returning(t.c.switch_hour, t.c.day)
+    )
+    _drop_fleet_days(session, {(hour, day) for hour, day in gone})
 
 
 def forget_all(session: Session, before_window: int | None = None) -> None:
-    """Drop every pair day (that starts before ``before_window``, if given)."""
-    t = table()
-    stmt = delete(t)
-    if before_window is not None:
-        stmt = stmt.where(t.c.first_window < before_window)
-    session.execute(stmt)
+    """Drop every pair day and fleet day (that starts before ``before_window``, if given)."""
+    for t in (table(), cast(Table, FleetDay.__table__)):
+        stmt = delete(t)
+        if before_window is not None:
+            stmt = stmt.where(t.c.first_window < before_window)
+        session.execute(stmt)
 
 
 def fleet_pairs(session: Session, at: datetime) -> list[tuple[str, str, int]]:

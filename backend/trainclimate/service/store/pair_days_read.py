@@ -31,7 +31,7 @@ from trainclimate.service.store.pair_days import (
     table,
 )
 from trainclimate.service.store.pair_labels import NO_STATE, SUMS
-from trainclimate.service.store.pair_trial import FIELDS
+from trainclimate.service.store.pair_trial import CHART_FIELDS, FIELDS
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ def _placed(t) -> tuple:
 
 def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[tuple, Any]:
     """The pair days of ``keys`` (coach 0, coach 1, switch hour) over the days [first, last]:
-    (coach 0, coach 1, hour, day) → row with its states, fields and chart."""
+    (coach 0, coach 1, hour, day) → row with its states, fields and chart digest."""
     if not keys:
         return {}
     t = table()
@@ -83,7 +83,7 @@ def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[t
             t.c.exiting_label,
             t.c.exiting_age,
             t.c.fields,
-            t.c.chart,
+            t.c.chart_digest,
         ).where(
             t.c.day >= days[0],
             t.c.day <= days[1],
@@ -136,10 +136,14 @@ def pair_results(
 ) -> list[dict]:
     """Each pair's figures over its range (lo, hi] of 30-minute windows as
     :func:`.pair_trial.pair_results` gives them (``meter``, ``totals``, ``estimate``,
-    ``reasons``, ``counted_windows``, ``figures`` and ``chart``; not the arrays per window), its
-    whole service days read from their pair days where they were entered from the state the
-    range reaches them in, the others from their windows (stored with the pair day, or from the
-    rollups). In the order of ``pairs``."""
+    ``reasons``, ``counted_windows``, ``figures``; not the arrays per window), its whole
+    service days read from their pair days where they were entered from the state the range
+    reaches them in, the others from their windows (stored with the pair day, or from the
+    rollups). Its fleet chart as ``chart`` — the counted windows and their energies
+    (:data:`~.pair_trial.CHART_FIELDS`) of the days not read from their rows — and
+    ``chart_days``, the pair days read from their rows (coach 0, coach 1, switch hour, day,
+    chart digest: their charts are pooled by :func:`.fleet_days.charts`). In the order of
+    ``pairs``."""
     layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
     keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
     span = [s.day for _, segs in layout for s in segs]
@@ -264,9 +268,9 @@ def _compute(waiting, layout, position, windows, state, days) -> None:
 
 
 def _assemble(days: list[list]) -> list[dict]:
-    """Each pair's result from its days in order, stored rows (their fields and charts read all
-    at once) or :class:`~.pair_days.Day` (:func:`.pair_trial.results_from_fields`), with its
-    ``chart``."""
+    """Each pair's result from its days in order, stored rows (their fields read all at once)
+    or :class:`~.pair_days.Day` (:func:`.pair_trial.results_from_fields`), with its ``chart``
+    (of its :class:`~.pair_days.Day`) and ``chart_days`` (its stored rows)."""
     rows = [
         (p, slot, d)
         for p, mine in enumerate(days)
@@ -276,39 +280,22 @@ def _assemble(days: list[list]) -> list[dict]:
     width = max((len(d) for d in days), default=0)
     fields = np.zeros((len(days), width, len(FIELDS)))
     ordinals = np.zeros((len(days), width), np.int64)
-    chart_pair, chart_windows, chart = [], [], []
     if rows:
         at_pair, at_slot = (np.array([r[i] for r in rows]) for i in (0, 1))
         stored = np.frombuffer(b"".join(r[2].fields for r in rows), np.float64)
         fields[at_pair, at_slot] = stored.reshape(len(rows), len(FIELDS))
         ordinals[at_pair, at_slot] = [r[2].day for r in rows]
-        k = fields[at_pair, at_slot, pair_trial.FIELDS_INDEX["counted"]].astype(np.int64)
-        entries = np.frombuffer(b"".join(r[2].chart for r in rows), np.float64).reshape(-1, 5)
-        chart_pair.append(np.repeat(at_pair, k))
-        chart_windows.append(
-            entries[:, 0].astype(np.int64) + np.repeat([r[2].first_window for r in rows], k)
-        )
-        chart.append(entries[:, 1:])
     for p, mine in enumerate(days):
         for slot, d in enumerate(mine):
             if isinstance(d, Day):
                 fields[p, slot] = d.fields
                 ordinals[p, slot] = d.day
-                chart_pair.append(np.full(len(d.chart_windows), p))
-                chart_windows.append(d.chart_windows)
-                chart.append(d.chart)
     out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN)
-    if chart:
-        which = np.concatenate(chart_pair)
-        order = np.argsort(which, kind="stable")
-        edges = np.searchsorted(which[order], np.arange(len(days) + 1))
-        all_windows, all_chart = np.concatenate(chart_windows)[order], np.concatenate(chart)[order]
-    else:
-        edges, all_windows, all_chart = (
-            np.zeros(len(days) + 1, int),
-            np.zeros(0, np.int64),
-            np.zeros((0, 4)),
+    for mine, result in zip(days, out, strict=True):
+        computed = [d for d in mine if isinstance(d, Day)]
+        result["chart"] = (
+            np.concatenate([np.zeros(0, np.int64), *(d.chart_windows for d in computed)]),
+            np.concatenate([np.zeros((0, len(CHART_FIELDS))), *(d.chart for d in computed)]),
         )
-    for p, result in enumerate(out):
-        result["chart"] = (all_windows[edges[p] : edges[p + 1]], all_chart[edges[p] : edges[p + 1]])
+        result["chart_days"] = [(*d[:4], d.chart_digest) for d in mine if not isinstance(d, Day)]
     return out

@@ -1,0 +1,170 @@
+"""Fleet days: the fleet chart of each whole service day, pooled over the pair days stored for it,
+so that a fleet summary over a new range of days reads one chart per day instead of every pair
+day's.
+
+The fleet summary's chart pools, per 30-minute window, the energies of the trains that count
+it (:func:`.fleet_summary.summary`). A pair day keeps its own counted windows' energies
+(:mod:`.pair_days`); a fleet day (:class:`~.models.FleetDay`) adds them up over every pair
+day stored for its service day and switch hour, with how many pair days it pools and the sum of
+their chart digests (:func:`.pair_days.digest`). A summary takes a day's chart from its fleet
+day only when the pair days it read for that day are exactly the ones pooled — the same count,
+the same digests — and otherwise pools their own charts (:func:`charts`): a fleet day missing
+or out of date costs time, never a figure.
+
+Fleet days are made by the scheduler after the pair days (:func:`build`); every pair day
+written or dropped drops its day's fleet day (:mod:`.pair_days`).
+"""
+
+from __future__ import annotations
+
+from typing import cast
+
+import numpy as np
+from sqlalchemy import Table, select
+from sqlalchemy.orm import Session
+
+from trainclimate.service.store import pair_days, queries
+from trainclimate.service.store.models import FleetDay
+from trainclimate.service.store.upsert import insert_new
+
+#: Digests add up modulo this (they are 63-bit: a sum fits a signed 64-bit column).
+_MODULUS = 1 << 63
+#: A chart's columns: the pairs that count the window, then the energies per meter and role
+#: (:data:`~.pair_trial.CHART_FIELDS`'s order). [1, kWh × 4]
+_COLUMNS = 5
+
+
+def table() -> Table:
+    return cast(Table, FleetDay.__table__)
+
+
+def _pool(windows: int, charts: list[bytes]) -> np.ndarray:
+    """The pair days' ``charts`` (each k × 5 float64: offset, energies) over a day of ``windows``
+    windows, pooled per window: shape (windows, 5), the pairs counting each, then the sums of
+    their energies."""
+    entries = np.frombuffer(b"".join(charts), np.float64).reshape(-1, _COLUMNS)
+    offset = entries[:, 0].astype(np.int64)
+    out = np.zeros((windows, _COLUMNS))
+    out[:, 0] = np.bincount(offset, minlength=windows)
+    for k in range(1, _COLUMNS):
+        out[:, k] = np.bincount(offset, entries[:, k], minlength=windows)
+    return out
+
+
+def build(session: Session, max_days: int | None = None) -> int:
+    """Make the fleet days missing: each service day and switch hour with pair days stored and
+    no fleet day, from its pair days (in the order of their coaches, so that the sums are
+    the same whoever makes them); at most ``max_days``, oldest first. Concurrent builders
+    insert each once. Returns how many were made."""
+    p, f = pair_days.table(), table()
+    have = select(f.c.switch_hour, f.c.day)
+    missing = sorted(
+        session.execute(select(p.c.switch_hour, p.c.day).distinct().except_(have)).all(),
+        key=lambda r: (r[1], r[0]),
+    )
+    made = []
+    for hour, day in missing[:max_days]:
+        rows = session.execute(
+            select(p.c.first_window, p.c.windows, p.c.chart, p.c.chart_digest)
+            .where(p.c.switch_hour == hour, p.c.day == day)
+            .order_by(p.c.coach_0, p.c.coach_1)
+        ).all()
+        first, windows = rows[0].first_window, rows[0].windows
+        made.append(
+            {
+                "day": day,
+                "switch_hour": hour,
+                "first_window": first,
+                "windows": windows,
+                "pairs": len(rows),
+                "digest": sum(r.chart_digest for r in rows) % _MODULUS,
+                "chart": _pool(windows, [r.chart for r in rows]).tobytes(),
+            }
+        )
+    insert_new(session, f, made, ["day", "switch_hour"])
+    return len(made)
+
+
+def charts(session: Session, read: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fleet chart of the pair days ``read`` (coach 0, coach 1, switch hour, day, chart
+    digest: those a summary took whole from their rows), pooled per day and window: from each
+    day's fleet day where it pools exactly these pair days, else from their own charts.
+
+    Returns
+    -------
+    tuple
+        The windows (since 1970) with a pair counting them, how many pairs count each, and
+        their energies per meter and role (:data:`~.pair_trial.CHART_FIELDS`), shapes (k,),
+        (k,), (k, 4) [kWh].
+    """
+    groups: dict[tuple[int, int], list[tuple]] = {}
+    for key in read:
+        groups.setdefault((key[2], key[3]), []).append(key)
+    if not groups:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, _COLUMNS - 1))
+    f = table()
+    days = sorted({d for _, d in groups})
+    stored = {
+        (r.switch_hour, r.day): r
+        for r in session.execute(
+            select(
+                f.c.switch_hour,
+                f.c.day,
+                f.c.first_window,
+                f.c.windows,
+                f.c.pairs,
+                f.c.digest,
+                f.c.chart,
+            ).where(f.c.day >= days[0], f.c.day <= days[-1])
+        )
+        if (r.switch_hour, r.day) in groups
+    }
+    pooled, others = [], []
+    for key, members in groups.items():
+        row = stored.get(key)
+        if (
+            row is not None
+            and row.pairs == len(members)
+            and row.digest == sum(m[4] for m in members) % _MODULUS
+        ):
+            pooled.append(row)
+        else:
+            others.extend(members)
+    w, c = _pair_charts(session, others)
+    windows = np.concatenate([*(r.first_window + np.arange(r.windows) for r in pooled), w])
+    chart = np.concatenate([*(np.frombuffer(r.chart).reshape(-1, _COLUMNS) for r in pooled), c])
+    counted = chart[:, 0] > 0
+    return windows[counted], chart[counted, 0], chart[counted, 1:]
+
+
+def _pair_charts(session: Session, keys: list[tuple]) -> tuple:
+    """The charts of the pair days ``keys`` (coach 0, coach 1, switch hour, day, digest), each
+    counted window with the 1 pair counting it: windows (k,) and (k, 5)."""
+    if not keys:
+        return np.zeros(0, np.int64), np.zeros((0, _COLUMNS))
+    p = pair_days.table()
+    wanted = set(keys)
+    rows = [
+        r
+        for r in session.execute(
+            select(
+                p.c.coach_0,
+                p.c.coach_1,
+                p.c.switch_hour,
+                p.c.day,
+                p.c.chart_digest,
+                p.c.first_window,
+                p.c.chart,
+            ).where(
+                p.c.day.in_(sorted({k[3] for k in keys})),
+                queries.among(p.c.coach_0, {k[0] for k in keys}),
+            )
+        )
+        if tuple(r[:5]) in wanted
+    ]
+    if len(rows) != len(wanted):
+        raise pair_days.PairDaysChangedError("a pair day read by this summary changed")
+    entries = np.frombuffer(b"".join(r.chart for r in rows), np.float64).reshape(-1, _COLUMNS)
+    k = [len(r.chart) // (8 * _COLUMNS) for r in rows]
+    windows = entries[:, 0].astype(np.int64) + np.repeat([r.first_window for r in rows], k)
+    return windows, np.column_stack([np.ones(len(entries)), entries[:, 1:]])
