@@ -22,9 +22,7 @@ from datetime import UTC, datetime, timedelta
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import (
-    select,
-)
+from sqlalchemy import select, text
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial
@@ -99,6 +97,11 @@ def pair_results(
             missing.append((pair, hour, state, key))
         else:
             out[pair[0]] = kept
+    if missing and session.get_bind().dialect.name == "postgresql":
+        # the range's reads run often enough for psycopg to prepare them, and PostgreSQL then
+        # plans them once for any bounds: reading 14 400 pair days took 160-228 ms so, against
+        # 60-68 ms planned for its values (measured); the rest of the transaction reads alike
+        session.execute(text("SET LOCAL plan_cache_mode = force_custom_plan"))
     # the figures are kept, not the sums they came from: one answer per train and range
     for i in range(0, len(missing), _CHUNK):
         chunk = missing[i : i + _CHUNK]
