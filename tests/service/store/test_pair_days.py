@@ -364,7 +364,7 @@ def test_fleet_days_pool_exactly_the_pair_days_read(fleet, monkeypatch):
 
 def test_a_summary_is_read_again_when_a_pair_day_changes_under_it(fleet, monkeypatch):
     """A pair day rebuilt between a summary's reads of its fields and of its chart: the chart
-    read finds the digest it read gone, and the summary is read again, without the cache."""
+    read finds the digest it read gone, and the trains' figures are read again, uncached."""
     assert _build(fleet) == 12
     with fleet.transaction() as s:
         want = fleet_summary.summary(s, [], 72, START + timedelta(minutes=MINUTES))

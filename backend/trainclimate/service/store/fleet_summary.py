@@ -115,29 +115,11 @@ def pair_results(
     return out
 
 
-#: Reads of a summary at most, when a pair day it read is rebuilt meanwhile.
+#: Reads of the trains' figures at most, when a pair day they read is rebuilt meanwhile.
 _ATTEMPTS = 3
 
 
 def summary(
-    session: Session,
-    views: list[CoachView],
-    hours: float,
-    end: datetime | None = None,
-    cache: ReadCache | None = None,
-) -> dict:
-    """:func:`read_summary`, read again without the cache (up to :data:`_ATTEMPTS` times in
-    all) if a pair day or fleet day it read changed before it had read all it needed of them
-    (:class:`.pair_days.PairDaysChangedError`: a concurrent rebuild)."""
-    for attempt in range(_ATTEMPTS - 1):
-        try:
-            return read_summary(session, views, hours, end, cache if attempt == 0 else None)
-        except pair_days.PairDaysChangedError:
-            continue
-    return read_summary(session, views, hours, end)
-
-
-def read_summary(
     session: Session,
     views: list[CoachView],
     hours: float,
@@ -207,7 +189,19 @@ def read_summary(
     for stop, ids in by_stop.items():
         in_force |= {tid: rows[0] for tid, rows in plans.plans_at(session, ids, stop).items()}
     terms = [plans.terms(in_force.get(t.id)) for t, *_ in ranges]
-    found = pair_results(session, pairs, [h for _, h, _ in terms], cache)
+    hours_of = [h for _, h, _ in terms]
+    for attempt in range(_ATTEMPTS):
+        # the charts of the days read whole from their pair days, already pooled per day (the
+        # fleet days); a pair day rebuilt meanwhile (its chart gone): read again, uncached
+        found = pair_results(session, pairs, hours_of, cache if attempt == 0 else None)
+        try:
+            day_w, day_n, day_e = fleet_days.charts(
+                session, [d for r in found.values() for d in r["chart_days"]]
+            )
+            break
+        except pair_days.PairDaysChangedError:
+            if attempt == _ATTEMPTS - 1:
+                raise
     results = [
         (t, c0, c1, first, stop, {**found[c0.id], "plan": plan})
         for (t, c0, c1, first, _, stop), (plan, _, _) in zip(ranges, terms, strict=True)
@@ -236,11 +230,7 @@ def read_summary(
                 **r["figures"],
             }
         )
-    # the counted windows' energies, pooled per window over the trains that count it: those
-    # of the days read whole from their pair days already pooled per day (the fleet days)
-    day_w, day_n, day_e = fleet_days.charts(
-        session, [d for *_, r in results for d in r["chart_days"]]
-    )
+    # the counted windows' energies, pooled per window over the trains that count it
     all_w = np.concatenate([*counted_w, day_w])
     all_n = np.concatenate([np.ones(len(all_w) - len(day_w)), day_n])
     all_e = np.concatenate([*counted_e, day_e[:, chart_columns]]).T

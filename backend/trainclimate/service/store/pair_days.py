@@ -59,7 +59,7 @@ _CHUNK_DAYS = 31
 
 class PairDaysChangedError(RuntimeError):
     """A pair day or fleet day read by a summary changed before the summary had read all it
-    needed of it (a concurrent rebuild): the summary is read again."""
+    needed of it (a concurrent rebuild): the trains' figures are read again."""
 
 
 def table() -> Table:
