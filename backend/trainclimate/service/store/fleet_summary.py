@@ -18,7 +18,7 @@ are unchanged (:func:`.pair_windows.pair_states`).
 
 from __future__ import annotations
 
-from datetime import UTC, datetime, timedelta
+from datetime import datetime, timedelta
 
 import numpy as np
 import pandas as pd
@@ -73,8 +73,6 @@ def _coach_times(session: Session, coaches: list) -> dict[str, tuple]:
 _CHUNK = 128
 #: The summary's window: the rollups' and the pair days'. [min]
 WINDOW_MIN = float(pair_days.WINDOW_MIN)
-#: Windows are counted from here.
-_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 
 def pair_results(
@@ -268,12 +266,17 @@ def summary(
         "trains": out_trains,
         "windows": [
             {
-                "start": _EPOCH + timedelta(minutes=int(w) * WINDOW_MIN),
-                "energy_activated_kwh": float(e_act),
-                "energy_deactivated_kwh": float(e_deact),
-                "trains": int(n),
+                "start": start,
+                "energy_activated_kwh": e_act,
+                "energy_deactivated_kwh": e_deact,
+                "trains": n,
             }
-            for w, e_act, e_deact, n in zip(starts, *pooled_e, n_trains, strict=True)
+            for start, e_act, e_deact, n in zip(
+                pd.to_datetime(starts * pair_days.WINDOW_S, unit="s", utc=True).to_pydatetime(),
+                *pooled_e.tolist(),
+                n_trains.astype(np.int64).tolist(),
+                strict=True,
+            )
         ],
         "coaches_by_status": coaches_by_status(views),
         "attention": attention(
