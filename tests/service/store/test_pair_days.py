@@ -315,9 +315,13 @@ def test_fleet_days_pool_exactly_the_pair_days_read(fleet, monkeypatch):
     read, by_pairs = [], []  # the pair days read whole, those whose charts were pooled here
     charts, pair_charts = fleet_days.charts, fleet_days._pair_charts
 
-    def spied_charts(session, keys):
-        read.extend(keys)
-        return charts(session, keys)
+    def spied_charts(session, pairs):
+        read.extend(
+            (c0, c1, hour, day, digest)
+            for c0, c1, hour, days, digests in pairs
+            for day, digest in zip(days.tolist(), digests.tolist(), strict=True)
+        )
+        return charts(session, pairs)
 
     def spied_pair_charts(session, keys):
         by_pairs.append(keys)
@@ -370,9 +374,10 @@ def test_a_summary_is_read_again_when_a_pair_day_changes_under_it(fleet, monkeyp
         want = fleet_summary.summary(s, [], 72, START + timedelta(minutes=MINUTES))
         lo, hi = START + timedelta(days=1), START + timedelta(days=4)
         read = pair_days_read.pair_results(s, [("X-A", "X-B", lo, hi)], [3], [])[0]
-    key = read["chart_days"][0][:4]  # a whole day read from its pair day
+    days, digests = read["chart_days"]  # the whole days read from their pair days
+    assert len(days) == len(digests) >= 2
     with pytest.raises(pair_days.PairDaysChangedError), fleet.transaction() as s:
-        fleet_days.charts(s, [(*key, 12345)])
+        fleet_days.charts(s, [("X-A", "X-B", 3, days[:1], np.array([12345]))])
     charts, calls = fleet_days.charts, []
 
     def changed_once(session, read):

@@ -86,9 +86,16 @@ def build(session: Session, max_days: int | None = None) -> int:
 
 
 def charts(session: Session, read: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The fleet chart of the pair days ``read`` (coach 0, coach 1, switch hour, day, chart
-    digest: those a summary took whole from their rows), pooled per day and window: from each
-    day's fleet day where it pools exactly these pair days, else from their own charts.
+    """The fleet chart of the pair days a summary took whole from their rows, pooled per day
+    and window: from each day's fleet day where it pools exactly these pair days, else from
+    their own charts.
+
+    Parameters
+    ----------
+    read : list of tuple
+        Per pair: coach 0, coach 1, switch hour (0–23), and the days it read whole from its
+        pair days and their chart digests (two int64 arrays, as :func:`.pair_days_read.pair_results`
+        gives them in ``chart_days``).
 
     Returns
     -------
@@ -97,13 +104,20 @@ def charts(session: Session, read: list[tuple]) -> tuple[np.ndarray, np.ndarray,
         their energies per meter and role (:data:`~.pair_trial.CHART_FIELDS`), shapes (k,),
         (k,), (k, 4) [kWh].
     """
-    groups: dict[tuple[int, int], list[tuple]] = {}
-    for key in read:
-        groups.setdefault((key[2], key[3]), []).append(key)
-    if not groups:
+    sizes = [len(r[3]) for r in read]
+    if not sum(sizes):
         return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, _COLUMNS - 1))
+    hours = np.repeat(np.array([r[2] for r in read], np.int64), sizes)
+    days = np.concatenate([r[3] for r in read])
+    digests = np.concatenate([r[4] for r in read])
+    # each (switch hour, day): how many pair days were read and their digests' sum, which
+    # wraps modulo 2^64 in unsigned integers, so modulo 2^63 too
+    groups, group = np.unique(days * 24 + hours, return_inverse=True)
+    members = np.bincount(group)
+    digest_sums = np.zeros(len(groups), np.uint64)
+    np.add.at(digest_sums, group, digests.astype(np.uint64))
+    digest_sums %= np.uint64(_MODULUS)
     f = table()
-    days = sorted({d for _, d in groups})
     stored = {
         (r.switch_hour, r.day): r
         for r in session.execute(
@@ -115,21 +129,23 @@ def charts(session: Session, read: list[tuple]) -> tuple[np.ndarray, np.ndarray,
                 f.c.pairs,
                 f.c.digest,
                 f.c.chart,
-            ).where(f.c.day >= days[0], f.c.day <= days[-1])
+            ).where(f.c.day >= int(days.min()), f.c.day <= int(days.max()))
         )
-        if (r.switch_hour, r.day) in groups
     }
-    pooled, others = [], []
-    for key, members in groups.items():
-        row = stored.get(key)
-        if (
-            row is not None
-            and row.pairs == len(members)
-            and row.digest == sum(m[4] for m in members) % _MODULUS
-        ):
+    pooled, exact = [], np.zeros(len(groups), bool)
+    for g, (key, n, digest) in enumerate(
+        zip(groups.tolist(), members.tolist(), digest_sums.tolist(), strict=True)
+    ):
+        row = stored.get((key % 24, key // 24))
+        if row is not None and row.pairs == n and row.digest == digest:
             pooled.append(row)
-        else:
-            others.extend(members)
+            exact[g] = True
+    apart = np.flatnonzero(~exact[group])  # the pair days read of a day not pooled as read
+    which = np.repeat(np.arange(len(read)), sizes)[apart]
+    others = [
+        (*read[p][:3], int(days[i]), int(digests[i]))
+        for i, p in zip(apart.tolist(), which.tolist(), strict=True)
+    ]
     w, c = _pair_charts(session, others)
     windows = np.concatenate([*(r.first_window + np.arange(r.windows) for r in pooled), w])
     chart = np.concatenate([*(np.frombuffer(r.chart).reshape(-1, _COLUMNS) for r in pooled), c])

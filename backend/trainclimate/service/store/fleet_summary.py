@@ -194,7 +194,11 @@ def summary(
         found = pair_results(session, pairs, hours_of, cache if attempt == 0 else None)
         try:
             day_w, day_n, day_e = fleet_days.charts(
-                session, [d for r in found.values() for d in r["chart_days"]]
+                session,
+                [
+                    (c0, c1, h, *found[c0]["chart_days"])
+                    for (c0, c1, *_), h in zip(pairs, hours_of, strict=True)
+                ],
             )
             break
         except pair_days.PairDaysChangedError:

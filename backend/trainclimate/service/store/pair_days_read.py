@@ -141,8 +141,8 @@ def pair_results(
     reaches them in, the others from their windows (stored with the pair day, or from the
     rollups). Its fleet chart as ``chart`` — the counted windows and their energies
     (:data:`~.pair_trial.CHART_FIELDS`) of the days not read from their rows — and
-    ``chart_days``, the pair days read from their rows (coach 0, coach 1, switch hour, day,
-    chart digest: their charts are pooled by :func:`.fleet_days.charts`). In the order of
+    ``chart_days``, the days read from their pair days' rows and those rows' chart digests
+    (two arrays: their charts are pooled by :func:`.fleet_days.charts`). In the order of
     ``pairs``."""
     layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
     keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
@@ -270,7 +270,8 @@ def _compute(waiting, layout, position, windows, state, days) -> None:
 def _assemble(days: list[list]) -> list[dict]:
     """Each pair's result from its days in order, stored rows (their fields read all at once)
     or :class:`~.pair_days.Day` (:func:`.pair_trial.results_from_fields`), with its ``chart``
-    (of its :class:`~.pair_days.Day`) and ``chart_days`` (its stored rows)."""
+    (of its :class:`~.pair_days.Day`) and ``chart_days`` (its stored rows' days and chart
+    digests, two arrays)."""
     rows = [
         (p, slot, d)
         for p, mine in enumerate(days)
@@ -280,22 +281,30 @@ def _assemble(days: list[list]) -> list[dict]:
     width = max((len(d) for d in days), default=0)
     fields = np.zeros((len(days), width, len(FIELDS)))
     ordinals = np.zeros((len(days), width), np.int64)
+    # in the order of the pairs
+    at_pair, at_slot, read_days, digests = (
+        np.array([r[0] for r in rows], np.int64),
+        np.array([r[1] for r in rows], np.int64),
+        np.array([r[2].day for r in rows], np.int64),
+        np.array([r[2].chart_digest for r in rows], np.int64),
+    )
     if rows:
-        at_pair, at_slot = (np.array([r[i] for r in rows]) for i in (0, 1))
         stored = np.frombuffer(b"".join(r[2].fields for r in rows), np.float64)
         fields[at_pair, at_slot] = stored.reshape(len(rows), len(FIELDS))
-        ordinals[at_pair, at_slot] = [r[2].day for r in rows]
+        ordinals[at_pair, at_slot] = read_days
     for p, mine in enumerate(days):
         for slot, d in enumerate(mine):
             if isinstance(d, Day):
                 fields[p, slot] = d.fields
                 ordinals[p, slot] = d.day
     out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN)
-    for mine, result in zip(days, out, strict=True):
+    bounds = np.searchsorted(at_pair, np.arange(len(days) + 1)).tolist()
+    for p, (mine, result) in enumerate(zip(days, out, strict=True)):
         computed = [d for d in mine if isinstance(d, Day)]
         result["chart"] = (
             np.concatenate([np.zeros(0, np.int64), *(d.chart_windows for d in computed)]),
             np.concatenate([np.zeros((0, len(CHART_FIELDS))), *(d.chart for d in computed)]),
         )
-        result["chart_days"] = [(*d[:4], d.chart_digest) for d in mine if not isinstance(d, Day)]
+        a, b = bounds[p], bounds[p + 1]
+        result["chart_days"] = (read_days[a:b], digests[a:b])
     return out
