@@ -17,19 +17,23 @@ def test_health_and_coaches(client, tokens):
 
 def test_what_the_server_built_is_frozen_out_of_the_collector_while_it_runs(settings):
     """Started, the app's long-lived objects are out of the garbage collector's full passes
-    (``gc.freeze``: the library's modules alone are ≈ 10⁵ objects, whose passes paused requests);
-    stopped, they are back in them, so a stopped app's cycles can be collected."""
+    (``gc.freeze``: the library's modules alone are ≈ 10⁵ objects, whose passes paused requests)
+    and the collector runs less often; stopped, they are back in them, so a stopped app's cycles
+    can be collected, and the collector runs as before."""
     import gc
 
     from fastapi.testclient import TestClient
 
-    from trainclimate.service.app import create_app
+    from trainclimate.service.app import GC_THRESHOLDS, create_app
 
     gc.unfreeze()
+    before = gc.get_threshold()
     with TestClient(create_app(settings)) as client:
         assert client.get("/api/v1/health").status_code == 200
         assert gc.get_freeze_count() > 10_000
+        assert gc.get_threshold() == GC_THRESHOLDS != before
     assert gc.get_freeze_count() == 0
+    assert gc.get_threshold() == before
 
 
 def test_serve_json_prints_one_object_then_logs(db_url, servers):
