@@ -7,14 +7,14 @@ from __future__ import annotations
 
 import threading
 import time
-from datetime import datetime
+from datetime import datetime, timedelta
 
 import pytest
 
 from helpers.service import API, T0, at, decided, flat_rows, post_rows, register
 from trainclimate.service.settings import Settings
 from trainclimate.service.store import comparison as pair_comparison
-from trainclimate.service.store import queries
+from trainclimate.service.store import partitions, queries
 from trainclimate.service.store.cache import ReadCache
 
 RANGE = {"start": T0.isoformat(), "end": at(120).isoformat()}
@@ -151,6 +151,15 @@ def test_a_coach_view_is_fresh_after_its_own_changes_only(client, tokens, comput
     assert fleet[1]["t_room_c"][1] == 20.0
     assert fleet == fresh(client, f"{API}/coaches", viewer)
     assert client.get(f"{API}/coaches/nope", headers=viewer).status_code == 404
+
+    # the retention deletes every row, the newest included: both views are computed again
+    with client.app.state.db.transaction() as s:
+        partitions.raw_retention(s, 1, at(12) + timedelta(days=1))
+    computed["view"].clear()
+    fleet = get(client, f"{API}/coaches", viewer)
+    assert sorted(computed["view"]) == ["A", "B"]
+    assert [c["t_room_c"] for c in fleet] == [None, None]
+    assert fleet == fresh(client, f"{API}/coaches", viewer)
 
 
 # --- the cache itself ----------------------------------------------------------------------------

@@ -23,6 +23,7 @@ from trainclimate.service.store import liveness
 from trainclimate.service.store.comfort import comfort_now
 from trainclimate.service.store.models import (
     Coach,
+    CoachFeed,
     CoachLiveness,
     FleetClock,
     Override,
@@ -265,26 +266,32 @@ def live_clocks(session: Session) -> liveness.Clocks:
 def coach_states(session: Session, coach_id: str | None = None) -> list[tuple[Coach, tuple]]:
     """Every coach by id (or only ``coach_id``: :class:`NotFoundError` if there is none) with,
     read in the same statement, the state its :func:`coach_view` is computed from: the coach's
-    own columns, its newest setpoint tick, its newest telemetry time, its fleet's clock, and how
-    many overrides it has and how many of them were cancelled. The view reads the same coach
-    row; setpoints and telemetry are only inserted, clocks only advance, and an override is only
-    ever cancelled once, so a coach whose state is unchanged has an unchanged view. In particular
-    the newest telemetry row — whose ``connected`` decides ``disconnected`` and whose decks
-    decide ``comfort`` — is never rewritten (a resent minute is skipped): a new one changes the
-    newest time."""
+    own columns, its newest setpoint tick, its newest and oldest telemetry times as its feed
+    keeps them (:class:`~.models.CoachFeed`, one row per coach: no look-up in the telemetry),
+    its fleet's clock, and how many overrides it has and how many of them were cancelled. The
+    view reads the same coach row; setpoints and telemetry are only inserted, clocks only
+    advance, and an override is only ever cancelled once, so a coach whose state is unchanged
+    has an unchanged view. In particular the newest telemetry row — whose ``connected`` decides
+    ``disconnected`` and whose decks decide ``comfort`` — is never rewritten (a resent minute is
+    skipped): a new one changes the newest time; the retention, which deletes rows, reads the
+    oldest again (:func:`.rollups.recount_firsts`)."""
     newest_tick = select(func.max(Setpoint.tick)).where(Setpoint.coach_id == Coach.id)
-    newest_row = select(func.max(Telemetry.time)).where(Telemetry.coach_id == Coach.id)
     clock = select(FleetClock.time).where(FleetClock.name == Coach.fleet)
     overrides = select(func.count()).select_from(Override).where(Override.coach_id == Coach.id)
     cancelled = select(func.count(Override.cancelled_at)).where(Override.coach_id == Coach.id)
-    query = select(
-        Coach,
-        newest_tick.scalar_subquery(),
-        newest_row.scalar_subquery(),
-        clock.scalar_subquery(),
-        overrides.scalar_subquery(),
-        cancelled.scalar_subquery(),
-    ).order_by(Coach.id)
+    query = (
+        select(
+            Coach,
+            newest_tick.scalar_subquery(),
+            CoachFeed.newest,
+            CoachFeed.first,
+            clock.scalar_subquery(),
+            overrides.scalar_subquery(),
+            cancelled.scalar_subquery(),
+        )
+        .outerjoin(CoachFeed, CoachFeed.coach_id == Coach.id)
+        .order_by(Coach.id)
+    )
     if coach_id is not None:
         query = query.where(Coach.id == coach_id)
     rows = session.execute(query).all()
