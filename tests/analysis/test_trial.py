@@ -270,6 +270,8 @@ def test_estimating_many_pairs_at_once_is_estimating_each():
         no_spread,
         _crossover(14, 0.06, 0.9, 0.05, 2),  # the first's sizes: one bootstrap for both
         _crossover(9, 0.03, 1.0, 0.02, 4),
+        # more pairs of the first's sizes than a block of rows holds: two blocks
+        *(_crossover(14, 0.05, 1.0 + k / 20, 0.02, 5 + k) for k in range(studentized.BLOCK_ROWS)),
     ]
     got = estimate_many(pairs, target_half_width_pct=1.0, n_resamples=999, seed=3)
     each = [estimate(d, target_half_width_pct=1.0, n_resamples=999, seed=3) for d in pairs]
@@ -282,7 +284,8 @@ def test_estimating_many_pairs_at_once_is_estimating_each():
         "crossover",
         "crossover",
         "crossover",
-    ]
+    ] + ["crossover"] * studentized.BLOCK_ROWS
+    assert sum(e.savings_ci95_pct is not None for e in got) == 4 + studentized.BLOCK_ROWS
     assert [e.ci_reason for e in got[2:6]] == [
         "fixed plan: the saving is confounded with the coaches' own difference",
         "no comparable days yet",

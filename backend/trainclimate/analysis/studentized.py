@@ -56,6 +56,13 @@ def distinct_resamples(
     return out[0], out[1], draws
 
 
+#: Rows studentized together: the elementwise steps and the quantiles of a block of rows cost
+#: less per row than row by row (450 pairs of 15 + 15 days: 96 ms row by row, 73-78 ms in
+#: blocks of 4-8, measured), and a block of 8 rows' (rows, 4 999) arrays still fits the
+#: processor's cache (16 rows took longer than one by one).
+BLOCK_ROWS = 8
+
+
 def pivot_quantiles(
     a: np.ndarray,
     b: np.ndarray,
@@ -68,17 +75,41 @@ def pivot_quantiles(
     (θ* − θ) / se* of θ = coef (mean a − mean b), shape (rows, 4), from the counts matrices of
     the groups' resamples (:func:`resample_counts`, or the distinct ones and their ``draws``,
     :func:`distinct_resamples`; ``a`` (rows, n_a), ``b`` (rows, n_b), ``coef`` (rows,)). A
-    resample without spread studentizes to ±inf (0/0 to 0)."""
+    resample without spread studentizes to ±inf (0/0 to 0). Each row's quantiles are the same
+    whatever rows it comes with (its matrix products are its own: the matrix library's rounding
+    depends on a product's shape); the rows are taken :data:`BLOCK_ROWS` at a time."""
+    a, b, coef = np.asarray(a), np.asarray(b), np.asarray(coef)
+    return np.concatenate(
+        [
+            _block(
+                a[i : i + BLOCK_ROWS],
+                b[i : i + BLOCK_ROWS],
+                coef[i : i + BLOCK_ROWS],
+                counts_a,
+                counts_b,
+                draws,
+            )
+            for i in range(0, len(a), BLOCK_ROWS)
+        ]
+        or [np.zeros((0, len(QUANTILES)))]
+    )
+
+
+def _block(a, b, coef, counts_a, counts_b, draws) -> np.ndarray:
+    """:func:`pivot_quantiles` of a block of rows."""
     moments = []
     for x, counts in ((a, counts_a), (b, counts_b)):
-        centred = np.asarray(x)
-        centred = centred - centred.mean(axis=1, keepdims=True)
+        centred = x - x.mean(axis=1, keepdims=True)
         rows, n = centred.shape
         # (rows, resamples): the resample's mean less the group's, C·x / n, and the variance
         # of the resample's mean, var / n = (C·x² − n·mean²) / (n (n − 1)) with var the sample
-        # variance (ddof 1); the divisors are applied to x, before the products, which are one
+        # variance (ddof 1); the divisors are applied to x, before the products, each row's
+        # three one product of shape (3, n) × (n, resamples)
         scaled = centred / (n * (n - 1))
-        stacked = np.concatenate([centred / n, scaled * centred, scaled]) @ counts
+        factors = np.concatenate([centred / n, scaled * centred, scaled])
+        stacked = np.empty((3 * rows, counts.shape[1]))
+        for r in range(rows):
+            stacked[r::rows] = factors[r::rows] @ counts
         mean, squares, sums = stacked[:rows], stacked[rows : 2 * rows], stacked[2 * rows :]
         # rounding leaves a resample without spread a little off 0, or below: clipped, as np.var
         moments.append((mean, np.maximum(squares - sums * mean, 0.0)))

@@ -50,6 +50,7 @@ References
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -64,6 +65,14 @@ ESTIMATORS = ("crossover", "fixed_reference", "fixed_naive")
 MIN_GROUP_DAYS = 3
 #: Default target half-width of the 95 % interval for ``days_to_target``. [percentage points]
 TARGET_HALF_WIDTH_PCT = 2.0
+#: Threads computing the bootstraps of many pairs (:func:`estimate_many`): the products, the
+#: elementwise steps and the partitions release the interpreter's lock, so two threads on two
+#: cores take about half the time of one (450 pairs of a 30-day range: 72 against 138 ms,
+#: measured).
+BOOTSTRAP_THREADS = 2
+#: Pairs of one bootstrap job (of the same group sizes): blocks of rows for
+#: :func:`.studentized.pivot_quantiles`.
+_JOB_PAIRS = 32
 
 
 @dataclass
@@ -369,9 +378,10 @@ def estimate_many(
     target_half_width_pct: float = TARGET_HALF_WIDTH_PCT,
     n_resamples: int = 4999,
     seed: int = 0,
+    threads: int = BOOTSTRAP_THREADS,
 ) -> list[TrialEstimate]:
     """:func:`estimate` of every pair, the pairs with the same group sizes sharing their
-    resamples.
+    resamples, in blocks of pairs computed on ``threads`` threads.
 
     The interval is a bootstrap-t (Efron and Tibshirani 1993, ch. 12): each group of days is
     resampled with replacement, the resampled estimate studentized as (θ* − θ) / se*, and the
@@ -389,6 +399,9 @@ def estimate_many(
         Bootstrap resamples.
     seed : int, default 0
         The bootstrap's seed, the same for every pair (each interval is reproducible).
+    threads : int, default :data:`BOOTSTRAP_THREADS`
+        Threads computing the blocks of pairs (numpy releases the interpreter's lock in the
+        products, the elementwise steps and the partitions); the intervals do not depend on it.
 
     Returns
     -------
@@ -411,18 +424,31 @@ def estimate_many(
         else:
             sizes = (len(prepared.a), len(prepared.b))
             pending.setdefault(sizes, []).append((i, prepared))
-    for (n_a, n_b), group in pending.items():
-        counts_a, counts_b, draws = studentized.distinct_resamples(n_a, n_b, n_resamples, seed)
-        # one pair per product: the matrix library's rounding depends on a product's shape, and
-        # a pair's interval must not depend on the pairs it is computed with
-        for i, p in group:
-            out[i] = _interval(
-                p,
-                studentized.pivot_quantiles(
-                    p.a[None], p.b[None], np.array([p.coef]), counts_a, counts_b, draws
-                )[0],
-                target_half_width_pct,
-            )
+    # each pair's products are its own: its interval does not depend on the pairs it is
+    # computed with, nor on the thread
+    jobs = [
+        (sizes, group[k : k + _JOB_PAIRS])
+        for sizes, group in pending.items()
+        for k in range(0, len(group), _JOB_PAIRS)
+    ]
+
+    def quantiles(job) -> np.ndarray:
+        (n_a, n_b), group = job
+        return studentized.pivot_quantiles(
+            np.stack([p.a for _, p in group]),
+            np.stack([p.b for _, p in group]),
+            np.array([p.coef for _, p in group]),
+            *studentized.distinct_resamples(n_a, n_b, n_resamples, seed),
+        )
+
+    if threads > 1 and len(jobs) > 1:
+        with ThreadPoolExecutor(threads, thread_name_prefix="bootstrap") as executor:
+            found = list(executor.map(quantiles, jobs))
+    else:
+        found = [quantiles(job) for job in jobs]
+    for (_, group), q in zip(jobs, found, strict=True):
+        for (i, p), row in zip(group, q, strict=True):
+            out[i] = _interval(p, row, target_half_width_pct)
     return [out[i] for i in range(len(days_list))]
 
 
@@ -468,11 +494,11 @@ def _prepare(days: TrialDays) -> TrialEstimate | _Bootstrap:
     else:
         return TrialEstimate(None, None, None, "no comparable days yet", None, counts)
 
-    point = float(_savings(coef * (samples[0].mean() - samples[1].mean())))
+    theta, se = _effect(coef, *samples)
+    point = float(_savings(theta))
     if min(len(g) for g in samples) < MIN_GROUP_DAYS:
         reason = f"fewer than {MIN_GROUP_DAYS} days in a group of the {estimator} estimate"
         return TrialEstimate(estimator, point, None, reason, naive, counts)
-    theta, se = _effect(coef, *samples)
     if not se > 0:
         return TrialEstimate(estimator, point, None, "no day-to-day spread", naive, counts)
     return _Bootstrap(estimator, coef, *samples, theta, se, point, naive, counts)
@@ -503,10 +529,18 @@ def _interval(p: _Bootstrap, q: np.ndarray, target_half_width_pct: float) -> Tri
 
 def _effect(coef: float, a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """ln(1 − s) = coef (mean a − mean b) and its standard error |coef| √(var a/na + var b/nb)
-    (sample variances)."""
-    theta = coef * (np.mean(a) - np.mean(b))
-    var = np.var(a, ddof=1) / len(a) + np.var(b, ddof=1) / len(b)
-    return float(theta), float(abs(coef) * np.sqrt(var))
+    (sample variances; NaN for a group of one day). The sums are those ``numpy.mean`` and
+    ``numpy.var`` take, in the same order, without their checks, which cost more than the sums
+    with a few days (about 25 µs a pair, measured)."""
+    moments = []
+    for x in (a, b):
+        n = len(x)
+        mean = np.add.reduce(x) / n
+        d = x - mean
+        with np.errstate(all="ignore"):
+            moments.append((mean, np.add.reduce(d * d) / (n - 1) / n))
+    (mean_a, var_a), (mean_b, var_b) = moments
+    return float(coef * (mean_a - mean_b)), float(abs(coef) * np.sqrt(var_a + var_b))
 
 
 def pool(estimates: list[TrialEstimate]) -> dict:
