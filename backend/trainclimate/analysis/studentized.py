@@ -58,8 +58,10 @@ def distinct_resamples(
 
 #: Rows studentized together: the elementwise steps and the quantiles of a block of rows cost
 #: less per row than row by row (450 pairs of 15 + 15 days: 96 ms row by row, 73-78 ms in
-#: blocks of 4-8, measured), and a block of 8 rows' (rows, 4 999) arrays still fits the
-#: processor's cache (16 rows took longer than one by one).
+#: blocks of 4-8, measured). A block of 8 rows' (8, 4 999) arrays (320 kB) may still be handed
+#: back to the kernel by glibc's allocator when freed and fault in again when next allocated
+#: (46 000 page faults for 450 pairs in a process where that happens); larger blocks made that
+#: cost more than they saved (16 rows took longer than one by one).
 BLOCK_ROWS = 8
 
 
