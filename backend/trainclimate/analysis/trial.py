@@ -533,11 +533,11 @@ def _effect(coef: float, a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     ``numpy.var`` take, in the same order, without their checks, which cost more than the sums
     with a few days (about 25 µs a pair, measured)."""
     moments = []
-    for x in (a, b):
-        n = len(x)
-        mean = np.add.reduce(x) / n
-        d = x - mean
-        with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):
+        for x in (a, b):
+            n = len(x)
+            mean = np.add.reduce(x) / n
+            d = x - mean
             moments.append((mean, np.add.reduce(d * d) / (n - 1) / n))
     (mean_a, var_a), (mean_b, var_b) = moments
     return float(coef * (mean_a - mean_b)), float(abs(coef) * np.sqrt(var_a + var_b))
