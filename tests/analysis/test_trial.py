@@ -1,6 +1,7 @@
 """Trial plans and the savings estimators that cancel the coaches' own difference."""
 
 import itertools
+from concurrent.futures import ThreadPoolExecutor
 from datetime import date
 
 import numpy as np
@@ -9,7 +10,14 @@ import pytest
 from scipy import stats
 
 from trainclimate.analysis import studentized
-from trainclimate.analysis.trial import TrialDays, daily, estimate, estimate_many, pool
+from trainclimate.analysis.trial import (
+    TrialDays,
+    daily,
+    estimate,
+    estimate_many,
+    estimates_later,
+    pool,
+)
 from trainclimate.analysis.trial_plan import (
     NEITHER,
     activated,
@@ -275,6 +283,9 @@ def test_estimating_many_pairs_at_once_is_estimating_each():
     ]
     got = estimate_many(pairs, target_half_width_pct=1.0, n_resamples=999, seed=3)
     each = [estimate(d, target_half_width_pct=1.0, n_resamples=999, seed=3) for d in pairs]
+    with ThreadPoolExecutor(2) as executor:  # the bootstraps on a caller's threads
+        later = estimates_later(pairs, executor, target_half_width_pct=1.0, n_resamples=999, seed=3)
+        assert later() == got
     assert [e.estimator for e in got] == [
         "crossover",
         "fixed_reference",

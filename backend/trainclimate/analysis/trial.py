@@ -50,7 +50,8 @@ References
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -245,19 +246,22 @@ def days_from_sums(
         [1, 2, 3],
         default=0,
     )
-    names = {1: "too_few_windows", 2: "mixed_activation", 3: "no_energy"}
+    names = ("too_few_windows", "mixed_activation", "no_energy")
+    some = n > 0
+    good = some & (reason == 0)
+    # (P, 3): each pair's days with counted windows dropped for each reason
+    dropped = np.stack([(some & (reason == c)).sum(axis=-1) for c in (1, 2, 3)], -1).tolist()
+    day, activated, windows = np.asarray(day), label.astype(np.int64), n.astype(np.int64)
     out = []
     for p in range(len(n)):
-        some = n[p] > 0
-        good = some & (reason[p] == 0)
-        codes, k = np.unique(reason[p][some & ~good], return_counts=True)
+        mine = good[p]
         out.append(
             TrialDays(
-                day=np.asarray(day[p])[good],
-                energy_kwh=total[p][good].reshape(-1, 2),
-                activated=label[p][good].astype(np.int64),
-                windows=n[p][good].astype(np.int64),
-                dropped={names[int(c)]: int(m) for c, m in zip(codes, k, strict=True)},
+                day=day[p][mine],
+                energy_kwh=total[p][mine].reshape(-1, 2),
+                activated=activated[p][mine],
+                windows=windows[p][mine],
+                dropped={name: k for name, k in zip(names, dropped[p], strict=True) if k},
             )
         )
     return out
@@ -413,6 +417,29 @@ def estimate_many(
     ValueError
         If ``n_resamples`` is below 1.
     """
+    kwargs = {
+        "target_half_width_pct": target_half_width_pct,
+        "n_resamples": n_resamples,
+        "seed": seed,
+    }
+    if threads <= 1:
+        return estimates_later(days_list, None, **kwargs)()
+    with ThreadPoolExecutor(threads, thread_name_prefix="bootstrap") as executor:
+        return estimates_later(days_list, executor, **kwargs)()
+
+
+def estimates_later(
+    days_list: list[TrialDays],
+    executor: Executor | None,
+    *,
+    target_half_width_pct: float = TARGET_HALF_WIDTH_PCT,
+    n_resamples: int = 4999,
+    seed: int = 0,
+) -> Callable[[], list[TrialEstimate]]:
+    """:func:`estimate_many` with the bootstraps' blocks of pairs handed to ``executor`` (None:
+    computed here, now), so that the caller goes on while they run: the function returned
+    waits for them and gives the estimates, in the order of ``days_list``. Raises ValueError
+    if ``n_resamples`` is below 1."""
     if n_resamples < 1:
         raise ValueError("the bootstrap needs at least one resample")
     out: dict[int, TrialEstimate] = {}
@@ -441,15 +468,18 @@ def estimate_many(
             *studentized.distinct_resamples(n_a, n_b, n_resamples, seed),
         )
 
-    if threads > 1 and len(jobs) > 1:
-        with ThreadPoolExecutor(threads, thread_name_prefix="bootstrap") as executor:
-            found = list(executor.map(quantiles, jobs))
+    if executor is None or len(jobs) < 2:
+        found, futures = [quantiles(job) for job in jobs], []
     else:
-        found = [quantiles(job) for job in jobs]
-    for (_, group), q in zip(jobs, found, strict=True):
-        for (i, p), row in zip(group, q, strict=True):
-            out[i] = _interval(p, row, target_half_width_pct)
-    return [out[i] for i in range(len(days_list))]
+        found, futures = [], [executor.submit(quantiles, job) for job in jobs]
+
+    def result() -> list[TrialEstimate]:
+        for (_, group), q in zip(jobs, found or [f.result() for f in futures], strict=True):
+            for (i, p), row in zip(group, q, strict=True):
+                out[i] = _interval(p, row, target_half_width_pct)
+        return [out[i] for i in range(len(days_list))]
+
+    return result
 
 
 @dataclass

@@ -18,6 +18,7 @@ are unchanged (:func:`.pair_windows.pair_states`).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timedelta
 
 import numpy as np
@@ -100,16 +101,24 @@ def pair_results(
         # plans them once for any bounds: reading 14 400 pair days took 160-228 ms so, against
         # 60-68 ms planned for its values (measured); the rest of the transaction reads alike
         session.execute(text("SET LOCAL plan_cache_mode = force_custom_plan"))
-    # the figures are kept, not the sums they came from: one answer per train and range
-    for i in range(0, len(missing), _CHUNK):
-        chunk = missing[i : i + _CHUNK]
-        found = pair_days_read.pair_results(
-            session, [m[0] for m in chunk], [m[1] for m in chunk], overrides
-        )
-        for (pair, _, state, key), result in zip(chunk, found, strict=True):
-            out[pair[0]] = result
-            if cache is not None:
-                cache.put(key, state, result)
+    # each chunk's bootstraps run on their own threads while the next chunk is read (the
+    # reads leave most of the second core idle); the figures are kept, not the sums they came
+    # from: one answer per train and range
+    with ThreadPoolExecutor(trial.BOOTSTRAP_THREADS, thread_name_prefix="bootstrap") as executor:
+        read = [
+            (
+                chunk,
+                pair_days_read.pair_results_later(
+                    session, [m[0] for m in chunk], [m[1] for m in chunk], overrides, executor
+                ),
+            )
+            for chunk in (missing[i : i + _CHUNK] for i in range(0, len(missing), _CHUNK))
+        ]
+        for chunk, results in read:
+            for (pair, _, state, key), result in zip(chunk, results(), strict=True):
+                out[pair[0]] = result
+                if cache is not None:
+                    cache.put(key, state, result)
     return out
 
 

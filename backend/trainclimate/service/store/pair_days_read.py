@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import functools
 import itertools
+from collections.abc import Callable
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
@@ -20,7 +22,7 @@ import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial_plan
+from trainclimate.analysis import trial, trial_plan
 from trainclimate.service.store import binary_rows, pair_labels, pair_trial, pair_windows, queries
 from trainclimate.service.store.pair_days import (
     WINDOW_MIN,
@@ -134,6 +136,17 @@ def pair_results(
     switch_hours: list[int],
     overrides: list,
 ) -> list[dict]:
+    """:func:`pair_results_later`, the trial estimates computed here, now."""
+    return pair_results_later(session, pairs, switch_hours, overrides, None)()
+
+
+def pair_results_later(
+    session: Session,
+    pairs: list[tuple[str, str, datetime, datetime]],
+    switch_hours: list[int],
+    overrides: list,
+    executor: Executor | None,
+) -> Callable[[], list[dict]]:
     """Each pair's figures over its range (lo, hi] of 30-minute windows as
     :func:`.pair_trial.pair_results` gives them (``meter``, ``totals``, ``estimate``,
     ``reasons``, ``counted_windows``, ``figures``; not the arrays per window), its whole
@@ -142,8 +155,10 @@ def pair_results(
     rollups). Its fleet chart as ``chart`` — the counted windows and their energies
     (:data:`~.pair_trial.CHART_FIELDS`) of the days not read from their rows — and
     ``chart_days``, the days read from their pair days' rows and those rows' chart digests
-    (two arrays: their charts are pooled by :func:`.fleet_days.charts`). In the order of
-    ``pairs``."""
+    (two arrays: their charts are pooled by :func:`.fleet_days.charts`). Everything is read
+    before this returns; the trial estimates' bootstraps are handed to ``executor``
+    (:func:`trainclimate.analysis.trial.estimates_later`: None computes them now), and the
+    function returned waits for them and gives the results, in the order of ``pairs``."""
     layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
     keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
     span = [s.day for _, segs in layout for s in segs]
@@ -176,7 +191,7 @@ def pair_results(
                 session, pairs, switch_hours, layout, windows, stored, only=missing, at=position
             )
         _compute(waiting, layout, position, windows, state, days)
-    return _assemble(days)
+    return _assemble(days, executor)
 
 
 def _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows) -> None:
@@ -267,11 +282,12 @@ def _compute(waiting, layout, position, windows, state, days) -> None:
             position[i] += 1
 
 
-def _assemble(days: list[list]) -> list[dict]:
+def _assemble(days: list[list], executor: Executor | None) -> Callable[[], list[dict]]:
     """Each pair's result from its days in order, stored rows (their fields read all at once)
     or :class:`~.pair_days.Day` (:func:`.pair_trial.results_from_fields`), with its ``chart``
     (of its :class:`~.pair_days.Day`) and ``chart_days`` (its stored rows' days and chart
-    digests, two arrays)."""
+    digests, two arrays), once its trial estimate is computed (on ``executor``): the
+    function returned gives them."""
     rows = [
         (p, slot, d)
         for p, mine in enumerate(days)
@@ -297,14 +313,19 @@ def _assemble(days: list[list]) -> list[dict]:
             if isinstance(d, Day):
                 fields[p, slot] = d.fields
                 ordinals[p, slot] = d.day
-    out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN)
-    bounds = np.searchsorted(at_pair, np.arange(len(days) + 1)).tolist()
-    for p, (mine, result) in enumerate(zip(days, out, strict=True)):
-        computed = [d for d in mine if isinstance(d, Day)]
-        result["chart"] = (
-            np.concatenate([np.zeros(0, np.int64), *(d.chart_windows for d in computed)]),
-            np.concatenate([np.zeros((0, len(CHART_FIELDS))), *(d.chart for d in computed)]),
-        )
-        a, b = bounds[p], bounds[p + 1]
-        result["chart_days"] = (read_days[a:b], digests[a:b])
-    return out
+    estimates = trial.estimates_later(pair_trial.trial_days(fields, ordinals), executor)
+
+    def results() -> list[dict]:
+        out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN, estimates())
+        bounds = np.searchsorted(at_pair, np.arange(len(days) + 1)).tolist()
+        for p, (mine, result) in enumerate(zip(days, out, strict=True)):
+            computed = [d for d in mine if isinstance(d, Day)]
+            result["chart"] = (
+                np.concatenate([np.zeros(0, np.int64), *(d.chart_windows for d in computed)]),
+                np.concatenate([np.zeros((0, len(CHART_FIELDS))), *(d.chart for d in computed)]),
+            )
+            a, b = bounds[p], bounds[p + 1]
+            result["chart_days"] = (read_days[a:b], digests[a:b])
+        return out
+
+    return results

@@ -22,6 +22,8 @@ from trainclimate.service.store.pair_labels import REASONS, SUMS_INDEX, UNLABELL
 #: A service day counts with at least this many counted windows.
 MIN_DAY_WINDOWS = 4
 _REASON_NAMES = np.array(REASONS, dtype=object)
+#: The reasons to exclude a window by name, with their codes.
+_REASONS_BY_NAME = sorted((str(name), code) for code, name in enumerate(REASONS) if code)
 
 _DECKS = ("up", "mid", "low")
 _GROUPS = {"0": 0, "1": 1, "neither": trial_plan.NEITHER}
@@ -92,10 +94,35 @@ def day_starts(day: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.r_[True, day[1:] != day[:-1]]) if len(day) else np.zeros(0, int)
 
 
-def results_from_fields(fields: np.ndarray, days: np.ndarray, window_min: float) -> list[dict]:
+def trial_days(fields: np.ndarray, days: np.ndarray) -> list[trial.TrialDays]:
+    """Each pair's days for its trial estimate on the headline meter (the whole coach's where a
+    counted minute does not split the floor heating off,
+    :func:`trainclimate.analysis.trial.days_from_sums`), from its service days'
+    :data:`FIELDS` (P, D, len(FIELDS)) and their ordinals (P, D)."""
+    split = fields[..., FIELDS_INDEX["unsplit_counted"]].sum(axis=1) == 0
+    trial_energy = np.where(
+        split[:, None, None],
+        fields[..., [FIELDS_INDEX[f"trial_{HEADLINE_METER}_energy_{c}_kwh"] for c in (0, 1)]],
+        fields[..., [FIELDS_INDEX[f"trial_hvac_and_floor_energy_{c}_kwh"] for c in (0, 1)]],
+    )
+    return trial.days_from_sums(
+        days,
+        fields[..., FIELDS_INDEX["trial_windows"]],
+        trial_energy,
+        fields[..., [FIELDS_INDEX[f"trial_{g}_windows"] for g in _GROUPS]],
+        MIN_DAY_WINDOWS,
+    )
+
+
+def results_from_fields(
+    fields: np.ndarray,
+    days: np.ndarray,
+    window_min: float,
+    estimates: list[trial.TrialEstimate] | None = None,
+) -> list[dict]:
     """Pairs' figures from their service days' :data:`FIELDS`: the totals on each meter, the
-    trial estimate on the headline meter (:func:`trainclimate.analysis.trial.days_from_sums`
-    and :func:`~trainclimate.analysis.trial.estimate_many`; with counted windows but no day of
+    trial estimate on the headline meter (:func:`trial_days` and
+    :func:`~trainclimate.analysis.trial.estimate_many`; with counted windows but no day of
     :data:`MIN_DAY_WINDOWS`, the naive figure over them, confounded) and the
     :func:`figures` they make.
 
@@ -107,6 +134,8 @@ def results_from_fields(fields: np.ndarray, days: np.ndarray, window_min: float)
         The days (ordinals), ascending for each pair.
     window_min : float
         Window length. [min]
+    estimates : list of TrialEstimate, optional
+        The pairs' trial estimates of :func:`trial_days` if already computed.
 
     Returns
     -------
@@ -120,42 +149,37 @@ def results_from_fields(fields: np.ndarray, days: np.ndarray, window_min: float)
     column = {name: f[:, i] for name, i in FIELDS_INDEX.items()}
     split = column["unsplit_counted"] == 0
     meter = np.where(split, HEADLINE_METER, "hvac_and_floor")
-    trial_energy = np.where(
-        split[:, None, None],
-        fields[..., [FIELDS_INDEX[f"trial_{HEADLINE_METER}_energy_{c}_kwh"] for c in (0, 1)]],
-        fields[..., [FIELDS_INDEX[f"trial_hvac_and_floor_energy_{c}_kwh"] for c in (0, 1)]],
-    )
-    estimates = trial.estimate_many(
-        trial.days_from_sums(
-            days,
-            fields[..., FIELDS_INDEX["trial_windows"]],
-            trial_energy,
-            fields[..., [FIELDS_INDEX[f"trial_{g}_windows"] for g in _GROUPS]],
-            MIN_DAY_WINDOWS,
-        )
-    )
+    if estimates is None:
+        estimates = trial.estimate_many(trial_days(fields, days))
     n_reasons = np.stack(
         [column["windows"] * 0, *(column[f"excluded_{r}"] for r in REASONS[1:])], -1
+    ).astype(np.int64)
+    # per pair as Python numbers, and the decks' discomfort as rows of one array each: the loop
+    # below runs once per pair
+    value = {name: column[name].tolist() for name in column}
+    discomfort, baseline_discomfort = (
+        f[:, [FIELDS_INDEX[f"discomfort_{role}_{d}_kh"] for d in _DECKS]]
+        for role in ("activated", "deactivated")
     )
     out = []
     for p in range(len(fields)):
+        windows = int(value["windows"][p])
+        excluded = int(value["windows"][p] - value["counted"][p])
         totals = {
             m: PairTotals(
-                energy_activated_kwh=float(column[f"{m}_activated_kwh"][p]),
-                energy_deactivated_kwh=float(column[f"{m}_deactivated_kwh"][p]),
-                windows=int(column["windows"][p]),
-                excluded_windows=int(column["windows"][p] - column["counted"][p]),
+                energy_activated_kwh=value[f"{m}_activated_kwh"][p],
+                energy_deactivated_kwh=value[f"{m}_deactivated_kwh"][p],
+                windows=windows,
+                excluded_windows=excluded,
                 window_min=window_min,
-                counted_hours=float(column["role_minutes"][p] / 60.0),
-                discomfort_kh=f[p, [FIELDS_INDEX[f"discomfort_activated_{d}_kh"] for d in _DECKS]],
-                baseline_discomfort_kh=f[
-                    p, [FIELDS_INDEX[f"discomfort_deactivated_{d}_kh"] for d in _DECKS]
-                ],
+                counted_hours=value["role_minutes"][p] / 60.0,
+                discomfort_kh=discomfort[p],
+                baseline_discomfort_kh=baseline_discomfort[p],
             )
             for m in (METERS if split[p] else ("hvac_and_floor",))
         }
         estimate = estimates[p]
-        counted = int(column["counted"][p])
+        counted = int(value["counted"][p])
         if estimate.estimator is None and counted:
             t = totals[str(meter[p])]
             naive = savings_pct(t.energy_activated_kwh, t.energy_deactivated_kwh)
@@ -165,7 +189,7 @@ def results_from_fields(fields: np.ndarray, days: np.ndarray, window_min: float)
             "meter": str(meter[p]),
             "totals": totals,
             "estimate": estimate,
-            "reasons": n_reasons[p].astype(np.int64),
+            "reasons": n_reasons[p],
             "counted_windows": counted,
         }
         result["figures"] = figures(result, window_min)
@@ -176,12 +200,8 @@ def results_from_fields(fields: np.ndarray, days: np.ndarray, window_min: float)
 def excluded_minutes_by_reason(n_windows: np.ndarray, window_min: float) -> dict[str, float]:
     """Reason → minutes of the windows excluded for it, from how many windows have each code of
     :data:`~.pair_labels.REASONS` (by name). [min]"""
-    found = {
-        str(REASONS[i]): float(n_windows[i] * window_min)
-        for i in range(1, len(REASONS))
-        if n_windows[i]
-    }
-    return dict(sorted(found.items()))
+    n = n_windows.tolist()
+    return {name: float(n[i] * window_min) for name, i in _REASONS_BY_NAME if n[i]}
 
 
 def reasons(result: dict) -> np.ndarray:
