@@ -8,8 +8,9 @@ its answer is kept under in :class:`~trainclimate.service.store.cache.ReadCache`
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterable
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime, timedelta, tzinfo
 from typing import Any
 
 import numpy as np
@@ -498,6 +499,16 @@ def counted_range(
     """
     if earliest is not None and earliest - timedelta(minutes=1) > start:
         start = earliest - timedelta(minutes=1)  # nothing to compare before the pair's data
+    return _whole_windows(start, start.tzinfo, end, window_min)
+
+
+@functools.lru_cache(maxsize=256)
+def _whole_windows(
+    start: datetime, tz: tzinfo | None, end: datetime, window_min: float
+) -> tuple[pd.Timestamp, int]:
+    """:func:`counted_range` from ``start`` (in its time zone ``tz``, part of the key: equal
+    times in two zones are equal keys); kept, since a summary's trains mostly share their range
+    (a Timestamp in a time zone costs tens of µs)."""
     window_us = round(window_min * 60e6)
     first_us = -(-_epoch_us(start) // window_us) * window_us  # the boundary at or after start
     n = (_epoch_us(end) - first_us) // window_us
