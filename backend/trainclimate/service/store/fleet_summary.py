@@ -102,7 +102,7 @@ def pair_results(
         # 60-68 ms planned for its values (measured); the rest of the transaction reads alike
         session.execute(text("SET LOCAL plan_cache_mode = force_custom_plan"))
     # each chunk's bootstraps run on their own threads while the next chunk is read (the
-    # reads leave most of the second core idle); the figures are kept, not the sums they came
+    # reads leave much of the second core idle); the figures are kept, not the sums they came
     # from: one answer per train and range
     with ThreadPoolExecutor(trial.BOOTSTRAP_THREADS, thread_name_prefix="bootstrap") as executor:
         read = [
