@@ -16,7 +16,6 @@ from trainclimate.analysis.trial import (
     estimate,
     estimate_many,
     estimates_later,
-    pool,
 )
 from trainclimate.analysis.trial_plan import (
     NEITHER,
@@ -25,6 +24,7 @@ from trainclimate.analysis.trial_plan import (
     service_day,
     service_days,
 )
+from trainclimate.analysis.trial_pool import pool
 
 
 def test_a_service_day_starts_at_the_local_switch_hour():

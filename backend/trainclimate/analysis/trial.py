@@ -31,8 +31,8 @@ which keeps its coverage near 95 % with the week or two of days a trial has (a p
 interval of the estimate itself covers about 90 % with seven days a group).
 ``days_to_target`` scales the interval's half-width as 1/√days to a target half-width;
 ``meets_guideline_14`` is ASHRAE Guideline 14's criterion (the savings' uncertainty at 68 %
-confidence below 50 % of the savings). Trains pool into a fleet figure by a random-effects
-meta-analysis (DerSimonian and Laird).
+confidence below 50 % of the savings). Trains pool into a fleet figure in
+:mod:`trainclimate.analysis.trial_pool`.
 
 References
 ----------
@@ -43,8 +43,6 @@ References
    ch. 12 (bootstrap-t).
 .. [4] ASHRAE Guideline 14-2014, Measurement of Energy, Demand, and Water Savings, §4.2 and
    Annex B (savings uncertainty).
-.. [5] R. DerSimonian and N. Laird, Meta-analysis in clinical trials, Controlled Clinical Trials
-   7 (1986) 177–188.
 """
 
 from __future__ import annotations
@@ -55,7 +53,6 @@ from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from trainclimate.analysis import studentized
 from trainclimate.analysis.trial_plan import NEITHER
@@ -571,58 +568,3 @@ def _effect(coef: float, a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
             moments.append((mean, np.add.reduce(d * d) / (n - 1) / n))
     (mean_a, var_a), (mean_b, var_b) = moments
     return float(coef * (mean_a - mean_b)), float(abs(coef) * np.sqrt(var_a + var_b))
-
-
-def pool(estimates: list[TrialEstimate]) -> dict:
-    """The fleet's savings from its trains' estimates: a random-effects meta-analysis
-    (DerSimonian and Laird) of those with an interval (``crossover`` and ``fixed_reference``);
-    ``fixed_naive`` trains are not pooled (confounded) and are counted apart. Each train enters
-    with the standard error its 95 % interval implies (half its width over 1.96), so that a
-    train's small-sample uncertainty (the bootstrap-t's wider quantiles) carries into the pool
-    and one train pooled alone keeps its own interval.
-
-    Parameters
-    ----------
-    estimates : list of TrialEstimate
-
-    Returns
-    -------
-    dict
-        ``savings_pct``, ``savings_ci95_pct`` ([low, high] or None), ``savings_ci95_reason``,
-        ``standard_error_pct``, ``tau2`` (between-train variance, %²), ``trains_pooled``,
-        ``trains_confounded`` (fixed without reference), ``trains_without_interval``.
-    """
-    usable = [
-        e for e in estimates if e.savings_ci95_pct is not None and (e.standard_error_pct or 0) > 0
-    ]
-    out = {
-        "trains_pooled": len(usable),
-        "trains_confounded": sum(e.estimator == "fixed_naive" for e in estimates),
-        "trains_without_interval": sum(e.savings_ci95_pct is None for e in estimates),
-        "savings_pct": None,
-        "savings_ci95_pct": None,
-        "savings_ci95_reason": None,
-        "standard_error_pct": None,
-        "tau2": None,
-    }
-    if not usable:
-        out["savings_ci95_reason"] = "no train has an interval yet"
-        return out
-    y = np.array([e.savings_pct for e in usable])
-    z = float(stats.norm.ppf(0.975))
-    v = np.array([(e.savings_ci95_pct[1] - e.savings_ci95_pct[0]) / (2 * z) for e in usable]) ** 2
-    w = 1.0 / v
-    fixed = float(np.sum(w * y) / np.sum(w))
-    q = float(np.sum(w * (y - fixed) ** 2))
-    c = float(np.sum(w) - np.sum(w**2) / np.sum(w))
-    tau2 = max(0.0, (q - (len(y) - 1)) / c) if c > 0 else 0.0
-    w_star = 1.0 / (v + tau2)
-    mean = float(np.sum(w_star * y) / np.sum(w_star))
-    se = float(math.sqrt(1.0 / np.sum(w_star)))
-    out.update(
-        savings_pct=mean,
-        savings_ci95_pct=[mean - z * se, mean + z * se],
-        standard_error_pct=se,
-        tau2=tau2,
-    )
-    return out

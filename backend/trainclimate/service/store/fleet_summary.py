@@ -11,7 +11,7 @@ scheduler once a day is over), the rest from the telemetry's sums per pair and w
 window rollups kept at ingest (:mod:`.rollups`; the raw minutes only for the windows they cannot
 give exactly) and the setpoints' counts per coach and window in the setpoint rollups
 (:mod:`.setpoint_rollups`); the fleet's naive figures pool its trains' energies, its savings
-estimate their trial estimates (:func:`trainclimate.analysis.trial.pool`). Each train's figures
+estimate their trial estimates (:func:`trainclimate.analysis.trial_pool.pool`). Each train's figures
 are kept in the read cache while its rows and setpoints in the counted range and its overrides
 are unchanged (:func:`.pair_windows.pair_states`).
 """
@@ -26,7 +26,7 @@ import pandas as pd
 from sqlalchemy import select, text
 from sqlalchemy.orm import Session
 
-from trainclimate.analysis import trial
+from trainclimate.analysis import trial, trial_pool
 from trainclimate.analysis.savings import PairTotals
 from trainclimate.coach.meters import HEADLINE_METER, METERS
 from trainclimate.service.store import (
@@ -139,7 +139,7 @@ def summary(
     attention now, from their ``views`` (as the fleet list shows them,
     :func:`.queries.coach_view`). Trains without a pair of coaches are left out. Each train's
     figures are its pair comparison's (:func:`pair_result`); the fleet's savings pool the
-    trains' estimates that have an interval (:func:`trial.pool`), and its naive figure the
+    trains' estimates that have an interval (:func:`trial_pool.pool`), and its naive figure the
     trains' energies. With ``cache``, each pair's window sums and setpoint counts are kept
     there while its rows and setpoints in the range and its overrides are unchanged: the range
     ends at the last whole window, so data arriving in the current one leaves it unchanged, and
@@ -253,7 +253,7 @@ def summary(
     starts, n_trains = present + first_w, per_window[present]
     pooled_e = np.stack([np.bincount(offset, e, minlength=len(per_window))[present] for e in all_e])
     totals = fleet[fleet_meter]
-    pooled = trial.pool([r[-1]["estimate"] for r in results])
+    pooled = trial_pool.pool([r[-1]["estimate"] for r in results])
     naive = totals.savings_pct
     clocks_now = {v["id"]: v["clock"] for v in views if v["clock"] is not None}
     return {
