@@ -67,8 +67,9 @@ def run(
        writing its own coaches.
     2. Fleet scale (:mod:`.comparison`): ``pairs`` × 2 coaches × ``days`` of 1-min rows loaded
        with binary COPY and their rollups and pair days built; ``samples`` requests per point of the
-       fleet summary over 6 h, 24 h, 7 d and 30 d, refreshed and over new ranges, and of the pair
-       comparison over 24 h and 7 d; baseline the rollup floor over the same windows.
+       fleet summary over 6 h, 24 h, 7 d and 30 d, refreshed, over new ranges and over the
+       latest ranges (ending in the data's last windows, in the day still running), and of the
+       pair comparison over 24 h and 7 d; baseline the rollup floor over the same windows.
     3. Fleet tick: ``fleet`` live coaches (half activated), simulated minute by minute for a
        lead-in of 14 ticks; after a warm-up tick, ``repeats`` ticks of
        :meth:`~trainclimate.service.scheduler.Scheduler.tick_fleet` are timed; baseline the same
@@ -79,7 +80,7 @@ def run(
        of part 3; ``requests`` requests of ``GET /health`` and ``GET /me`` with and without the
        observing middleware, taking turns; as many scrapes with ``fleet`` coaches tallied.
 
-    The result's ``summary_ms`` (window → ``refresh``/``new`` → ``median``/``p95``),
+    The result's ``summary_ms`` (window → ``refresh``/``new``/``latest`` → ``median``/``p95``),
     ``comparison_ms`` (window → ``median``/``p95``), ``ingest_rows_per_s`` (``commands.ingest``
     with the rollups) and ``rows`` (telemetry rows stored in part 2) gather the headline figures.
     """
@@ -100,7 +101,7 @@ def run(
             sql(url, RESET)  # leave the given database as empty as it came
     return {
         "summary_ms": {
-            name: {kind: _mp(v[kind]) for kind in ("refresh", "new")}
+            name: {kind: _mp(v[kind]) for kind in ("refresh", "new", "latest")}
             for name, v in scale["summary"].items()
         },
         "comparison_ms": {name: _mp(v) for name, v in scale["comparison"].items()},
@@ -135,7 +136,8 @@ def text(d: dict) -> str:
     reasons = ", ".join(f"{k} {v}" for k, v in sorted(t["reasons"].items()))
     summary = "; ".join(
         f"{name} refresh {v['refresh']['median']:.0f}/{v['refresh']['p95']:.0f}, new "
-        f"{v['new']['median']:.0f}/{v['new']['p95']:.0f} "
+        f"{v['new']['median']:.0f}/{v['new']['p95']:.0f}, latest "
+        f"{v['latest']['median']:.0f}/{v['latest']['p95']:.0f} "
         f"(floor p95 {c['floor'][name]['p95_ms']:.1f})"
         for name, v in d["summary_ms"].items()
     )

@@ -220,15 +220,24 @@ def _windows_from_rollups(session, pairs, switch_hours, layout, stored, override
             )
             ranges.append((pairs[i][0], pairs[i][1], lo, hi))
         data = pair_windows.pair_data(session, ranges, WINDOW_MIN, None, overrides)
-        for (k0, k1, i), rng in zip(batch, ranges, strict=True):
-            grid, counts = data[rng[0]]
-            label, code0 = pair_labels.base_windows(grid, counts, WINDOW_MIN)
-            w_lo, segs = layout[i]
-            base = segs[k0].a
-            for k in range(k0, k1):
-                a, b = segs[k].a - base, segs[k].b - base
-                index = np.arange(segs[k].a, segs[k].b) + w_lo
-                windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
+        # the windows' labels and codes of the ranges of one length at once
+        by_length: dict[int, list[tuple[tuple[int, int, int], tuple]]] = {}
+        for run, rng in zip(batch, ranges, strict=True):
+            by_length.setdefault(len(data[rng[0]][0]), []).append((run, data[rng[0]]))
+        for group in by_length.values():
+            grids = np.stack([grid for _, (grid, _) in group])
+            labels, codes = pair_labels.base_windows(
+                grids, np.stack([counts for _, (_, counts) in group]), WINDOW_MIN
+            )
+            for ((k0, k1, i), _), grid, label, code0 in zip(
+                group, grids, labels, codes, strict=True
+            ):
+                w_lo, segs = layout[i]
+                base = segs[k0].a
+                for k in range(k0, k1):
+                    a, b = segs[k].a - base, segs[k].b - base
+                    index = np.arange(segs[k].a, segs[k].b) + w_lo
+                    windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
 
 
 def _windows_from_pair_days(
