@@ -3,10 +3,14 @@ figures themselves are for docs/benchmarks.md, not for a test)."""
 
 from __future__ import annotations
 
+import numpy as np
+import pandas as pd
 import pytest
 
 from helpers.service import PG_SKIP, PG_URL
+from trainclimate.analysis import trial_plan
 from trainclimate.bench import service
+from trainclimate.bench.service import comparison
 from trainclimate.cli import main
 
 
@@ -94,3 +98,18 @@ def test_the_service_benchmark_needs_postgresql(capsys):
     assert "needs PostgreSQL, not sqlite" in capsys.readouterr().err
     assert main(["bench", "service", "--pairs", "0"]) == 2
     assert "--pairs, --days and --samples must be ≥ 1" in capsys.readouterr().err
+
+
+def test_the_latest_ranges_end_each_in_a_window_of_its_own_in_the_day_still_running():
+    rng = np.random.default_rng(0)
+    ends = [comparison._latest_end(rng, 2, k) for k in range(43)]
+    data_end = comparison.DATA_START + pd.Timedelta(days=2)
+    # each request a new range (the read cache cannot answer it), newest first: it ends at the
+    # start of the window its end falls in
+    his = [e.floor("30min") for e in ends]
+    assert his == [data_end - pd.Timedelta(minutes=30 * (k + 1)) for k in range(43)]
+    assert all(e > hi for e, hi in zip(ends, his, strict=True))
+    # its last window in the data's last service day, which no pair day holds yet
+    last_windows = pd.DatetimeIndex(his) - pd.Timedelta(minutes=30)
+    last_day = trial_plan.service_day(data_end - pd.Timedelta(minutes=30), 3).toordinal()
+    assert set(trial_plan.service_days(last_windows).tolist()) == {last_day}

@@ -210,7 +210,8 @@ def _random_end(rng, days: int) -> pd.Timestamp:
 def _latest_end(rng, days: int, k: int) -> pd.Timestamp:
     """A random minute inside the data's (k + 1)-th last 30-minute window but its first: a range
     ending there ends on that window's start, in the day still running (no pair day yet), as
-    every range ending now does when a new window is complete."""
+    every range ending now does when a new window is complete. The data end at midnight UTC and
+    the service days switch at 02:00 UTC, so for k < 43 that day is the data's last."""
     window_start = DATA_START + pd.Timedelta(days=days) - pd.Timedelta(minutes=30 * (k + 1))
     return window_start + pd.Timedelta(minutes=int(rng.integers(1, 30)))
 
