@@ -220,24 +220,31 @@ def _windows_from_rollups(session, pairs, switch_hours, layout, stored, override
             )
             ranges.append((pairs[i][0], pairs[i][1], lo, hi))
         data = pair_windows.pair_data(session, ranges, WINDOW_MIN, None, overrides)
-        # the windows' labels and codes of the ranges of one length at once
-        by_length: dict[int, list[tuple[tuple[int, int, int], tuple]]] = {}
-        for run, rng in zip(batch, ranges, strict=True):
-            by_length.setdefault(len(data[rng[0]][0]), []).append((run, data[rng[0]]))
-        for group in by_length.values():
-            grids = np.stack([grid for _, (grid, _) in group])
-            labels, codes = pair_labels.base_windows(
-                grids, np.stack([counts for _, (_, counts) in group]), WINDOW_MIN
-            )
-            for ((k0, k1, i), _), grid, label, code0 in zip(
-                group, grids, labels, codes, strict=True
-            ):
-                w_lo, segs = layout[i]
-                base = segs[k0].a
-                for k in range(k0, k1):
-                    a, b = segs[k].a - base, segs[k].b - base
-                    index = np.arange(segs[k].a, segs[k].b) + w_lo
-                    windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
+        grids = [data[rng[0]][0] for rng in ranges]
+        labelled = _base_windows(grids, [data[rng[0]][1] for rng in ranges])
+        for (k0, k1, i), grid, (label, code0) in zip(batch, grids, labelled, strict=True):
+            w_lo, segs = layout[i]
+            base = segs[k0].a
+            for k in range(k0, k1):
+                a, b = segs[k].a - base, segs[k].b - base
+                index = np.arange(segs[k].a, segs[k].b) + w_lo
+                windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
+
+
+def _base_windows(grids: list, counts: list) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`.pair_labels.base_windows` of each range's sums and setpoint counts, the ranges of
+    one length in one call (a call per train cost 135 ms for 450 trains, measured)."""
+    by_length: dict[int, list[int]] = {}
+    for j, grid in enumerate(grids):
+        by_length.setdefault(len(grid), []).append(j)
+    out: list = [None] * len(grids)
+    for group in by_length.values():
+        labels, codes = pair_labels.base_windows(
+            np.stack([grids[j] for j in group]), np.stack([counts[j] for j in group]), WINDOW_MIN
+        )
+        for j, label, code in zip(group, labels, codes, strict=True):
+            out[j] = (label, code)
+    return out
 
 
 def _windows_from_pair_days(
