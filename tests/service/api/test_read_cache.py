@@ -180,6 +180,17 @@ def test_the_cache_keeps_one_answer_per_key_and_at_most_size():
     assert ReadCache(0).get("a", 1, lambda: "computed") == "computed"
 
 
+def test_a_peek_gives_the_answer_with_its_state_and_changes_nothing():
+    cache = ReadCache(2)
+    assert cache.peek("a") is None
+    cache.put("a", 1, "a1")
+    cache.put("b", 1, "b1")
+    assert cache.peek("a") == (1, "a1")
+    cache.put("c", 1, "c1")  # the peek did not make a the most recently used: it goes
+    assert cache.peek("a") is None and cache.peek("b") == (1, "b1")
+    assert (cache.hits, cache.misses) == (0, 0)
+
+
 def test_simultaneous_misses_compute_once():
     cache = ReadCache(4)
     started, release = threading.Event(), threading.Event()

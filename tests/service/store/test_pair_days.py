@@ -27,6 +27,7 @@ from trainclimate.service.store import (
     fleet_summary,
     pair_days,
     pair_days_read,
+    pair_windows,
     partitions,
     setpoint_rollups,
 )
@@ -392,6 +393,66 @@ def test_a_summary_is_read_again_when_a_pair_day_changes_under_it(fleet, monkeyp
         got = fleet_summary.summary(s, [], 72, START + timedelta(minutes=MINUTES), cache)
     _assert_same({0: got}, {0: want})
     assert len(calls) == 2
+
+
+def test_a_range_ending_now_reads_only_the_windows_of_its_day_new_since_the_last(
+    fleet, monkeypatch
+):
+    """The day still running (service day 5, from 02:00 UTC) read through the cache: a range
+    ending later reads only the windows after those kept, one ending earlier none; a late row or
+    an override over the day has it read whole again; rows after the kept end change nothing.
+    Every summary equals the one computed without the cache."""
+    assert _build(fleet) == 12
+    read: list[tuple] = []
+    pair_data = pair_windows.pair_data
+
+    def spied(session, pairs, *args):
+        read.extend((c0, lo, hi) for c0, _, lo, hi in pairs)
+        return pair_data(session, pairs, *args)
+
+    monkeypatch.setattr(pair_windows, "pair_data", spied)
+    cache = ReadCache(256)
+    day_start = START + timedelta(days=5, hours=2)
+
+    def at(minutes_after_start: int, hours: int = 24) -> list[tuple]:
+        """The ranges read for a summary ending that long after the day's start, checked
+        against the summary without the cache."""
+        read.clear()
+        end = day_start + timedelta(minutes=minutes_after_start)
+        with fleet.transaction() as s:
+            got = fleet_summary.summary(s, [], hours, end, cache)
+        mine = sorted(read)
+        with fleet.transaction() as s:
+            _assert_same({0: got}, {0: fleet_summary.summary(s, [], hours, end)})
+        return mine
+
+    def ranges(a: int, b: int) -> list[tuple]:
+        lo, hi = (day_start + timedelta(minutes=m) for m in (a, b))
+        return [("X-A", lo, hi), ("Y-A", lo, hi)]
+
+    assert at(120) == ranges(0, 120)  # the day so far, read whole
+    assert at(90) == []  # before the kept end: nothing read
+    assert at(180) == ranges(120, 180)  # only the new windows
+    with fleet.transaction() as s:  # in order, after the kept end
+        for cid in ("X-A", "X-B", "Y-A", "Y-B"):
+            ingest(s, cid, [flat_row(START + timedelta(minutes=MINUTES + 1))])
+    assert at(180, hours=30) == []
+    with fleet.transaction() as s:  # off the minute grid: counted nowhere, but late
+        ingest(s, "X-B", [flat_row(day_start + timedelta(minutes=40, seconds=30))])
+    assert at(150) == [ranges(0, 150)[0]]  # X read whole again, Y still kept
+    with fleet.transaction() as s:
+        t = day_start + timedelta(minutes=65)
+        s.add(
+            Override(
+                coach_id="Y-A",
+                t_ref_c=21.0,
+                starts_at=t,
+                ends_at=t + timedelta(minutes=20),
+                reason="test",
+                created_by="test",
+            )
+        )
+    assert at(150, hours=26) == [ranges(0, 150)[1]]
 
 
 def test_the_scheduler_makes_them_a_few_at_a_time(fleet, small_predictor_file):

@@ -82,6 +82,13 @@ class ReadCache:
                 self.misses += 1
             return answer
 
+    def peek(self, key: Hashable) -> tuple[Hashable, Any] | None:
+        """(state, answer) kept under ``key`` whatever its state, else None — for answers whose
+        state the caller can only judge from the answer itself (which range it covers); not
+        counted, and not made the most recently used: what the caller makes of it is."""
+        with self._lock:
+            return self._answers.get(key)
+
     def put(self, key: Hashable, state: Hashable, answer: Any) -> None:
         """Keep ``answer`` under ``key``, computed in ``state`` (nothing with ``size`` 0)."""
         if self.size == 0:

@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial, trial_plan
 from trainclimate.service.store import binary_rows, pair_labels, pair_trial, pair_windows, queries
+from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.pair_days import (
     WINDOW_MIN,
     WINDOW_S,
@@ -146,6 +147,8 @@ def pair_results_later(
     switch_hours: list[int],
     overrides: list,
     executor: Executor | None,
+    cache: ReadCache | None = None,
+    marks: dict[str, tuple] | None = None,
 ) -> Callable[[], list[dict]]:
     """Each pair's figures over its range (lo, hi] of 30-minute windows as
     :func:`.pair_trial.pair_results` gives them (``meter``, ``totals``, ``estimate``,
@@ -158,13 +161,19 @@ def pair_results_later(
     (two arrays: their charts are pooled by :func:`.fleet_days.charts`). Everything is read
     before this returns; the trial estimates' bootstraps are handed to ``executor``
     (:func:`trainclimate.analysis.trial.estimates_later`: None computes them now), and the
-    function returned waits for them and gives the results, in the order of ``pairs``."""
+    function returned waits for them and gives the results, in the order of ``pairs``. With
+    ``cache``, the windows read from the rollups are kept there from each run's start
+    (:func:`.pair_windows.pair_data_extended`): a range ending now reads only the windows of
+    its service day that are new since the last range read from the same start (``marks``:
+    the coaches' :func:`.pair_windows.coach_marks`, else read there)."""
     layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
     keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
     span = [s.day for _, segs in layout for s in segs]
     stored = _stored(session, keys, (min(span), max(span))) if span else {}
     windows: dict[tuple[int, int], tuple] = {}  # (pair, segment) → (index, grid, label, code0)
-    _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows)
+    _windows_from_rollups(
+        session, pairs, switch_hours, layout, stored, overrides, windows, cache, marks
+    )
     _windows_from_pair_days(session, pairs, switch_hours, layout, windows, stored, partial=True)
     days: list[list] = [[] for _ in pairs]  # per pair its days in order: stored rows or Days
     state = [stored_state(*NO_STATE) for _ in pairs]
@@ -194,10 +203,12 @@ def pair_results_later(
     return _assemble(days, executor)
 
 
-def _windows_from_rollups(session, pairs, switch_hours, layout, stored, overrides, windows) -> None:
-    """The windows of every segment without a pair day, from the rollups: each pair's
-    consecutive such segments read as one range, the pairs' first ranges together, then their
-    second ones, …"""
+def _windows_from_rollups(
+    session, pairs, switch_hours, layout, stored, overrides, windows, cache, marks
+) -> None:
+    """The windows of every segment without a pair day, from the rollups (through ``cache``,
+    :func:`.pair_windows.pair_data_extended`): each pair's consecutive such segments read as
+    one range, the pairs' first ranges together, then their second ones, …"""
     runs: list[list[tuple[int, int, int]]] = []  # per pair: (first segment, last segment + 1)
     for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
         mine: list[tuple[int, int, int]] = []
@@ -219,7 +230,7 @@ def _windows_from_rollups(session, pairs, switch_hours, layout, stored, override
                 pd.Timestamp(w * WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (a, b)
             )
             ranges.append((pairs[i][0], pairs[i][1], lo, hi))
-        data = pair_windows.pair_data(session, ranges, WINDOW_MIN, None, overrides)
+        data = pair_windows.pair_data_extended(session, ranges, WINDOW_MIN, cache, overrides, marks)
         grids = [data[rng[0]][0] for rng in ranges]
         labelled = _base_windows(grids, [data[rng[0]][1] for rng in ranges])
         for (k0, k1, i), grid, (label, code0) in zip(batch, grids, labelled, strict=True):

@@ -298,20 +298,11 @@ def pair_counts(
     return out
 
 
-def pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
-    """What each pair's sums and setpoint counts over its range (lo, hi] are computed from, in
-    two look-ups of one row per coach: per coach its newest telemetry row up to ``hi`` and its
-    late rows (:class:`~.models.CoachFeed`), and its last tick up to ``hi``; and the overrides
-    of either coach overlapping the range, as they are (a cancellation changes them).
-
-    Telemetry is only ever inserted: a row arriving in order lands after the coach's newest,
-    which moves while it is before ``hi``; one arriving late counts in its late rows. Setpoints
-    are inserted at ticks after the coach's last tick, which the same transaction advances.
-    So a range whose state is unchanged has the same rows and setpoints (a late row elsewhere
-    in the coach's history changes the state too: a recomputation, never a stale answer)."""
-    if not pairs:
-        return []
-    coaches = sorted({c for pair in pairs for c in pair[:2]})
+def coach_marks(session: Session, coaches) -> dict[str, tuple]:
+    """What :func:`pair_states` reads of each of ``coaches``, in two look-ups of one row per
+    coach: coach id → (its newest telemetry time and its late rows, as its feed keeps them
+    (:class:`~.models.CoachFeed`), its last tick); a coach not found is left out. Read once, it
+    serves every :func:`pair_states` of a request."""
     feeds = {
         cid: (newest, late)
         for cid, newest, late in session.execute(
@@ -326,12 +317,31 @@ def pair_states(session: Session, pairs: list, overrides: list) -> list[tuple]:
             select(Coach.id, Coach.last_tick).where(queries.among(Coach.id, coaches))
         )
     }
+    return {c: (*feeds.get(c, (None, 0)), ticks.get(c)) for c in coaches if c in ticks}
+
+
+def pair_states(
+    session: Session, pairs: list, overrides: list, marks: dict[str, tuple] | None = None
+) -> list[tuple]:
+    """What each pair's sums and setpoint counts over its range (lo, hi] are computed from, from
+    its coaches' :func:`coach_marks` (``marks``, else read here): per coach its newest telemetry
+    row up to ``hi`` and its late rows, and its last tick up to ``hi``; and the overrides of
+    either coach overlapping the range, as they are (a cancellation changes them).
+
+    Telemetry is only ever inserted: a row arriving in order lands after the coach's newest,
+    which moves while it is before ``hi``; one arriving late counts in its late rows. Setpoints
+    are inserted at ticks after the coach's last tick, which the same transaction advances.
+    So a range whose state is unchanged has the same rows and setpoints (a late row elsewhere
+    in the coach's history changes the state too: a recomputation, never a stale answer)."""
+    if not pairs:
+        return []
+    if marks is None:
+        marks = coach_marks(session, sorted({c for pair in pairs for c in pair[:2]}))
     states = []
     for c0, c1, lo, hi in pairs:
         per_coach = []
         for c in (c0, c1):
-            newest, late = feeds.get(c, (None, 0))
-            tick = ticks.get(c)
+            newest, late, tick = marks.get(c, (None, 0, None))
             per_coach.append(
                 (
                     None if newest is None else min(newest, hi),
@@ -366,7 +376,9 @@ def pair_data(
         overrides = overrides_over(session, pairs)
     keys = [("pair-data", *pair, window_min) for pair in pairs]
     if states is None:
-        states = pair_states(session, pairs, overrides) if cache else [None] * len(pairs)
+        states = (
+            pair_states(session, pairs, overrides) if cache is not None else [None] * len(pairs)
+        )
     out, missing = {}, []
     for pair, key, state in zip(pairs, keys, states, strict=True):
         kept = cache.lookup(key, state) if cache is not None else None
@@ -383,4 +395,57 @@ def pair_data(
         out[pair[0]] = (grids[pair[0]], counts[pair[0]])
         if cache is not None:
             cache.put(key, state, out[pair[0]])
+    return out
+
+
+def pair_data_extended(
+    session: Session,
+    pairs: list,
+    window_min: float,
+    cache: ReadCache | None,
+    overrides: list,
+    marks: dict[str, tuple] | None = None,
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """:func:`pair_data` of ranges read again and again from one start to a later and later end,
+    as a range ending now reads its service day so far, a window longer every 30 minutes: each
+    pair's windows are kept in ``cache`` from its range's start to the furthest end read, with
+    the state at that end (:func:`pair_states`). A range starting there whose kept windows are
+    still in that state takes them, and reads only the windows after them (none if they reach
+    its end); every other one is read whole. A state unchanged at the kept end means the rows
+    and setpoints up to it are unchanged, and each window's sums are its own: kept and new
+    windows put end to end are the range's. ``overrides``: :func:`overrides_over` the pairs;
+    ``marks``: their coaches' :func:`coach_marks` (else read here).
+    """
+    if cache is None:
+        return pair_data(session, pairs, window_min, None, overrides)
+    keys = [("pair-data-from", c0, c1, lo, window_min) for c0, c1, lo, _ in pairs]
+    kept = [cache.peek(key) for key in keys]
+    held = [(p[0], p[1], p[2], k[1][0]) for p, k in zip(pairs, kept, strict=True) if k]
+    if marks is None:
+        marks = coach_marks(session, sorted({c for pair in pairs for c in pair[:2]}))
+    # ``overrides`` cover each range: a kept end past it can miss an override after the range,
+    # which changes nothing kept up to the range's end — or the state, and the range is read
+    now = iter(pair_states(session, held, overrides, marks))
+    out, todo = {}, []
+    for pair, key, k in zip(pairs, keys, kept, strict=True):
+        c0, _, lo, hi = pair
+        prefix = k[1] if k is not None and next(now) == k[0] else None
+        if prefix is not None and prefix[0] >= hi:
+            n = range_windows(lo, hi, window_min)[1]
+            out[c0] = (prefix[1][:n], prefix[2][:n])
+        else:
+            todo.append((pair, key, prefix))
+    if not todo:
+        return out
+    # the states before the reads: a row arriving meanwhile leaves an older state kept (a
+    # recomputation next time), never newer data's state with older data
+    states = pair_states(session, [t[0] for t in todo], overrides, marks)
+    rest = [(c0, c1, p[0] if p else lo, hi) for (c0, c1, lo, hi), _, p in todo]
+    read = pair_data(session, rest, window_min, None, overrides)
+    for (pair, key, prefix), state in zip(todo, states, strict=True):
+        grid, counts = read[pair[0]]
+        if prefix is not None:
+            grid, counts = np.concatenate([prefix[1], grid]), np.concatenate([prefix[2], counts])
+        out[pair[0]] = (grid, counts)
+        cache.put(key, state, (pair[3], grid, counts))
     return out
