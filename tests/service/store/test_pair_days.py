@@ -399,8 +399,9 @@ def test_a_range_ending_now_reads_only_the_windows_of_its_day_new_since_the_last
     fleet, monkeypatch
 ):
     """The day still running (service day 5, from 02:00 UTC) read through the cache: a range
-    ending later reads only the windows after those kept, one ending earlier none; a late row or
-    an override over the day has it read whole again; rows after the kept end change nothing.
+    ending later reads only the windows after those kept, one ending earlier none, one starting
+    within the day all of its own; a late row or an override over the day has it read whole
+    again; rows after the kept end change nothing.
     Every summary equals the one computed without the cache."""
     assert _build(fleet) == 12
     read: list[tuple] = []
@@ -437,6 +438,9 @@ def test_a_range_ending_now_reads_only_the_windows_of_its_day_new_since_the_last
         for cid in ("X-A", "X-B", "Y-A", "Y-B"):
             ingest(s, cid, [flat_row(START + timedelta(minutes=MINUTES + 1))])
     assert at(180, hours=30) == []
+    # a range starting within the day is not kept: it starts elsewhere next time
+    assert at(150, hours=2) == ranges(30, 150)
+    assert at(180, hours=2.5) == ranges(30, 180)
     with fleet.transaction() as s:  # off the minute grid: counted nowhere, but late
         ingest(s, "X-B", [flat_row(day_start + timedelta(minutes=40, seconds=30))])
     assert at(150) == [ranges(0, 150)[0]]  # X read whole again, Y still kept

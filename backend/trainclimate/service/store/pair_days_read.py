@@ -39,11 +39,13 @@ from trainclimate.service.store.pair_trial import CHART_FIELDS, FIELDS
 
 @dataclass(frozen=True)
 class _Segment:
-    """A pair's service day as its range has it: windows [a, b) of the range, whole or not."""
+    """A pair's service day as its range has it: windows [a, b) of the range, from the day's
+    start or not (``opens``), whole or not."""
 
     day: int
     a: int
     b: int
+    opens: bool
     whole: bool
 
 
@@ -59,9 +61,8 @@ def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, tuple[_Segmen
     out = []
     for a, b in itertools.pairwise(starts):
         d = int(inner[a])
-        out.append(
-            _Segment(d, a, b, not (a == 0 and day[0] == d) and not (b == n and day[-1] == d))
-        )
+        opens = not (a == 0 and day[0] == d)
+        out.append(_Segment(d, a, b, opens, opens and not (b == n and day[-1] == d)))
     return w_lo, tuple(out)
 
 
@@ -206,9 +207,10 @@ def pair_results_later(
 def _windows_from_rollups(
     session, pairs, switch_hours, layout, stored, overrides, windows, cache, marks
 ) -> None:
-    """The windows of every segment without a pair day, from the rollups (through ``cache``,
-    :func:`.pair_windows.pair_data_extended`): each pair's consecutive such segments read as
-    one range, the pairs' first ranges together, then their second ones, …"""
+    """The windows of every segment without a pair day, from the rollups (those from a day's
+    start through ``cache``, :func:`.pair_windows.pair_data_extended`): each pair's consecutive
+    such segments read as one range, the pairs' first ranges together, then their second
+    ones, …"""
     runs: list[list[tuple[int, int, int]]] = []  # per pair: (first segment, last segment + 1)
     for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
         mine: list[tuple[int, int, int]] = []
@@ -230,7 +232,11 @@ def _windows_from_rollups(
                 pd.Timestamp(w * WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (a, b)
             )
             ranges.append((pairs[i][0], pairs[i][1], lo, hi))
-        data = pair_windows.pair_data_extended(session, ranges, WINDOW_MIN, cache, overrides, marks)
+        # kept from a day's start only: a range starting within a day starts elsewhere next time
+        keep = [layout[i][1][k0].opens for k0, _, i in batch]
+        data = pair_windows.pair_data_extended(
+            session, ranges, WINDOW_MIN, cache, overrides, marks, keep
+        )
         grids = [data[rng[0]][0] for rng in ranges]
         labelled = _base_windows(grids, [data[rng[0]][1] for rng in ranges])
         for (k0, k1, i), grid, (label, code0) in zip(batch, grids, labelled, strict=True):

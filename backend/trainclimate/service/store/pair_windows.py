@@ -405,6 +405,7 @@ def pair_data_extended(
     cache: ReadCache | None,
     overrides: list,
     marks: dict[str, tuple] | None = None,
+    keep: list[bool] | None = None,
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """:func:`pair_data` of ranges read again and again from one start to a later and later end,
     as a range ending now reads its service day so far, a window longer every 30 minutes: each
@@ -414,12 +415,16 @@ def pair_data_extended(
     its end); every other one is read whole. A state unchanged at the kept end means the rows
     and setpoints up to it are unchanged, and each window's sums are its own: kept and new
     windows put end to end are the range's. ``overrides``: :func:`overrides_over` the pairs;
-    ``marks``: their coaches' :func:`coach_marks` (else read here).
+    ``marks``: their coaches' :func:`coach_marks` (else read here); ``keep``: per range whether
+    to keep it (default all; a range whose start moves each time would only crowd the cache).
     """
     if cache is None:
         return pair_data(session, pairs, window_min, None, overrides)
-    keys = [("pair-data-from", c0, c1, lo, window_min) for c0, c1, lo, _ in pairs]
-    kept = [cache.peek(key) for key in keys]
+    keys = [
+        ("pair-data-from", c0, c1, lo, window_min) if k else None
+        for (c0, c1, lo, _), k in zip(pairs, keep or [True] * len(pairs), strict=True)
+    ]
+    kept = [cache.peek(key) if key is not None else None for key in keys]
     held = [(p[0], p[1], p[2], k[1][0]) for p, k in zip(pairs, kept, strict=True) if k]
     if marks is None:
         marks = coach_marks(session, sorted({c for pair in pairs for c in pair[:2]}))
@@ -447,5 +452,6 @@ def pair_data_extended(
         if prefix is not None:
             grid, counts = np.concatenate([prefix[1], grid]), np.concatenate([prefix[2], counts])
         out[pair[0]] = (grid, counts)
-        cache.put(key, state, (pair[3], grid, counts))
+        if key is not None:
+            cache.put(key, state, (pair[3], grid, counts))
     return out
