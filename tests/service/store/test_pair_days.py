@@ -109,6 +109,18 @@ def _telemetry(rng, side: str, split: bool) -> list[dict]:
     return rows
 
 
+def _override(coach: str, starts: datetime, minutes: int) -> Override:
+    """An override of ``coach`` to 21 °C from ``starts`` for ``minutes``."""
+    return Override(
+        coach_id=coach,
+        t_ref_c=21.0,
+        starts_at=starts,
+        ends_at=starts + timedelta(minutes=minutes),
+        reason="test",
+        created_by="test",
+    )
+
+
 def _load(url: str) -> None:
     """Two trains (X with the floor heating's share reported, Y without) over five service
     days, an override on Y-A over day 3; no pair days."""
@@ -129,17 +141,7 @@ def _load(url: str) -> None:
                 s.execute(Setpoint.__table__.insert(), rows)
                 setpoint_rollups.add(s, rows)
                 s.get(Coach, cid).last_tick = START + timedelta(minutes=MINUTES)
-        t = START + timedelta(days=3, hours=5)
-        s.add(
-            Override(
-                coach_id="Y-A",
-                t_ref_c=21.0,
-                starts_at=t,
-                ends_at=t + timedelta(minutes=40),
-                reason="test",
-                created_by="test",
-            )
-        )
+        s.add(_override("Y-A", START + timedelta(days=3, hours=5), 40))
     db.dispose()
 
 
@@ -445,17 +447,7 @@ def test_a_range_ending_now_reads_only_the_windows_of_its_day_new_since_the_last
         ingest(s, "X-B", [flat_row(day_start + timedelta(minutes=40, seconds=30))])
     assert at(150) == [ranges(0, 150)[0]]  # X read whole again, Y still kept
     with fleet.transaction() as s:
-        t = day_start + timedelta(minutes=65)
-        s.add(
-            Override(
-                coach_id="Y-A",
-                t_ref_c=21.0,
-                starts_at=t,
-                ends_at=t + timedelta(minutes=20),
-                reason="test",
-                created_by="test",
-            )
-        )
+        s.add(_override("Y-A", day_start + timedelta(minutes=65), 20))
     assert at(150, hours=26) == [ranges(0, 150)[1]]
 
 
