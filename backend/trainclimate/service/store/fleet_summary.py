@@ -108,7 +108,6 @@ def pair_results(
         # plans them once for any bounds: reading 14 400 pair days took 160-228 ms so, against
         # 60-68 ms planned for its values (measured); the rest of the transaction reads alike
         session.execute(text("SET LOCAL plan_cache_mode = force_custom_plan"))
-    stored = pair_days_read.stored_days(session, [m[0] for m in missing], [m[1] for m in missing])
     # each chunk's bootstraps run on their own threads while the next chunk is read (the
     # reads leave much of the second core idle); the figures are kept, not the sums they came
     # from: one answer per train and range
@@ -124,7 +123,6 @@ def pair_results(
                     executor,
                     cache,
                     marks,
-                    stored,
                 ),
             )
             for chunk in (missing[i : i + _CHUNK] for i in range(0, len(missing), _CHUNK))

@@ -72,17 +72,6 @@ def _placed(t) -> tuple:
     return t.c.coach_0, t.c.coach_1, t.c.switch_hour, t.c.day, t.c.first_window, t.c.windows
 
 
-def stored_days(session: Session, pairs: list, switch_hours: list[int]) -> dict[tuple, Any]:
-    """The pair days the ranges of ``pairs`` (coach 0, coach 1, lo, hi) with their switch hours
-    can read (:func:`_stored`): read once for all the chunks of pairs of a request, one scan
-    instead of one a chunk (four chunks' reads of a 30-day range's 14 k rows took 50–65 ms,
-    measured)."""
-    layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
-    keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
-    span = [s.day for _, segs in layout for s in segs]
-    return _stored(session, keys, (min(span), max(span))) if span else {}
-
-
 def _stored(session: Session, keys: set[tuple], days: tuple[int, int]) -> dict[tuple, Any]:
     """The pair days of ``keys`` (coach 0, coach 1, switch hour) over the days [first, last]:
     (coach 0, coach 1, hour, day) → row with its states, fields and chart digest."""
@@ -161,7 +150,6 @@ def pair_results_later(
     executor: Executor | None,
     cache: ReadCache | None = None,
     marks: dict[str, tuple] | None = None,
-    stored: dict[tuple, Any] | None = None,
 ) -> Callable[[], list[dict]]:
     """Each pair's figures over its range (lo, hi] of 30-minute windows as
     :func:`.pair_trial.pair_results` gives them (``meter``, ``totals``, ``estimate``,
@@ -178,11 +166,11 @@ def pair_results_later(
     ``cache``, the windows read from the rollups are kept there from each run's start
     (:func:`.pair_windows.pair_data_extended`): a range ending now reads only the windows of
     its service day that are new since the last range read from the same start (``marks``:
-    the coaches' :func:`.pair_windows.coach_marks`, else read there). ``stored``: the pairs'
-    :func:`stored_days` (or more), else read here."""
+    the coaches' :func:`.pair_windows.coach_marks`, else read there)."""
     layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
-    if stored is None:
-        stored = stored_days(session, pairs, switch_hours)
+    keys = {(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)}
+    span = [s.day for _, segs in layout for s in segs]
+    stored = _stored(session, keys, (min(span), max(span))) if span else {}
     windows: dict[tuple[int, int], tuple] = {}  # (pair, segment) → (index, grid, label, code0)
     _windows_from_rollups(
         session, pairs, switch_hours, layout, stored, overrides, windows, cache, marks
