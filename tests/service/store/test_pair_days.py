@@ -5,7 +5,8 @@ lead-in runs into the next day), hours without setpoints, fallbacks, reference w
 lost link, a coach out of regular mode and an override; a fleet day is used only where it pools
 exactly the pair days read; a late row drops the pair days it changes and their fleet days, and
 the next build makes them again, as it does the days retention cuts into; the scheduler makes
-them a few at a time."""
+them a few at a time; the day still running is kept in the read cache and only its new windows
+are read."""
 
 from __future__ import annotations
 
@@ -403,8 +404,8 @@ def test_a_range_ending_now_reads_only_the_windows_of_its_day_new_since_the_last
     """The day still running (service day 5, from 02:00 UTC) read through the cache: a range
     ending later reads only the windows after those kept, one ending earlier none, one starting
     within the day all of its own; a late row or an override over the day has it read whole
-    again; rows after the kept end change nothing.
-    Every summary equals the one computed without the cache."""
+    again; rows after the kept end change nothing. Every summary equals the one computed
+    without the cache."""
     assert _build(fleet) == 12
     read: list[tuple] = []
     pair_data = pair_windows.pair_data
@@ -417,7 +418,7 @@ def test_a_range_ending_now_reads_only_the_windows_of_its_day_new_since_the_last
     cache = ReadCache(256)
     day_start = START + timedelta(days=5, hours=2)
 
-    def at(minutes_after_start: int, hours: int = 24) -> list[tuple]:
+    def at(minutes_after_start: int, hours: float = 24) -> list[tuple]:
         """The ranges read for a summary ending that long after the day's start, checked
         against the summary without the cache."""
         read.clear()
