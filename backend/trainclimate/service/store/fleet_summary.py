@@ -18,6 +18,7 @@ are unchanged (:func:`.pair_windows.pair_states`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timedelta
 
@@ -89,12 +90,11 @@ def pair_results(
     overrides = pair_windows.overrides_over(session, pairs)
     # what the states are made of, read once for the request (a read per chunk cost 5 ms each,
     # measured); the states of ranges read later in it are as old or older: never too new
-    marks = pair_windows.coach_marks(session, sorted({c for p in pairs for c in p[:2]}))
-    states = (
-        pair_windows.pair_states(session, pairs, overrides, marks)
-        if cache is not None
-        else [None] * len(pairs)
-    )
+    marks: dict[str, tuple] | None = None
+    states: Sequence[tuple | None] = [None] * len(pairs)
+    if cache is not None:
+        marks = pair_windows.coach_marks(session, pairs)
+        states = pair_windows.pair_states(session, pairs, overrides, marks)
     out, missing = {}, []
     for pair, hour, state in zip(pairs, switch_hours, states, strict=True):
         key = ("pair-result", *pair, WINDOW_MIN, hour)

@@ -298,11 +298,12 @@ def pair_counts(
     return out
 
 
-def coach_marks(session: Session, coaches) -> dict[str, tuple]:
-    """What :func:`pair_states` reads of each of ``coaches``, in two look-ups of one row per
-    coach: coach id → (its newest telemetry time and its late rows, as its feed keeps them
-    (:class:`~.models.CoachFeed`), its last tick); a coach not found is left out. Read once, it
-    serves every :func:`pair_states` of a request."""
+def coach_marks(session: Session, pairs: list) -> dict[str, tuple]:
+    """What :func:`pair_states` reads of each coach of ``pairs`` (coach 0, coach 1, …), in two
+    look-ups of one row per coach: coach id → (its newest telemetry time and its late rows, as
+    its feed keeps them (:class:`~.models.CoachFeed`), its last tick); a coach not found is left
+    out. Read once, it serves every :func:`pair_states` of a request."""
+    coaches = sorted({c for pair in pairs for c in pair[:2]})
     feeds = {
         cid: (newest, late)
         for cid, newest, late in session.execute(
@@ -336,7 +337,7 @@ def pair_states(
     if not pairs:
         return []
     if marks is None:
-        marks = coach_marks(session, sorted({c for pair in pairs for c in pair[:2]}))
+        marks = coach_marks(session, pairs)
     states = []
     for c0, c1, lo, hi in pairs:
         per_coach = []
@@ -427,7 +428,7 @@ def pair_data_extended(
     kept = [cache.peek(key) if key is not None else None for key in keys]
     held = [(p[0], p[1], p[2], k[1][0]) for p, k in zip(pairs, kept, strict=True) if k]
     if marks is None:
-        marks = coach_marks(session, sorted({c for pair in pairs for c in pair[:2]}))
+        marks = coach_marks(session, pairs)
     # ``overrides`` cover each range: a kept end past it can miss an override after the range,
     # which changes nothing kept up to the range's end — or the state, and the range is read
     now = iter(pair_states(session, held, overrides, marks))
