@@ -269,9 +269,9 @@ def test_the_summary_from_pair_days_equals_the_rollups(fleet, monkeypatch):
     used = []
     assemble = pair_days_read._assemble
 
-    def spied(days, executor):
+    def spied(days, stored, executor):
         used.extend(d for mine in days for d in mine if not isinstance(d, pair_days.Day))
-        return assemble(days, executor)
+        return assemble(days, stored, executor)
 
     monkeypatch.setattr(pair_days_read, "_assemble", spied)
     got = _summaries(fleet)

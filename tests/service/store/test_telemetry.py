@@ -181,7 +181,7 @@ def test_load_rows_reads_arrays_from_either_database(db_url):
 
 
 @pytest.mark.skipif(not PG_URL, reason=PG_SKIP)
-def test_packed_rows_are_the_query_s_rows_and_refuse_a_null():
+def test_packed_rows_are_the_query_s_rows_and_refuse_a_null_or_a_misshapen_array():
     """PostgreSQL packs the rows into one value: read back they are the query's, as integers
     and floats to the bit; none is an empty array; a NULL, which would drop its row from the
     packing, is an error rather than a row lost."""
@@ -214,6 +214,26 @@ def test_packed_rows_are_the_query_s_rows_and_refuse_a_null():
                 packed_rows(
                     s, sql.SQL("SELECT 1::int8, NULL::float8 UNION ALL SELECT 2, 2.0"), dtype
                 )
+            # a bytea of float64 values (as numpy writes them) read as a fixed-size field; one
+            # of another size is an error, not a row shifted into the next
+            arrays = np.dtype([("k", np.int64), ("v", np.float64, (3,))])
+            values = np.array([[0.5, -1e300, 3.0], [np.pi, 0.0, -0.0]])
+            first = sql.SQL("SELECT 7::int8, {}::bytea").format(values[0].tobytes())
+            got = packed_rows(
+                s,
+                sql.SQL("{} UNION ALL SELECT 8, {}::bytea").format(first, values[1].tobytes()),
+                arrays,
+            )
+            order = np.argsort(got["k"])
+            assert got["k"][order].tolist() == [7, 8]
+            assert got["v"][order].tobytes() == values.tobytes()
+            for other in (np.zeros(1).tobytes()[:1], np.zeros(4).tobytes()):
+                with pytest.raises(RowShapeError, match="misshapen"):
+                    packed_rows(
+                        s,
+                        sql.SQL("{} UNION ALL SELECT 9, {}::bytea").format(first, other),
+                        arrays,
+                    )
     finally:
         db.dispose()
         drop_pg_database(name)

@@ -24,28 +24,52 @@ class RowShapeError(ValueError):
 
 def packed_rows(session: Session, query: sql.Composable, dtype: np.dtype) -> np.ndarray:
     """The rows of ``query`` (a SELECT whose columns are ``dtype``'s fields in order, each
-    ``int64`` or ``float64``, never NULL) read in the session's transaction as one packed
-    ``bytea`` (PostgreSQL only), in no particular order. :class:`RowShapeError` if a value was
-    NULL (its row would be missing from the packed ones: the server's count tells)."""
+    ``int64`` or ``float64``, or a ``bytea`` of float64 values in the machine's order (numpy's
+    ``tobytes``) read as a fixed-size float64 field, never NULL) read in the session's
+    transaction as one packed ``bytea`` (PostgreSQL only), in no particular order.
+    :class:`RowShapeError` if a value was NULL or a ``bytea`` was not its field's size (the
+    packed rows then do not add up to the server's count of rows)."""
     names = dtype.names or ()
-    packed = sql.SQL(" || ").join(
-        sql.SQL("{}(q.{})").format(
-            sql.SQL("int8send" if dtype[name].kind == "i" else "float8send"), sql.Identifier(name)
-        )
+
+    def sent(name: str) -> sql.Composable:
+        column = sql.SQL("q.{}").format(sql.Identifier(name))
+        if dtype[name].subdtype is not None:
+            return column  # its bytes as they are
+        send = "int8send" if dtype[name].kind == "i" else "float8send"
+        return sql.SQL("{}({})").format(sql.SQL(send), column)
+
+    packed = sql.SQL(" || ").join(sent(name) for name in names)
+    # a row counts only if each bytea is its field's size: one that is not then leaves the
+    # packed rows longer than the count says
+    sized = [
+        sql.SQL("length(q.{}) = {}").format(sql.Identifier(name), sql.Literal(dtype[name].itemsize))
         for name in names
-    )
+        if dtype[name].subdtype is not None
+    ]
     statement = sql.SQL(
-        "SELECT count(*), coalesce(string_agg({packed}, ''::bytea), ''::bytea) "
-        "FROM ({query}) AS q({names})"
-    ).format(packed=packed, query=query, names=sql.SQL(", ").join(sql.Identifier(n) for n in names))
+        "SELECT count(*) FILTER (WHERE {sized}), "
+        "coalesce(string_agg({packed}, ''::bytea), ''::bytea) FROM ({query}) AS q({names})"
+    ).format(
+        sized=sql.SQL(" AND ").join(sized) if sized else sql.SQL("true"),
+        packed=packed,
+        query=query,
+        names=sql.SQL(", ").join(sql.Identifier(n) for n in names),
+    )
     raw = session.connection().connection.driver_connection
     if raw is None:
         raise RowShapeError("no driver connection to read through")
     with raw.cursor(binary=True) as cursor:
         n, data = cursor.execute(statement).fetchone()
-    wire = np.dtype([(name, ">i8" if dtype[name].kind == "i" else ">f8") for name in names])
+    wire = np.dtype(
+        [
+            (name, dtype[name])
+            if dtype[name].subdtype is not None
+            else (name, ">i8" if dtype[name].kind == "i" else ">f8")
+            for name in names
+        ]
+    )
     if len(data) != n * wire.itemsize:
-        raise RowShapeError("a packed row is missing: a value was NULL")
+        raise RowShapeError("a packed row is missing or misshapen: a value was NULL or resized")
     return np.frombuffer(data, wire).astype(dtype)
 
 
