@@ -72,22 +72,22 @@ def _placed(t) -> tuple:
     return t.c.coach_0, t.c.coach_1, t.c.switch_hour, t.c.day, t.c.first_window, t.c.windows
 
 
+#: A stored pair day's integer columns a range reads: its day, the states it was entered in and
+#: leaves, its chart digest.
+_INTEGERS = (
+    "day",
+    "entering_label",
+    "entering_age",
+    "exiting_label",
+    "exiting_age",
+    "chart_digest",
+)
 #: A stored pair day as a range reads it (:func:`_stored`): ``key``, the position of its
-#: (coach 0, coach 1, switch hour) among the range's, its day, the states it was entered in and
-#: leaves, its chart digest and its fields (:data:`~.pair_trial.FIELDS`).
+#: (coach 0, coach 1, switch hour) among the range's, :data:`_INTEGERS` and its fields
+#: (:data:`~.pair_trial.FIELDS`).
 _STORED = np.dtype(
-    [
-        (name, np.int64)
-        for name in (
-            "key",
-            "day",
-            "entering_label",
-            "entering_age",
-            "exiting_label",
-            "exiting_age",
-            "chart_digest",
-        )
-    ]
+    [("key", np.int64)]
+    + [(name, np.int64) for name in _INTEGERS]
     + [("fields", np.float64, (len(FIELDS),))]
 )
 
@@ -120,7 +120,7 @@ def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> 
     days, which took 51 ms a row at a time and 37 ms so (measured through the app)."""
     position = {k: i for i, k in enumerate(keys)}
     if session.get_bind().dialect.name == "postgresql":
-        columns = [f"p.{name}::int8" for name in _STORED.names[1:-1]]
+        columns = [f"p.{name}::int8" for name in _INTEGERS]
         query = psql.SQL(
             "SELECT k.i - 1, {columns}, p.fields "
             "FROM unnest({c0}::text[], {c1}::text[], {hour}::int[]) WITH ORDINALITY "
@@ -145,7 +145,8 @@ def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> 
                     t.c.coach_0,
                     t.c.coach_1,
                     t.c.switch_hour,
-                    *(t.c[name] for name in _STORED.names[1:]),
+                    *(t.c[name] for name in _INTEGERS),
+                    t.c.fields,
                 ).where(
                     t.c.day >= days[0],
                     t.c.day <= days[1],
@@ -156,7 +157,7 @@ def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> 
         ]
         rows = np.zeros(len(found), _STORED)
         rows["key"] = [position[(r[0], r[1], r[2])] for r in found]
-        for j, name in enumerate(_STORED.names[1:-1], start=3):
+        for j, name in enumerate(_INTEGERS, start=3):
             rows[name] = [r[j] for r in found]
         if found:
             rows["fields"] = np.frombuffer(b"".join(r[-1] for r in found), np.float64).reshape(
