@@ -106,7 +106,8 @@ def pair_results(
     if missing and session.get_bind().dialect.name == "postgresql":
         # the range's reads run often enough for psycopg to prepare them, and PostgreSQL then
         # plans them once for any bounds: reading 14 400 pair days took 160-228 ms so, against
-        # 60-68 ms planned for its values (measured); the rest of the transaction reads alike
+        # 60-68 ms planned for its values (measured, before they were read packed); the
+        # partial days' windows and the rollups are read alike
         session.execute(text("SET LOCAL plan_cache_mode = force_custom_plan"))
     # each chunk's bootstraps run on their own threads while the next chunk is read (the
     # reads leave much of the second core idle); the figures are kept, not the sums they came

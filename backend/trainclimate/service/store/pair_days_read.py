@@ -102,14 +102,14 @@ def _stored(session: Session, pairs: list, switch_hours: list[int], layout: list
         return np.zeros(0, _STORED), [[] for _ in pairs]
     first, last = min(span), max(span)
     rows = _stored_rows(session, keys, (first, last))
-    table = np.full((len(keys), last - first + 1), -1, np.int64)
-    table[rows["key"], rows["day"] - first] = np.arange(len(rows))
+    placed = np.full((len(keys), last - first + 1), -1, np.int64)
+    placed[rows["key"], rows["day"] - first] = np.arange(len(rows))
     position = {k: i for i, k in enumerate(keys)}
-    at = []
+    row_of = []
     for (c0, c1, _, _), hour, (_, segs) in zip(pairs, switch_hours, layout, strict=True):
         offsets = np.fromiter((seg.day - first for seg in segs), np.int64, len(segs))
-        at.append(table[position[(c0, c1, hour)], offsets].tolist())
-    return rows, at
+        row_of.append(placed[position[(c0, c1, hour)], offsets].tolist())
+    return rows, row_of
 
 
 def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> np.ndarray:
@@ -118,7 +118,6 @@ def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> 
     an index on its coach and day, packed by the server into one value
     (:func:`.binary_rows.packed_rows`): a new 30-day summary of 450 trains reads 13 500 pair
     days, which took 51 ms a row at a time and 37 ms so (measured through the app)."""
-    position = {k: i for i, k in enumerate(keys)}
     if session.get_bind().dialect.name == "postgresql":
         columns = [f"p.{name}::int8" for name in _INTEGERS]
         query = psql.SQL(
@@ -137,6 +136,7 @@ def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> 
         )
         rows = binary_rows.packed_rows(session, query, _STORED)
     else:
+        position = {k: i for i, k in enumerate(keys)}
         t = table()
         found = [
             r
@@ -237,11 +237,12 @@ def pair_results_later(
     its service day that are new since the last range read from the same start (``marks``:
     the coaches' :func:`.pair_windows.coach_marks`, else read there)."""
     layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
-    stored, at = _stored(session, pairs, switch_hours, layout)
+    stored, row_of = _stored(session, pairs, switch_hours, layout)
     windows: dict[tuple[int, int], tuple] = {}  # (pair, segment) → (index, grid, label, code0)
-    _windows_from_rollups(session, pairs, layout, at, overrides, windows, cache, marks)
-    _windows_from_pair_days(session, pairs, switch_hours, layout, windows, at, partial=True)
-    days: list[list] = [[] for _ in pairs]  # per pair its days in order: stored rows or Days
+    _windows_from_rollups(session, pairs, layout, row_of, overrides, windows, cache, marks)
+    _windows_from_pair_days(session, pairs, switch_hours, layout, windows, row_of, partial=True)
+    # per pair its days in order: stored rows (their positions in ``stored``) or Days
+    days: list[list] = [[] for _ in pairs]
     state = [stored_state(*NO_STATE) for _ in pairs]
     position = [0] * len(pairs)
     entering_label, entering_age, exiting_label, exiting_age = (
@@ -254,7 +255,7 @@ def pair_results_later(
             label, age = state[i]
             while position[i] < len(segs):
                 seg = segs[position[i]]
-                r = at[i][position[i]] if seg.whole else -1
+                r = row_of[i][position[i]] if seg.whole else -1
                 if r < 0 or entering_label[r] != label or entering_age[r] != age:
                     break
                 days[i].append(r)
@@ -268,19 +269,20 @@ def pair_results_later(
         missing = [i for i in waiting if (i, position[i]) not in windows]
         if missing:  # whole days entered from another state than they were made from
             _windows_from_pair_days(
-                session, pairs, switch_hours, layout, windows, at, only=missing, at_segment=position
+                session, pairs, switch_hours, layout, windows, row_of, only=missing, at=position
             )
         _compute(waiting, layout, position, windows, state, days)
     return _assemble(days, stored, executor)
 
 
-def _windows_from_rollups(session, pairs, layout, at, overrides, windows, cache, marks) -> None:
-    """The windows of every segment without a pair day, from the rollups (those from a day's
+def _windows_from_rollups(session, pairs, layout, row_of, overrides, windows, cache, marks) -> None:
+    """The windows of every segment without a pair day (``row_of``, :func:`_stored`), from the
+    rollups (those from a day's
     start through ``cache``, :func:`.pair_windows.pair_data_extended`): each pair's consecutive
     such segments read as one range, the pairs' first ranges together, then their second
     ones, …"""
     runs: list[list[tuple[int, int, int]]] = []  # per pair: (first segment, last segment + 1)
-    for i, rows in enumerate(at):
+    for i, rows in enumerate(row_of):
         mine: list[tuple[int, int, int]] = []
         for k, row in enumerate(rows):
             if row >= 0:
@@ -333,20 +335,20 @@ def _base_windows(grids: list, counts: list) -> list[tuple[np.ndarray, np.ndarra
 
 
 def _windows_from_pair_days(
-    session, pairs, switch_hours, layout, windows, at, partial=False, only=None, at_segment=None
+    session, pairs, switch_hours, layout, windows, row_of, partial=False, only=None, at=None
 ) -> None:
-    """The windows of segments from their stored pair days: the partial ones (``partial``), or
-    those at ``at[i]`` for the pairs ``only``."""
+    """The windows of segments from their stored pair days (``row_of``, :func:`_stored`): the
+    partial ones (``partial``), or those at ``at[i]`` for the pairs ``only``."""
     wanted: dict[tuple, list[tuple[int, int]]] = {}
     these = set(only or ())
     for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
         segs = layout[i][1]
-        chosen = range(len(segs)) if partial else [at_segment[i]] if i in these else []
+        chosen = range(len(segs)) if partial else [at[i]] if i in these else []
         for k in chosen:
             seg = segs[k]
             if (i, k) in windows or (partial and seg.whole):
                 continue
-            if at[i][k] >= 0:
+            if row_of[i][k] >= 0:
                 wanted.setdefault((c0, c1, hour, seg.day), []).append((i, k))
     found = _stored_windows(session, list(wanted))
     for key, places in wanted.items():
