@@ -31,7 +31,7 @@ from trainclimate.service.api.schemas.coaches import (
     TimeSeries,
 )
 from trainclimate.service.api.schemas.telemetry import SetpointOut
-from trainclimate.service.store import commands, liveness, queries, records
+from trainclimate.service.store import commands, queries, records
 from trainclimate.service.store.models import Coach, utcnow
 
 router = APIRouter()
@@ -42,8 +42,7 @@ def list_coaches(request: Request, s: DB, _: Viewer) -> list[records.CoachView]:
     """Every coach with its train, layer, status (ok, warm-up, stale, disconnected, fallback,
     override, inactive, not-regular, preparing, no-data), latest readings, whether its decks are
     within the comfort band now, and its setpoint (and whether the coach receives it)."""
-    live = queries.live_clocks(s)
-    return [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
+    return current_views(request, s)
 
 
 @router.post(
@@ -79,24 +78,37 @@ def register_coach(
 )
 def get_coach(coach_id: str, request: Request, s: DB, _: Viewer) -> records.CoachView:
     """One coach, as in the list."""
-    [(coach, state)] = queries.coach_states(s, coach_id)
-    return current_view(request, s, coach, state, queries.live_clocks(s))
+    return current_views(request, s, coach_id)[0]
 
 
-def current_view(
-    request: Request, s: Session, coach: Coach, state: tuple, clocks: liveness.Clocks
-) -> records.CoachView:
-    """The coach's view as the fleet list and the fleet summary show it: from the read cache
-    while its state is unchanged, with a live coach's silence judged now on its own clock
-    (``clocks``: :func:`.queries.live_clocks`; :func:`.queries.with_liveness`)."""
+def current_views(
+    request: Request, s: Session, coach_id: str | None = None
+) -> list[records.CoachView]:
+    """Every coach's view (or only ``coach_id``'s: :class:`~.queries.NotFoundError` if there is
+    none) as the fleet list and the fleet summary show it: from the read cache while its state
+    (:func:`.queries.coach_states`) is unchanged, else computed from its coach row (those rows
+    read together); with a live coach's silence judged now on its own clock
+    (:func:`.queries.live_clocks`, :func:`.queries.with_liveness`)."""
+    states = queries.coach_states(s, coach_id)
+    cache = request.app.state.read_cache
+    stale = [cid for cid, state in states if (cache.peek(("coach", cid)) or (None,))[0] != state]
+    coaches = queries.coach_rows(s, stale)
+    clocks = queries.live_clocks(s)
     stale_periods = settings(request).stale_periods
-    view: records.CoachView = request.app.state.read_cache.get(
-        ("coach", coach.id),
-        state,
-        lambda: queries.coach_view(s, coach, period(request), stale_periods),
-    )
-    clock, prior = clocks.get(coach.id), clocks.fleet_pace
-    return queries.with_liveness(view, clock, utcnow(), period(request), stale_periods, prior)
+    now = utcnow()
+
+    def view(cid: str, state: tuple) -> records.CoachView:
+        kept: records.CoachView = cache.get(
+            ("coach", cid),
+            state,
+            lambda: queries.coach_view(
+                s, coaches.get(cid) or s.get_one(Coach, cid), period(request), stale_periods
+            ),
+        )
+        clock, prior = clocks.get(cid), clocks.fleet_pace
+        return queries.with_liveness(kept, clock, now, period(request), stale_periods, prior)
+
+    return [view(cid, state) for cid, state in states]
 
 
 @router.get(

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Query, Request, Response
 from pydantic import AwareDatetime
 
 from trainclimate.service import exports
-from trainclimate.service.api.coaches import current_view
+from trainclimate.service.api.coaches import current_views
 from trainclimate.service.api.deps import AUTH, DB, Viewer
 from trainclimate.service.api.schemas.base import DIGITS_ONLY
 from trainclimate.service.api.schemas.savings import FleetSummary
@@ -42,8 +42,7 @@ def get_fleet_summary(
     overridden or outside the comfort band for more than 30 min."""
     if end is not None:
         queries.checked_range(end, None, timedelta(hours=hours))  # the API's bounds
-    live = queries.live_clocks(s)
-    views = [current_view(request, s, c, state, live) for c, state in queries.coach_states(s)]
+    views = current_views(request, s)
     return fleet_summary.summary(s, views, hours, end, cache=request.app.state.read_cache)
 
 
