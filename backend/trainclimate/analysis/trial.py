@@ -64,7 +64,7 @@ MIN_GROUP_DAYS = 3
 #: Default target half-width of the 95 % interval for ``days_to_target``. [percentage points]
 TARGET_HALF_WIDTH_PCT = 2.0
 #: Threads computing the bootstraps of many pairs (:func:`estimate_many`): the products, the
-#: elementwise steps and the partitions release the interpreter's lock. On two cores a new
+#: elementwise steps and the sorts release the interpreter's lock. On two cores a new
 #: 30-day fleet summary of 450 trains took ≈ 10 ms less with two threads than with one
 #: (median 320-325 against 331-335 ms, measured through the app).
 BOOTSTRAP_THREADS = 2
@@ -402,7 +402,7 @@ def estimate_many(
         The bootstrap's seed, the same for every pair (each interval is reproducible).
     threads : int, default :data:`BOOTSTRAP_THREADS`
         Threads computing the blocks of pairs (numpy releases the interpreter's lock in the
-        products, the elementwise steps and the partitions); the intervals do not depend on it.
+        products, the elementwise steps and the sorts); the intervals do not depend on it.
 
     Returns
     -------
