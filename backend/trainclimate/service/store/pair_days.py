@@ -115,8 +115,8 @@ def days_from_windows(
     if not len(day):
         return []
     prev, age = pair_labels.lead_state(label, entering)
-    # every day's sums and counted windows at once, then split per day (a reduction and two
-    # selections per day cost 13 µs each, 12 ms for a 30-day summary of 450 trains, measured)
+    # every day's sums and counted windows at once, then split per day (the 8 550 days of twelve
+    # summaries took 180 ms so, against 196 ms with a reduction and two selections per day)
     fields = per_window.sum(axis=1)
     bounds = np.cumsum(counted.sum(axis=1))[:-1]
     chart_windows = np.split(index[counted], bounds)
