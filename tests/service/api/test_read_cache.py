@@ -188,6 +188,8 @@ def test_a_peek_gives_the_answer_with_its_state_and_changes_nothing():
     assert cache.peek("a") == (1, "a1")
     cache.put("c", 1, "c1")  # the peek did not make a the most recently used: it goes
     assert cache.peek("a") is None and cache.peek("b") == (1, "b1")
+    # whether it holds an answer of a state, alike
+    assert cache.holds("b", 1) and not cache.holds("b", 2) and not cache.holds("a", 1)
     assert (cache.hits, cache.misses) == (0, 0)
 
 

@@ -91,8 +91,8 @@ def current_views(
     (:func:`.queries.live_clocks`, :func:`.queries.with_liveness`)."""
     states = queries.coach_states(s, coach_id)
     cache = request.app.state.read_cache
-    kept = {cid: cache.peek(("coach", cid)) for cid, _ in states}
-    coaches = queries.coach_rows(s, [c for c, st in states if (kept[c] or (None,))[0] != st])
+    to_compute = [cid for cid, state in states if not cache.holds(("coach", cid), state)]
+    coaches = queries.coach_rows(s, to_compute)
     clocks = queries.live_clocks(s)
     stale_periods = settings(request).stale_periods
     now = utcnow()

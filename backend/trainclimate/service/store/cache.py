@@ -89,6 +89,14 @@ class ReadCache:
         with self._lock:
             return self._answers.get(key)
 
+    def holds(self, key: Hashable, state: Hashable) -> bool:
+        """Whether an answer computed in ``state`` is kept under ``key``; as :meth:`peek`, not
+        counted and not made the most recently used (for callers that read together what the
+        answers to compute need)."""
+        with self._lock:
+            kept = self._answers.get(key)
+            return kept is not None and kept[0] == state
+
     def put(self, key: Hashable, state: Hashable, answer: Any) -> None:
         """Keep ``answer`` under ``key``, computed in ``state`` (nothing with ``size`` 0)."""
         if self.size == 0:

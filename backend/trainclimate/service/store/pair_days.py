@@ -121,7 +121,7 @@ def days_from_windows(
     bounds = np.cumsum(counted.sum(axis=1))[:-1]
     chart_windows = np.split(index[counted], bounds)
     chart = np.split(per_window[counted][:, CHART_FIELDS], bounds)
-    lead = np.minimum(age, _LEAD).astype(np.int64)
+    lead = np.minimum(age, _LEAD).astype(np.int64)  # as stored_state, for the batch
     exiting = zip(prev.astype(np.int64).tolist(), lead.tolist(), strict=True)
     return [
         Day(day=d, fields=f, chart_windows=w, chart=c, exiting=e)
