@@ -38,7 +38,7 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 #: The newest revision.
-HEAD = "0018"
+HEAD = "0019"
 TABLES = {
     "fleet_days",
     "pair_days",

@@ -370,6 +370,76 @@ def test_fleet_days_pool_exactly_the_pair_days_read(fleet, monkeypatch):
     assert len(read) > 60 and sum(map(len, by_pairs)) < 0.1 * len(read)
 
 
+def test_a_fleet_day_keeps_its_pair_days_as_a_summary_reads_them(fleet, monkeypatch):
+    """A fleet day keeps its members' rows: each pair day's coaches, lead-in states, chart
+    digest and figures. A summary reads whole days from them — kept in the read cache, read
+    from the pair days themselves only for the days without a fleet day — and a fleet day made
+    again after a late row (a new version) replaces the rows kept: the summaries through the
+    cache equal those without it throughout."""
+    assert _build(fleet) == 12
+    with fleet.transaction() as s:
+        assert fleet_days.build(s) == 6
+        for f in s.query(FleetDay):
+            days = (
+                s.query(PairDay)
+                .filter(PairDay.day == f.day, PairDay.switch_hour == f.switch_hour)
+                .order_by(PairDay.coach_0, PairDay.coach_1)
+                .all()
+            )
+            assert f.members.split("\n") == [f"{d.coach_0} {d.coach_1}" for d in days]
+            members = np.frombuffer(f.member_rows, fleet_days.MEMBER)
+            for m, d in zip(members, days, strict=True):
+                assert [int(m[n]) for n in fleet_days.MEMBER_INTEGERS] == [
+                    d.entering_label,
+                    d.entering_age,
+                    d.exiting_label,
+                    d.exiting_age,
+                    d.chart_digest,
+                ]
+                assert m["fields"].tobytes() == d.fields
+    own_rows: list[list[int]] = []  # the days read from the pair days' own rows, per read
+    stored_rows = pair_days_read._stored_rows
+
+    def spied(session, keys, days):
+        rows = stored_rows(session, keys, days)
+        own_rows.append(sorted(set(rows["day"].tolist())))
+        return rows
+
+    monkeypatch.setattr(pair_days_read, "_stored_rows", spied)
+    cache = ReadCache(256)
+    end = START + timedelta(minutes=MINUTES)
+
+    def both(hours: float, at: datetime = end) -> dict:
+        with fleet.transaction() as s:
+            got = fleet_summary.summary(s, [], hours, at, cache)
+        with fleet.transaction() as s:
+            _assert_same({0: got}, {0: fleet_summary.summary(s, [], hours, at)})
+        return got
+
+    both(120)  # service days 0 (from 05:00 UTC) to 5 (running, no pair day yet)
+    kept = {k for k in cache._answers if k[0] == "fleet-day"}
+    assert len(kept) == 5
+    own_rows.clear()
+    both(100, end - timedelta(minutes=45))  # a new range: every pair day from a fleet day
+    assert own_rows and all(days == [] for days in own_rows)
+    # a late row drops a pair day and its fleet day; both made again (another version)
+    late = START + timedelta(minutes=LATE_MINUTE)
+    with fleet.transaction() as s:
+        ingest(s, "X-A", [flat_row(late, power_kw=30.0)])
+    late_day = trial_plan.service_day(pair_days.pd.Timestamp(late), 3).toordinal()
+    own_rows.clear()
+    both(120)  # the day without a fleet day from its pair days
+    assert any(late_day in days for days in own_rows)
+    assert _build(fleet) >= 1
+    with fleet.transaction() as s:
+        assert fleet_days.build(s) >= 1
+    versions = {k: cache._answers[k][0] for k in kept}
+    both(90, end - timedelta(minutes=75))  # a new range (the last one's figures are kept)
+    assert {k for k, v in versions.items() if cache._answers[k][0] != v} >= {
+        ("fleet-day", 3, late_day)
+    }
+
+
 def test_a_summary_is_read_again_when_a_pair_day_changes_under_it(fleet, monkeypatch):
     """A pair day rebuilt between a summary's reads of its fields and of its chart: the chart
     read finds the digest it read gone, and the trains' figures are read again, uncached."""

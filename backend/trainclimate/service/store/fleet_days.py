@@ -11,12 +11,22 @@ day only when the pair days it read for that day are exactly the ones pooled —
 the same digests — and otherwise pools their own charts (:func:`charts`): a fleet day missing
 or out of date costs time, never a figure.
 
+A fleet day also keeps its pair days as a summary over many trains reads them (their coaches,
+lead-in states, chart digests and figures: :data:`MEMBER`), so that a new range of 30 days
+reads 30 rows instead of a row per pair and day (:mod:`.pair_days_read`), and a random
+``version``, so that a reader keeping them knows when the day was made again.
+
 Fleet days are made by the scheduler after the pair days (:func:`build`); every pair day
-written or dropped drops its day's fleet day (:mod:`.pair_days`).
+written or dropped drops its day's fleet day (:mod:`.pair_days`). The builder holds a share
+lock on the pair days it pools until it commits, so a pair day dropped or replaced meanwhile
+waits for it and then drops the new fleet day: a fleet day never keeps a pair day's rows
+after they changed. (A pair day made meanwhile is only missing from it: a summary reads it
+from its own row.)
 """
 
 from __future__ import annotations
 
+import secrets
 from typing import cast
 
 import numpy as np
@@ -25,6 +35,7 @@ from sqlalchemy.orm import Session
 
 from trainclimate.service.store import pair_days, queries
 from trainclimate.service.store.models import FleetDay
+from trainclimate.service.store.pair_trial import FIELDS
 from trainclimate.service.store.upsert import insert_new
 
 #: Digests add up modulo this (they are 63-bit: a sum fits a signed 64-bit column).
@@ -32,6 +43,11 @@ _MODULUS = 1 << 63
 #: A chart's columns: the pairs that count the window, then the energies per meter and role
 #: (:data:`~.pair_trial.CHART_FIELDS`'s order). [1, kWh × 4]
 _COLUMNS = 5
+#: A fleet day's member as a summary reads it: the pair day's lead-in states (the one it was
+#: entered in, the one it leaves) and chart digest (:data:`MEMBER_INTEGERS`) and its figures
+#: (:data:`~.pair_trial.FIELDS`).
+MEMBER_INTEGERS = ("entering_label", "entering_age", "exiting_label", "exiting_age", "chart_digest")
+MEMBER = np.dtype([(name, "<i8") for name in MEMBER_INTEGERS] + [("fields", "<f8", (len(FIELDS),))])
 
 
 def table() -> Table:
@@ -54,8 +70,9 @@ def _pool(windows: int, charts: list[bytes]) -> np.ndarray:
 def build(session: Session, max_days: int | None = None) -> int:
     """Make the fleet days missing: each service day and switch hour with pair days stored and
     no fleet day, from its pair days (in the order of their coaches, so that the sums are
-    the same whoever makes them); at most ``max_days``, oldest first. Concurrent builders
-    insert each once. Returns how many were made."""
+    the same whoever makes them), which stay share-locked until the transaction ends; at most
+    ``max_days``, oldest first. Concurrent builders insert each once. Returns how many were
+    made."""
     p, f = pair_days.table(), table()
     have = select(f.c.switch_hour, f.c.day)
     missing = sorted(
@@ -65,11 +82,26 @@ def build(session: Session, max_days: int | None = None) -> int:
     made = []
     for hour, day in missing[:max_days]:
         rows = session.execute(
-            select(p.c.first_window, p.c.windows, p.c.chart, p.c.chart_digest)
+            select(
+                p.c.coach_0,
+                p.c.coach_1,
+                p.c.first_window,
+                p.c.windows,
+                p.c.chart,
+                *(p.c[name] for name in MEMBER_INTEGERS),
+                p.c.fields,
+            )
             .where(p.c.switch_hour == hour, p.c.day == day)
             .order_by(p.c.coach_0, p.c.coach_1)
+            .with_for_update(read=True)
         ).all()
         first, windows = rows[0].first_window, rows[0].windows
+        members = np.zeros(len(rows), MEMBER)
+        for name in MEMBER_INTEGERS:
+            members[name] = [r._mapping[name] for r in rows]
+        members["fields"] = np.frombuffer(b"".join(r.fields for r in rows), np.float64).reshape(
+            len(rows), len(FIELDS)
+        )
         made.append(
             {
                 "day": day,
@@ -79,6 +111,9 @@ def build(session: Session, max_days: int | None = None) -> int:
                 "pairs": len(rows),
                 "digest": sum(r.chart_digest for r in rows) % _MODULUS,
                 "chart": _pool(windows, [r.chart for r in rows]).tobytes(),
+                "version": secrets.randbits(63),
+                "members": "\n".join(f"{r.coach_0} {r.coach_1}" for r in rows),
+                "member_rows": members.tobytes(),
             }
         )
     insert_new(session, f, made, ["day", "switch_hour"])

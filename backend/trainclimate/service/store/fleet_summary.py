@@ -124,6 +124,7 @@ def pair_results(
                     executor,
                     cache,
                     marks,
+                    fleet=True,
                 ),
             )
             for chunk in (missing[i : i + _CHUNK] for i in range(0, len(missing), _CHUNK))

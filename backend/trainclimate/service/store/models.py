@@ -235,7 +235,11 @@ class FleetDay(Base):
     pooled per window — ``chart``, per window of [``first_window``, ``first_window`` +
     ``windows``) the pairs that count it and their energies per meter and role, float64 × 5 —
     with how many pair days it pools (``pairs``) and the sum of their chart digests modulo
-    2⁶³ (``digest``), by which a summary checks that it pools exactly the pair days it read."""
+    2⁶³ (``digest``), by which a summary checks that it pools exactly the pair days it read;
+    and those pair days as a summary reads them: ``members``, their coaches (``coach_0 coach_1``
+    per line, in order), ``member_rows``, their lead-in states, chart digests and figures
+    packed (:data:`.fleet_days.MEMBER`), and ``version``, a random 63-bit number drawn when the
+    fleet day is made, by which a reader knows the members it keeps are the day's still."""
 
     __tablename__ = "fleet_days"
     day: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
@@ -245,6 +249,9 @@ class FleetDay(Base):
     pairs: Mapped[int] = mapped_column(Integer)
     digest: Mapped[int] = mapped_column(BigInteger)
     chart: Mapped[bytes] = mapped_column(LargeBinary)
+    version: Mapped[int] = mapped_column(BigInteger)
+    members: Mapped[str] = mapped_column(Text)
+    member_rows: Mapped[bytes] = mapped_column(LargeBinary)
 
 
 class CoachFeed(Base):

@@ -23,7 +23,14 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial, trial_plan
-from trainclimate.service.store import binary_rows, pair_labels, pair_trial, pair_windows, queries
+from trainclimate.service.store import (
+    binary_rows,
+    fleet_days,
+    pair_labels,
+    pair_trial,
+    pair_windows,
+    queries,
+)
 from trainclimate.service.store.cache import ReadCache
 from trainclimate.service.store.pair_days import (
     WINDOW_MIN,
@@ -92,16 +99,28 @@ _STORED = np.dtype(
 )
 
 
-def _stored(session: Session, pairs: list, switch_hours: list[int], layout: list) -> tuple:
+def _stored(
+    session: Session,
+    pairs: list,
+    switch_hours: list[int],
+    layout: list,
+    fleet: bool = False,
+    cache: ReadCache | None = None,
+) -> tuple:
     """The stored pair days of the pairs' segments (``layout``, :func:`_segments`): their rows
-    (:data:`_STORED`) and, per pair, per segment, its row (−1 where none is stored)."""
+    (:data:`_STORED`) and, per pair, per segment, its row (−1 where none is stored); with
+    ``fleet`` (many pairs) read through the fleet days (:func:`_member_rows`, kept in
+    ``cache``)."""
     keys = [(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)]
     keys = list(dict.fromkeys(keys))
     span = [seg.day for _, segs in layout for seg in segs]
     if not span:
         return np.zeros(0, _STORED), [[] for _ in pairs]
     first, last = min(span), max(span)
-    rows = _stored_rows(session, keys, (first, last))
+    if fleet:
+        rows = _member_rows(session, keys, (first, last), cache)
+    else:
+        rows = _stored_rows(session, keys, (first, last))
     placed = np.full((len(keys), last - first + 1), -1, np.int64)
     placed[rows["key"], rows["day"] - first] = np.arange(len(rows))
     position = {k: i for i, k in enumerate(keys)}
@@ -166,6 +185,81 @@ def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> 
     return rows
 
 
+def _member_rows(
+    session: Session, keys: list[tuple], days: tuple[int, int], cache: ReadCache | None
+) -> np.ndarray:
+    """:func:`_stored_rows`, each day's rows taken from its fleet day's members where it has one
+    (:data:`.fleet_days.MEMBER`: one row per day instead of one per pair and day; the members
+    read kept in ``cache`` under the fleet day's version), the others (a day without a fleet
+    day, a pair day made after its fleet day) from their own rows."""
+    f = fleet_days.table()
+    hours = sorted({k[2] for k in keys})
+    in_range = (f.c.day >= days[0], f.c.day <= days[1], f.c.switch_hour.in_(hours))
+    versions = session.execute(select(f.c.switch_hour, f.c.day, f.c.version).where(*in_range))
+    held: dict[tuple[int, int], tuple] = {}
+    missing = set()
+    for hour, day, version in versions:
+        kept = cache.lookup(("fleet-day", hour, day), version) if cache is not None else None
+        if kept is None:
+            missing.add((hour, day))
+        else:
+            held[(hour, day)] = kept
+    if missing:
+        read = session.execute(
+            select(f.c.switch_hour, f.c.day, f.c.version, f.c.members, f.c.member_rows).where(
+                *in_range, f.c.day.in_(sorted({day for _, day in missing}))
+            )
+        )
+        for hour, day, version, members, packed in read:
+            if (hour, day) in held:
+                continue
+            held[(hour, day)] = (_member_index(members), np.frombuffer(packed, fleet_days.MEMBER))
+            if cache is not None:
+                cache.put(("fleet-day", hour, day), version, held[(hour, day)])
+    by_hour = {h: [k for k, key in enumerate(keys) if key[2] == h] for h in hours}
+    covered = np.zeros((len(keys), days[1] - days[0] + 1), bool)
+    # the keys' places among each day's members, once per distinct list of members
+    places: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    at_key, at_day, taken = [], [], []
+    for (hour, day), (index, members) in held.items():
+        place = places.get((id(index), hour))
+        if place is None:
+            mine = by_hour[hour]
+            at = np.array([index.get(keys[k][:2], -1) for k in mine], np.int64)
+            place = places[(id(index), hour)] = (np.array(mine, np.int64)[at >= 0], at[at >= 0])
+        at_key.append(place[0])
+        at_day.append(np.full(len(place[0]), day, np.int64))
+        taken.append(members[place[1]])
+    parts = []
+    if taken:
+        part = np.zeros(sum(map(len, taken)), _STORED)
+        part["key"], part["day"] = np.concatenate(at_key), np.concatenate(at_day)
+        members = np.concatenate(taken)
+        for name in (*fleet_days.MEMBER_INTEGERS, "fields"):
+            part[name] = members[name]
+        covered[part["key"], part["day"] - days[0]] = True
+        parts.append(part)
+    k, d = np.nonzero(~covered)
+    if len(k):
+        others = np.unique(k)
+        rows = _stored_rows(
+            session,
+            [keys[i] for i in others.tolist()],
+            (days[0] + int(d.min()), days[0] + int(d.max())),
+        )
+        rows["key"] = others[rows["key"]]
+        parts.append(rows[~covered[rows["key"], rows["day"] - days[0]]])
+    return np.concatenate([np.zeros(0, _STORED), *parts])
+
+
+@functools.lru_cache(maxsize=16)
+def _member_index(members: str) -> dict[tuple[str, str], int]:
+    """A fleet day's ``members`` (``coach_0 coach_1`` per line) → (coach 0, coach 1) → its place
+    (kept: a fleet's days share their members, and the places found in one serve all)."""
+    pairs = (line.split(" ") for line in members.split("\n"))
+    return {(c0, c1): i for i, (c0, c1) in enumerate(pairs)}
+
+
 def _unpack_windows(row) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A pair day's windows: sums (W, len(SUMS)), labels and own codes (W,)."""
     n = row.windows
@@ -219,6 +313,7 @@ def pair_results_later(
     executor: Executor | None,
     cache: ReadCache | None = None,
     marks: dict[str, tuple] | None = None,
+    fleet: bool = False,
 ) -> Callable[[], list[dict]]:
     """Each pair's figures over its range (lo, hi] of 30-minute windows as
     :func:`.pair_trial.pair_results` gives them (``meter``, ``totals``, ``estimate``,
@@ -235,9 +330,10 @@ def pair_results_later(
     ``cache``, the windows read from the rollups are kept there from each run's start
     (:func:`.pair_windows.pair_data_extended`): a range ending now reads only the windows of
     its service day that are new since the last range read from the same start (``marks``:
-    the coaches' :func:`.pair_windows.coach_marks`, else read there)."""
+    the coaches' :func:`.pair_windows.coach_marks`, else read there). With ``fleet`` (a summary
+    of many trains) the pair days are read through their fleet days (:func:`_member_rows`)."""
     layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
-    stored, row_of = _stored(session, pairs, switch_hours, layout)
+    stored, row_of = _stored(session, pairs, switch_hours, layout, fleet, cache)
     windows: dict[tuple[int, int], tuple] = {}  # (pair, segment) → (index, grid, label, code0)
     _windows_from_rollups(session, pairs, layout, row_of, overrides, windows, cache, marks)
     _windows_from_pair_days(session, pairs, switch_hours, layout, windows, row_of, partial=True)
