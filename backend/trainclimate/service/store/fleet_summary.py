@@ -54,20 +54,19 @@ from trainclimate.service.store.models import (
 from trainclimate.service.store.records import CoachView
 
 
-def _coach_times(session: Session, coaches: list) -> dict[str, tuple]:
-    """Each coach's first and newest telemetry time, as its feed keeps them
-    (:class:`~.models.CoachFeed`: one row per coach, whatever the history kept); (None, None)
-    for a coach without telemetry."""
-    ids = {c.id for c in coaches}
-    times: dict[str, tuple] = dict.fromkeys(ids, (None, None))
-    if ids:
-        rows = session.execute(
-            select(CoachFeed.coach_id, CoachFeed.first, CoachFeed.newest).where(
-                queries.among(CoachFeed.coach_id, ids)
-            )
+def coach_feeds(session: Session) -> dict[str, tuple]:
+    """Every coach's feed row (:class:`~.models.CoachFeed`: one row per coach, whatever the
+    history kept), read once for a summary: coach id → (first, newest, last_ok, late_rows)."""
+    rows = session.execute(
+        select(
+            CoachFeed.coach_id,
+            CoachFeed.first,
+            CoachFeed.newest,
+            CoachFeed.last_ok,
+            CoachFeed.late_rows,
         )
-        times |= {cid: (first, newest) for cid, first, newest in rows}
-    return times
+    )
+    return {cid: (first, newest, last_ok, late) for cid, first, newest, last_ok, late in rows}
 
 
 #: Pairs analysed together (bounds the arrays: 128 pairs × 30 days of windows ≈ 45 MB, where
@@ -82,18 +81,21 @@ def pair_results(
     pairs: list[tuple[str, str, datetime, datetime]],
     switch_hours: list[int],
     cache: ReadCache | None = None,
+    feeds: dict[str, tuple] | None = None,
 ) -> dict[str, dict]:
     """Each pair's figures over its range (lo, hi] with its train's switch hour
     (:func:`.pair_days_read.pair_results`), those whose state (:func:`.pair_windows.pair_states`)
     is unchanged since they were computed taken from ``cache`` (a dashboard's refresh
-    recomputes nothing). Coach 0's id → result (shared with the cache: not to be changed)."""
+    recomputes nothing; ``feeds``: the coaches' :func:`coach_feeds`, else read for it). Coach
+    0's id → result (shared with the cache: not to be changed)."""
     overrides = pair_windows.overrides_over(session, pairs)
     # what the states are made of, read once for the request (a read per chunk cost 5 ms each,
     # measured); the states of ranges read later in it are as old or older: never too new
     marks: dict[str, tuple] | None = None
     states: Sequence[tuple | None] = [None] * len(pairs)
     if cache is not None:
-        marks = pair_windows.coach_marks(session, pairs)
+        late = None if feeds is None else {c: (f[1], f[3]) for c, f in feeds.items()}
+        marks = pair_windows.coach_marks(session, pairs, late)
         states = pair_windows.pair_states(session, pairs, overrides, marks)
     out, missing = {}, []
     for pair, hour, state in zip(pairs, switch_hours, states, strict=True):
@@ -190,14 +192,15 @@ def summary(
         pair = queries.pick_pair(by_train.get(t.id, []))
         if pair is not None:
             paired.append((t, pair))
-    times = _coach_times(session, [c for _, pair in paired for c in pair])
+    feeds = coach_feeds(session)
+    times = {cid: f[:2] for cid, f in feeds.items()}
     clocks = {c.name: c.time for c in session.scalars(select(FleetClock))}
     ranges, pairs = [], []
     for t, (c0, c1) in paired:
-        stop = end or clocks.get(c0.fleet) or times[c0.id][1]
+        stop = end or clocks.get(c0.fleet) or times.get(c0.id, (None, None))[1]
         if stop is None:
             continue  # no data and no clock: nothing to count
-        firsts = [times[c.id][0] for c in (c0, c1)]
+        firsts = [times.get(c.id, (None, None))[0] for c in (c0, c1)]
         earliest = min((f for f in firsts if f is not None), default=None)
         start = stop - timedelta(hours=hours)
         first, n = queries.counted_range(start, stop, earliest, WINDOW_MIN)
@@ -215,7 +218,7 @@ def summary(
     for attempt in range(_ATTEMPTS):
         # the charts of the days read whole from their pair days, already pooled per day (the
         # fleet days); a pair day rebuilt meanwhile (its chart gone): read again, uncached
-        found = pair_results(session, pairs, hours_of, cache if attempt == 0 else None)
+        found = pair_results(session, pairs, hours_of, cache if attempt == 0 else None, feeds)
         try:
             day_w, day_n, day_e = fleet_days.charts(
                 session,
@@ -308,7 +311,7 @@ def summary(
         ],
         "coaches_by_status": coaches_by_status(views),
         "attention": attention(
-            views, comfort_violations(session, clocks_now), handed_back(session)
+            views, comfort_violations(session, clocks_now, feeds), handed_back(session)
         ),
     }
 
@@ -324,7 +327,9 @@ def handed_back(session: Session) -> dict[str, dict]:
     return {t: {"coach_id": c, "figures": f} for t, c, f in rows}
 
 
-def comfort_violations(session: Session, ends: dict[str, datetime]) -> dict[str, float]:
+def comfort_violations(
+    session: Session, ends: dict[str, datetime], feeds: dict[str, tuple] | None = None
+) -> dict[str, float]:
     """How long each coach's decks have been outside the comfort band without a break, up to
     its newest row, over the :data:`.attention.VIOLATION_LOOKBACK_MIN` before ``ends[coach]``,
     from each coach's comfort state kept at ingest (:class:`~.models.CoachFeed`: two times
@@ -337,6 +342,8 @@ def comfort_violations(session: Session, ends: dict[str, datetime]) -> dict[str,
     ----------
     ends : dict
         Coach id → the end of its lookback (its fleet clock).
+    feeds : dict, optional
+        The coaches' :func:`coach_feeds`, if read already.
 
     Returns
     -------
@@ -348,11 +355,19 @@ def comfort_violations(session: Session, ends: dict[str, datetime]) -> dict[str,
     if not ends:
         return {}
     lookback = timedelta(minutes=VIOLATION_LOOKBACK_MIN)
-    found = session.execute(
-        select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.last_ok).where(
-            queries.among(CoachFeed.coach_id, ends)
+    found: Sequence[tuple]
+    if feeds is None:
+        found = (
+            session.execute(
+                select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.last_ok).where(
+                    queries.among(CoachFeed.coach_id, ends)
+                )
+            )
+            .tuples()
+            .all()
         )
-    )
+    else:
+        found = [(cid, f[1], f[2]) for cid, f in feeds.items()]
     out = {}
     for cid, newest, last_ok in found:
         if cid not in ends:
