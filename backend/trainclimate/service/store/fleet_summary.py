@@ -361,21 +361,10 @@ def comfort_violations(
     if not ends:
         return {}
     lookback = timedelta(minutes=VIOLATION_LOOKBACK_MIN)
-    found: Sequence[tuple]
     if feeds is None:
-        found = (
-            session.execute(
-                select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.last_ok).where(
-                    queries.among(CoachFeed.coach_id, ends)
-                )
-            )
-            .tuples()
-            .all()
-        )
-    else:
-        found = [(cid, f[1], f[2]) for cid, f in feeds.items()]
+        feeds = coach_feeds(session)
     out = {}
-    for cid, newest, last_ok in found:
+    for cid, (_, newest, last_ok, _) in feeds.items():
         if cid not in ends:
             continue
         lo = ends[cid] - lookback
