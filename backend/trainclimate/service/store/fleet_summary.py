@@ -56,17 +56,22 @@ from trainclimate.service.store.records import CoachView
 
 def coach_feeds(session: Session) -> dict[str, tuple]:
     """Every coach's feed row (:class:`~.models.CoachFeed`: one row per coach, whatever the
-    history kept), read once for a summary: coach id → (first, newest, last_ok, late_rows)."""
+    history kept) and last tick, read once for a summary: coach id → (first, newest, last_ok,
+    late_rows, last_tick); a coach without a feed row has None for its times and 0 late rows."""
     rows = session.execute(
         select(
-            CoachFeed.coach_id,
+            Coach.id,
             CoachFeed.first,
             CoachFeed.newest,
             CoachFeed.last_ok,
             CoachFeed.late_rows,
-        )
+            Coach.last_tick,
+        ).outerjoin(CoachFeed, CoachFeed.coach_id == Coach.id)
     )
-    return {cid: (first, newest, last_ok, late) for cid, first, newest, last_ok, late in rows}
+    return {
+        cid: (first, newest, last_ok, late or 0, tick)
+        for cid, first, newest, last_ok, late, tick in rows
+    }
 
 
 #: Pairs analysed together (bounds the arrays: 128 pairs × 30 days of windows ≈ 45 MB, where
@@ -94,8 +99,10 @@ def pair_results(
     marks: dict[str, tuple] | None = None
     states: Sequence[tuple | None] = [None] * len(pairs)
     if cache is not None:
-        late = None if feeds is None else {c: (f[1], f[3]) for c, f in feeds.items()}
-        marks = pair_windows.coach_marks(session, pairs, late)
+        if feeds is None:
+            marks = pair_windows.coach_marks(session, pairs)
+        else:
+            marks = {c: (f[1], f[3], f[4]) for c, f in feeds.items()}
         states = pair_windows.pair_states(session, pairs, overrides, marks)
     out, missing = {}, []
     for pair, hour, state in zip(pairs, switch_hours, states, strict=True):
@@ -364,8 +371,8 @@ def comfort_violations(
     if feeds is None:
         feeds = coach_feeds(session)
     out = {}
-    for cid, (_, newest, last_ok, _) in feeds.items():
-        if cid not in ends:
+    for cid, (_, newest, last_ok, _, _) in feeds.items():
+        if cid not in ends or newest is None:
             continue
         lo = ends[cid] - lookback
         if newest <= lo:

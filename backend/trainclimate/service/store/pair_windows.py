@@ -298,24 +298,21 @@ def pair_counts(
     return out
 
 
-def coach_marks(
-    session: Session, pairs: list, feeds: dict[str, tuple] | None = None
-) -> dict[str, tuple]:
+def coach_marks(session: Session, pairs: list) -> dict[str, tuple]:
     """What :func:`pair_states` reads of each coach of ``pairs`` (coach 0, coach 1, …), in two
     look-ups of one row per coach: coach id → (its newest telemetry time and its late rows, as
-    its feed keeps them (:class:`~.models.CoachFeed`; ``feeds``: coach id → those two, if read
-    already), its last tick); a coach not found is left out. Read once, it serves every
-    :func:`pair_states` of a request."""
+    its feed keeps them (:class:`~.models.CoachFeed`), its last tick); a coach not found is left
+    out. Read once, it serves every :func:`pair_states` of a request (a fleet summary takes
+    them from its one read of every coach, :func:`.fleet_summary.coach_feeds`)."""
     coaches = sorted({c for pair in pairs for c in pair[:2]})
-    if feeds is None:
-        feeds = {
-            cid: (newest, late)
-            for cid, newest, late in session.execute(
-                select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.late_rows).where(
-                    queries.among(CoachFeed.coach_id, coaches)
-                )
+    feeds = {
+        cid: (newest, late)
+        for cid, newest, late in session.execute(
+            select(CoachFeed.coach_id, CoachFeed.newest, CoachFeed.late_rows).where(
+                queries.among(CoachFeed.coach_id, coaches)
             )
-        }
+        )
+    }
     ticks = {
         cid: tick
         for cid, tick in session.execute(
