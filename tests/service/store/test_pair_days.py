@@ -440,6 +440,27 @@ def test_a_fleet_day_keeps_its_pair_days_as_a_summary_reads_them(fleet, monkeypa
     }
 
 
+def test_a_partial_day_reads_the_windows_asked_for_and_no_other(fleet):
+    """The windows [a, b) of a pair day (a range's partial first or last day) are its stored
+    windows from a to b, to the bit, cut to those it holds: on PostgreSQL the server sends only
+    them."""
+    _build(fleet)
+    with fleet.transaction() as s:
+        days = s.query(PairDay).order_by(PairDay.coach_0, PairDay.day).all()
+        assert days
+        for d in days:
+            key = (d.coach_0, d.coach_1, d.switch_hour, d.day)
+            grid, label, code0 = pair_days_read._unpack_windows(d.windows, d.minutes)
+            f, n = d.first_window, d.windows
+            for a, b in ((f, f + n), (f + 3, f + 11), (f - 5, f + 2), (f + n - 4, f + n + 9)):
+                [(first, g, lab, code)] = pair_days_read._stored_windows(s, {key: (a, b)}).values()
+                j0, j1 = max(a - f, 0), min(b - f, n)
+                assert first == f + j0
+                assert g.tobytes() == grid[j0:j1].tobytes()
+                assert lab.tolist() == label[j0:j1].tolist()
+                assert code.tolist() == code0[j0:j1].tolist()
+
+
 def test_a_summary_is_read_again_when_a_pair_day_changes_under_it(fleet, monkeypatch):
     """A pair day rebuilt between a summary's reads of its fields and of its chart: the chart
     read finds the digest it read gone, and the trains' figures are read again, uncached."""

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 from psycopg import sql
-from psycopg.rows import namedtuple_row
-from sqlalchemy import Float, Select, Table, case, select
+from sqlalchemy import Float, Table, case, select
 from sqlalchemy.orm import Session
 
 
@@ -119,17 +118,11 @@ def coach_windows(
     return packed_rows(session, query, dtype)
 
 
-def rows(session: Session, statement: Select) -> list:
-    """The rows of ``statement`` as named tuples: on PostgreSQL in the binary format, which
-    sends a ``bytea`` as it is (the text format doubles it in hex, and costs twice as long to
-    read, measured), elsewhere the driver's rows."""
-    if session.get_bind().dialect.name != "postgresql":
-        return list(session.execute(statement))
-    compiled = statement.compile(
-        dialect=session.get_bind().dialect, compile_kwargs={"render_postcompile": True}
-    )
+def rows(session: Session, query: sql.Composable) -> list[tuple]:
+    """The rows of ``query`` (PostgreSQL only) in the binary format, which sends a ``bytea`` as
+    it is (the text format doubles it in hex, and costs twice as long to read, measured)."""
     raw = session.connection().connection.driver_connection
     if raw is None:
         raise RowShapeError("no driver connection to read through")
-    with raw.cursor(binary=True, row_factory=namedtuple_row) as cursor:
-        return cursor.execute(str(compiled), compiled.params).fetchall()
+    with raw.cursor(binary=True) as cursor:
+        return cursor.execute(query).fetchall()
