@@ -468,12 +468,17 @@ def _windows_from_pair_days(
     partial ones (``partial``), or those at ``at[i]`` for the pairs ``only``."""
     wanted: dict[tuple, list[tuple[int, int]]] = {}
     these = set(only or ())
+    # the places of the segments that are not whole days (a range's first and last at most),
+    # once per distinct layout: the trains of a summary share theirs (:func:`_segments`)
+    partial_at: dict[int, list[int]] = {}
     for i, ((c0, c1, _, _), hour) in enumerate(zip(pairs, switch_hours, strict=True)):
         segs = layout[i][1]
-        chosen = range(len(segs)) if partial else [at[i]] if i in these else []
+        if partial and id(segs) not in partial_at:
+            partial_at[id(segs)] = [k for k, seg in enumerate(segs) if not seg.whole]
+        chosen = partial_at[id(segs)] if partial else [at[i]] if i in these else []
         for k in chosen:
             seg = segs[k]
-            if (i, k) in windows or (partial and seg.whole):
+            if (i, k) in windows:
                 continue
             if row_of[i][k] >= 0:
                 wanted.setdefault((c0, c1, hour, seg.day), []).append((i, k))
