@@ -293,7 +293,8 @@ def _stored_windows(session: Session, wanted: dict[tuple, tuple[int, int]]) -> d
                 continue
             a, b = wanted[key]
             first, n = r.first_window, r.windows
-            j0, j1 = max(a - first, 0), max(min(b - first, n), max(a - first, 0))
+            j0 = max(a - first, 0)
+            j1 = max(min(b - first, n), j0)
             grid, label, code0 = _unpack_windows(n, r.minutes)
             found[key] = (first + j0, grid[j0:j1], label[j0:j1], code0[j0:j1])
         return found
@@ -467,6 +468,7 @@ def _windows_from_pair_days(
     """The windows of segments from their stored pair days (``row_of``, :func:`_stored`): the
     partial ones (``partial``), or those at ``at[i]`` for the pairs ``only``."""
     wanted: dict[tuple, list[tuple[int, int]]] = {}
+    bounds: dict[tuple, tuple[int, int]] = {}  # per pair day: the windows its places span
     these = set(only or ())
     # the places of the segments that are not whole days (a range's first and last at most),
     # once per distinct layout: the trains of a summary share theirs (:func:`_segments`)
@@ -481,12 +483,11 @@ def _windows_from_pair_days(
             if (i, k) in windows:
                 continue
             if row_of[i][k] >= 0:
-                wanted.setdefault((c0, c1, hour, seg.day), []).append((i, k))
-    bounds = {}
-    for key, places in wanted.items():
-        starts = [layout[i][1][k].a + layout[i][0] for i, k in places]
-        ends = [layout[i][1][k].b + layout[i][0] for i, k in places]
-        bounds[key] = (min(starts), max(ends))
+                key = (c0, c1, hour, seg.day)
+                wanted.setdefault(key, []).append((i, k))
+                a, b = seg.a + layout[i][0], seg.b + layout[i][0]
+                lo, hi = bounds.get(key, (a, b))
+                bounds[key] = (min(lo, a), max(hi, b))
     found = _stored_windows(session, bounds)
     for key, places in wanted.items():
         first, grid, label, code0 = found[key]
