@@ -326,6 +326,52 @@ def test_estimating_many_pairs_at_once_is_estimating_each():
         estimate_many(pairs, n_resamples=0)
 
 
+def test_pairs_estimated_together_have_each_pairs_own_mean_and_variance_to_the_bit():
+    """Pairs of the same group sizes are estimated together (one array per group); each pair's
+    estimate and standard error are still numpy's mean and variance of its own days, exactly,
+    as are its activated days' energies summed in their order (the naive figure)."""
+    pairs = [
+        _crossover(n, 0.05, 1.0 + n / 50, 0.03, seed) for n in (9, 9, 9, 12, 7) for seed in (1, 2)
+    ]
+    fixed = _crossover(10, 0.06, 1.12, 0.01, 2, plan="fixed")
+    ref = _crossover(8, 0.06, 1.12, 0.01, 3, plan="reference")
+    pairs += [
+        TrialDays(*(np.r_[getattr(fixed, f), getattr(ref, f)] for f in ("day", "energy_kwh")),
+                  np.r_[fixed.activated, ref.activated], np.r_[fixed.windows, ref.windows])
+    ]  # fmt: skip
+    for days, e in zip(pairs, estimate_many(pairs, n_resamples=99), strict=True):
+        x = np.log(days.energy_kwh[:, 0] / days.energy_kwh[:, 1])
+        on = days.activated != NEITHER
+        a, b = x[days.activated == 0], x[days.activated == 1]
+        coef = 0.5
+        if not len(a) or not len(b):
+            a, b = (a, x[~on]) if len(a) else (b, x[~on])
+            coef = 1.0 if e.days["coach_0"] else -1.0
+        assert e.estimator == ("crossover" if coef == 0.5 else "fixed_reference")
+        theta = coef * (np.mean(a) - np.mean(b))
+        se = abs(coef) * np.sqrt(np.var(a, ddof=1) / len(a) + np.var(b, ddof=1) / len(b))
+        assert e.savings_pct == float(100.0 * (1.0 - np.exp(theta)))
+        assert e.standard_error_pct == float(100.0 * np.exp(theta) * se)
+        act = days.energy_kwh[on, days.activated[on]].sum()
+        deact = days.energy_kwh[on, 1 - days.activated[on]].sum()
+        assert e.naive_savings_pct == float(100.0 * (1.0 - act / deact))
+    with pytest.raises(ValueError, match="0, 1 or NEITHER"):
+        estimate(TrialDays(np.arange(4), np.ones((4, 2)), np.array([0, 1, 2, 0]), np.full(4, 40)))
+
+
+def test_an_interval_that_overflows_is_no_interval_not_an_error():
+    """Energies exactly proportional in a crossover of 3 + 3 days: the log-ratios differ by
+    rounding only, and resamples without spread put the largest floats among the studentized
+    values; the interval's bounds overflow, so the estimate has none, with its reason."""
+    e0 = np.array([24.378260918638002, 31.405935714716332, 38.20270042814721,
+                   48.03202646762443, 17.789052368695614, 34.18462431859213])  # fmt: skip
+    days = TrialDays(np.arange(6), np.c_[e0, 1.1 * e0], np.arange(6) % 2, np.full(6, 40))
+    e = estimate(days)
+    assert e.estimator == "crossover" and e.savings_pct == pytest.approx(0.0, abs=1e-9)
+    assert e.savings_ci95_pct is None and e.ci_reason == "the bootstrap is degenerate"
+    assert e.days_to_target is None and e.standard_error_pct is None
+
+
 @pytest.mark.parametrize(
     ("n_a", "n_b", "distinct"), [(3, 3, True), (3, 5, True), (4, 4, True), (12, 14, False)]
 )
