@@ -237,3 +237,33 @@ def test_packed_rows_are_the_query_s_rows_and_refuse_a_null_or_a_misshapen_array
     finally:
         db.dispose()
         drop_pg_database(name)
+
+
+@pytest.mark.skipif(not PG_URL, reason=PG_SKIP)
+def test_arrays_sent_as_one_literal_arrive_as_the_values_and_refuse_a_space():
+    """The arrays a summary sends (coach ids, days, windows) arrive as the values, in order and
+    of their type, an empty one empty; a value holding a space or empty, which would split or
+    vanish, is refused."""
+    from psycopg import sql
+
+    from trainclimate.service.store.binary_rows import array_of, rows
+    from trainclimate.service.store.db import Database
+
+    url, name = pg_database()
+    db = Database(url)
+    try:
+        with db.transaction() as s:
+            ids = ["124-A", "C000.b_1", "7"]
+            query = sql.SQL("SELECT {}, {}, {}, {}").format(
+                array_of(ids, "text"),
+                array_of([-3, 2**40], "int8"),
+                array_of([0, 23], "int4"),
+                array_of([], "text"),
+            )
+            assert rows(s, query) == [(ids, [-3, 2**40], [0, 23], [])]
+        for bad in (["124 A"], ["124-A", ""]):
+            with pytest.raises(ValueError, match="empty or holds a space"):
+                array_of(bad, "text")
+    finally:
+        db.dispose()
+        drop_pg_database(name)

@@ -100,7 +100,7 @@ def coach_windows(
     # 256 coaches and a day at 40 days of history, against 83 ms through the key, measured)
     query = sql.SQL(
         'SELECT k.i - 1, r."window", {columns} '
-        "FROM unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) "
+        "FROM unnest({ids}) WITH ORDINALITY AS k(id, i) "
         'CROSS JOIN LATERAL (SELECT * FROM {table} WHERE coach_id = k.id AND "window" >= {lo} '
         'AND "window" < {hi} OFFSET 0) AS r'
     ).format(
@@ -111,11 +111,25 @@ def coach_windows(
             for c in columns
         ),
         table=sql.Identifier(table.name),
-        ids=sql.Literal(list(coaches)),
+        ids=array_of(coaches, "text"),
         lo=sql.Literal(int(lo_w)),
         hi=sql.Literal(int(hi_w)),
     )
     return packed_rows(session, query, dtype)
+
+
+def array_of(values, element: str) -> sql.Composable:
+    """``values`` as a PostgreSQL array of ``element`` (``text``, ``int4``, ``int8``): one
+    literal of the values joined by spaces, split by the server. psycopg quotes a list element by
+    element (256 coaches and 256 days: 0.4 ms a statement against 0.01 ms so, measured), and a
+    summary sends thousands. Coach ids hold no space (letters, digits, ``_``, ``.``, ``-``);
+    ValueError if a value does."""
+    text = [str(v) for v in values]
+    if any(" " in v or not v for v in text):
+        raise ValueError("an array element is empty or holds a space")
+    return sql.SQL("string_to_array({}, ' ')::{}[]").format(
+        sql.Literal(" ".join(text)), sql.SQL(element)
+    )
 
 
 def rows(session: Session, query: sql.Composable) -> list[tuple]:

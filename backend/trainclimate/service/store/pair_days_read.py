@@ -141,15 +141,15 @@ def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> 
         columns = [f"p.{name}::int8" for name in _INTEGERS]
         query = psql.SQL(
             "SELECT k.i - 1, {columns}, p.fields "
-            "FROM unnest({c0}::text[], {c1}::text[], {hour}::int[]) WITH ORDINALITY "
+            "FROM unnest({c0}, {c1}, {hour}) WITH ORDINALITY "
             "AS k(c0, c1, h, i) "
             "CROSS JOIN LATERAL (SELECT * FROM pair_days WHERE coach_0 = k.c0 AND coach_1 = k.c1 "
             "AND switch_hour = k.h AND day >= {first} AND day <= {last} OFFSET 0) AS p"
         ).format(
             columns=psql.SQL(", ").join(psql.SQL(c) for c in columns),
-            c0=psql.Literal([k[0] for k in keys]),
-            c1=psql.Literal([k[1] for k in keys]),
-            hour=psql.Literal([int(k[2]) for k in keys]),
+            c0=binary_rows.array_of((k[0] for k in keys), "text"),
+            c1=binary_rows.array_of((k[1] for k in keys), "text"),
+            hour=binary_rows.array_of((int(k[2]) for k in keys), "int4"),
             first=psql.Literal(int(days[0])),
             last=psql.Literal(int(days[1])),
         )
@@ -306,20 +306,20 @@ def _stored_windows(session: Session, wanted: dict[tuple, tuple[int, int]]) -> d
         "substring(p.m from p.j0 * {row} + 1 for (p.j1 - p.j0) * {row}) "
         "|| substring(p.m from p.n * {row} + p.j0 + 1 for p.j1 - p.j0) "
         "|| substring(p.m from p.n * {row} + p.n + p.j0 + 1 for p.j1 - p.j0) "
-        "FROM unnest({c0}::text[], {c1}::text[], {hour}::int[], {day}::int[], {a}::int8[], "
-        "{b}::int8[]) WITH ORDINALITY AS k(c0, c1, h, d, a, b, i) "
+        "FROM unnest({c0}, {c1}, {hour}, {day}, {a}, {b}) WITH ORDINALITY "
+        "AS k(c0, c1, h, d, a, b, i) "
         "CROSS JOIN LATERAL (SELECT q.*, greatest(least(k.b - q.f, q.n), q.j0)::int AS j1 FROM "
         "(SELECT first_window AS f, windows::int AS n, greatest(k.a - first_window, 0)::int AS j0, "
         "minutes || ''::bytea AS m FROM pair_days WHERE coach_0 = k.c0 AND coach_1 = k.c1 "
         "AND switch_hour = k.h AND day = k.d OFFSET 0) AS q) AS p"
     ).format(
         row=psql.Literal(len(SUMS) * 8),
-        c0=psql.Literal([k[0] for k in keys]),
-        c1=psql.Literal([k[1] for k in keys]),
-        hour=psql.Literal([int(k[2]) for k in keys]),
-        day=psql.Literal([int(k[3]) for k in keys]),
-        a=psql.Literal([int(wanted[k][0]) for k in keys]),
-        b=psql.Literal([int(wanted[k][1]) for k in keys]),
+        c0=binary_rows.array_of((k[0] for k in keys), "text"),
+        c1=binary_rows.array_of((k[1] for k in keys), "text"),
+        hour=binary_rows.array_of((int(k[2]) for k in keys), "int4"),
+        day=binary_rows.array_of((int(k[3]) for k in keys), "int4"),
+        a=binary_rows.array_of((int(wanted[k][0]) for k in keys), "int8"),
+        b=binary_rows.array_of((int(wanted[k][1]) for k in keys), "int8"),
     )
     return {
         keys[i]: (first, *_unpack_windows(n, packed))

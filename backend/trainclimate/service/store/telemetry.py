@@ -125,14 +125,14 @@ def _packed_rows(session: Session, coach_ids: list[str], start: datetime, end: d
     query = sql.SQL(
         "SELECT k.i - 1, date_part('epoch', t.time), {values}, "
         "(t.mode = 'regular')::int::int8 "
-        "FROM unnest({ids}::text[]) WITH ORDINALITY AS k(id, i) CROSS JOIN LATERAL "
+        "FROM unnest({ids}) WITH ORDINALITY AS k(id, i) CROSS JOIN LATERAL "
         "(SELECT * FROM telemetry WHERE coach_id = k.id AND time > {start} AND time <= {end} "
         "OFFSET 0) AS t"
     ).format(
         values=sql.SQL(", ").join(
             sql.SQL("coalesce(t.{}, 'NaN'::float8)").format(sql.Identifier(c)) for c in VALUE_COLS
         ),
-        ids=sql.Literal(list(coach_ids)),
+        ids=binary_rows.array_of(coach_ids, "text"),
         start=sql.Literal(start),
         end=sql.Literal(end),
     )
