@@ -16,6 +16,7 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect, select, text
 
+from helpers.service import PG_SKIP, PG_URL, drop_pg_database, pg_database
 from trainclimate.service.store import commands, liveness, partitions, plans
 from trainclimate.service.store.db import MIGRATIONS, Database, downgrade, make_engine, migrate
 from trainclimate.service.store.models import (
@@ -38,7 +39,7 @@ from trainclimate.service.store.tokens import Principal, create_token
 REPO = MIGRATIONS.parent
 ALEMBIC = Path(sys.executable).with_name("alembic")
 #: The newest revision.
-HEAD = "0019"
+HEAD = "0020"
 TABLES = {
     "fleet_days",
     "pair_days",
@@ -415,3 +416,32 @@ def test_setpoint_rollups_are_counted_from_the_setpoints_already_stored(db_url):
     }
     downgrade(db_url, "0014")
     assert schema(db_url) == (TABLES - {"setpoint_rollups", "pair_days", "fleet_days"}, "0014")
+
+
+@pytest.mark.skipif(not PG_URL, reason=PG_SKIP)
+def test_pair_days_keep_their_windows_uncompressed_on_postgresql():
+    """A range's partial days cut their windows out of ``minutes``: stored uncompressed out of
+    line from 0020 on (the server no longer decompresses every value it cuts), and back to
+    PostgreSQL's default when downgraded."""
+    url, name = pg_database()
+    try:
+
+        def storage() -> str:
+            engine = make_engine(url)
+            try:
+                with engine.connect() as conn:
+                    return conn.execute(
+                        text(
+                            "SELECT attstorage FROM pg_attribute "
+                            "WHERE attrelid = 'pair_days'::regclass AND attname = 'minutes'"
+                        )
+                    ).scalar_one()
+            finally:
+                engine.dispose()
+
+        migrate(url)
+        assert storage() == "e"  # external: out of line, uncompressed
+        downgrade(url, "0019")
+        assert storage() == "x"  # extended: compressed, then out of line
+    finally:
+        drop_pg_database(name)

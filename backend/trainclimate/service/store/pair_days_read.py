@@ -298,9 +298,9 @@ def _stored_windows(session: Session, wanted: dict[tuple, tuple[int, int]]) -> d
             grid, label, code0 = _unpack_windows(n, r.minutes)
             found[key] = (first + j0, grid[j0:j1], label[j0:j1], code0[j0:j1])
         return found
-    # p.m: the value read (and decompressed) once for the three cuts (OFFSET 0 keeps the
-    # subquery, and so its one read, per row); the sums of windows [j0, j1), then their labels
-    # and own codes
+    # p.m: the value read once for the three cuts (OFFSET 0 keeps the subquery, and so its one
+    # read, per row; stored uncompressed since migration 0020, an older row decompressed once);
+    # the sums of windows [j0, j1), then their labels and own codes
     query = psql.SQL(
         "SELECT k.i - 1, p.f + p.j0, p.j1 - p.j0, "
         "substring(p.m from p.j0 * {row} + 1 for (p.j1 - p.j0) * {row}) "
