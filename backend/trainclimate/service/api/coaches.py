@@ -94,7 +94,8 @@ def current_views(
     to_compute = [cid for cid, state in states if not cache.holds(("coach", cid), state)]
     coaches = queries.coach_rows(s, to_compute)
     clocks = queries.live_clocks(s)
-    stale_periods = settings(request).stale_periods
+    # read once: the fleet summary's list is 900 coaches
+    stale_periods, tick_period = settings(request).stale_periods, period(request)
     now = utcnow()
 
     def view(cid: str, state: tuple) -> records.CoachView:
@@ -102,11 +103,11 @@ def current_views(
             ("coach", cid),
             state,
             lambda: queries.coach_view(
-                s, coaches.get(cid) or s.get_one(Coach, cid), period(request), stale_periods
+                s, coaches.get(cid) or s.get_one(Coach, cid), tick_period, stale_periods
             ),
         )
         clock, prior = clocks.get(cid), clocks.fleet_pace
-        return queries.with_liveness(found, clock, now, period(request), stale_periods, prior)
+        return queries.with_liveness(found, clock, now, tick_period, stale_periods, prior)
 
     return [view(cid, state) for cid, state in states]
 
