@@ -124,10 +124,14 @@ def _stored(
     placed = np.full((len(keys), last - first + 1), -1, np.int64)
     placed[rows["key"], rows["day"] - first] = np.arange(len(rows))
     position = {k: i for i, k in enumerate(keys)}
+    # the days' places once per distinct layout: the trains of a summary share theirs
+    offsets: dict[int, np.ndarray] = {}
     row_of = []
     for (c0, c1, _, _), hour, (_, segs) in zip(pairs, switch_hours, layout, strict=True):
-        offsets = np.fromiter((seg.day - first for seg in segs), np.int64, len(segs))
-        row_of.append(placed[position[(c0, c1, hour)], offsets].tolist())
+        at = offsets.get(id(segs))
+        if at is None:
+            at = offsets[id(segs)] = np.array([seg.day - first for seg in segs], np.int64)
+        row_of.append(placed[position[(c0, c1, hour)], at].tolist())
     return rows, row_of
 
 
@@ -530,25 +534,25 @@ def _assemble(
     with its ``chart`` (of its :class:`~.pair_days.Day`) and ``chart_days`` (its stored rows'
     days and chart digests, two arrays), once its trial estimate is computed (on
     ``executor``): the function returned gives them."""
-    rows = [
-        (p, slot, d)
-        for p, mine in enumerate(days)
-        for slot, d in enumerate(mine)
-        if not isinstance(d, Day)
-    ]
-    width = max((len(d) for d in days), default=0)
+    # every pair's days one after the other: where each is (pair, slot), and which are rows
+    lengths = np.array([len(mine) for mine in days], np.int64)
+    flat = [d for mine in days for d in mine]
+    computed = np.fromiter((isinstance(d, Day) for d in flat), bool, len(flat))
+    pair_of = np.repeat(np.arange(len(days)), lengths)
+    slot_of = np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    width = int(lengths.max(initial=0))
     fields = np.zeros((len(days), width, len(FIELDS)))
     ordinals = np.zeros((len(days), width), np.int64)
-    # in the order of the pairs
-    at_pair, at_slot, at_row = (np.array([r[j] for r in rows], np.int64) for j in range(3))
+    # the rows in the order of the pairs
+    at_row = np.array([flat[k] for k in np.flatnonzero(~computed).tolist()], np.int64)
+    at_pair, at_slot = pair_of[~computed], slot_of[~computed]
     read_days, digests = stored["day"][at_row], stored["chart_digest"][at_row]
     fields[at_pair, at_slot] = stored["fields"][at_row]
     ordinals[at_pair, at_slot] = read_days
-    for p, mine in enumerate(days):
-        for slot, d in enumerate(mine):
-            if isinstance(d, Day):
-                fields[p, slot] = d.fields
-                ordinals[p, slot] = d.day
+    made = np.flatnonzero(computed)
+    if len(made):
+        fields[pair_of[made], slot_of[made]] = np.stack([flat[k].fields for k in made.tolist()])
+        ordinals[pair_of[made], slot_of[made]] = [flat[k].day for k in made.tolist()]
     estimates = trial.estimates_later(pair_trial.trial_days(fields, ordinals), executor)
 
     def results() -> list[dict]:
