@@ -79,6 +79,18 @@ def _crossover(n_days, saving, coach_ratio, noise, seed, plan="alternate"):
     return TrialDays(day, energy, act, np.full(n_days, 40))
 
 
+def _fixed_with_reference():
+    """Ten days of a fixed plan (coach 0 activated) followed by eight reference days."""
+    fixed = _crossover(10, 0.06, 1.12, 0.01, 2, plan="fixed")
+    ref = _crossover(8, 0.06, 1.12, 0.01, 3, plan="reference")
+    return TrialDays(
+        np.r_[fixed.day, ref.day + 100],
+        np.r_[fixed.energy_kwh, ref.energy_kwh],
+        np.r_[fixed.activated, ref.activated],
+        np.r_[fixed.windows, ref.windows],
+    )
+
+
 def test_the_crossover_cancels_the_coaches_difference():
     # coach 0 uses 12 % more than coach 1: the naive figure is far off, the crossover is not
     days = _crossover(14, 0.06, 1.12, 1e-3, seed=1)
@@ -118,13 +130,7 @@ def test_a_fixed_plan_is_confounded_unless_a_reference_period_corrects_it():
     assert e.savings_ci95_pct is None and "confounded" in e.ci_reason
     assert e.savings_pct == e.naive_savings_pct
     assert e.savings_pct == pytest.approx(100 * (1 - 0.94 * 1.12), abs=1.0)
-    ref = _crossover(8, 0.06, 1.12, 0.01, 3, plan="reference")
-    both = TrialDays(
-        np.r_[fixed.day, ref.day + 100],
-        np.r_[fixed.energy_kwh, ref.energy_kwh],
-        np.r_[fixed.activated, ref.activated],
-        np.r_[fixed.windows, ref.windows],
-    )
+    both = _fixed_with_reference()
     corrected = estimate(both)
     assert corrected.estimator == "fixed_reference"
     assert corrected.savings_pct == pytest.approx(6.0, abs=0.5)
@@ -259,13 +265,7 @@ def test_the_batched_bootstrap_is_scipys():
 
 def test_estimating_many_pairs_at_once_is_estimating_each():
     fixed = _crossover(10, 0.06, 1.12, 0.01, 2, plan="fixed")
-    ref = _crossover(8, 0.06, 1.12, 0.01, 3, plan="reference")
-    fixed_reference = TrialDays(
-        np.r_[fixed.day, ref.day + 100],
-        np.r_[fixed.energy_kwh, ref.energy_kwh],
-        np.r_[fixed.activated, ref.activated],
-        np.r_[fixed.windows, ref.windows],
-    )
+    fixed_reference = _fixed_with_reference()
     act = np.arange(8) % 2
     energy = np.c_[np.where(act == 0, 2.0, 1.0), np.ones(8)]  # log-ratios ln 2 and 0, exactly
     no_spread = TrialDays(np.arange(8), energy, act, np.full(8, 40))
@@ -333,12 +333,7 @@ def test_pairs_estimated_together_have_each_pairs_own_mean_and_variance_to_the_b
     pairs = [
         _crossover(n, 0.05, 1.0 + n / 50, 0.03, seed) for n in (9, 9, 9, 12, 7) for seed in (1, 2)
     ]
-    fixed = _crossover(10, 0.06, 1.12, 0.01, 2, plan="fixed")
-    ref = _crossover(8, 0.06, 1.12, 0.01, 3, plan="reference")
-    pairs += [
-        TrialDays(*(np.r_[getattr(fixed, f), getattr(ref, f)] for f in ("day", "energy_kwh")),
-                  np.r_[fixed.activated, ref.activated], np.r_[fixed.windows, ref.windows])
-    ]  # fmt: skip
+    pairs += [_fixed_with_reference()]
     for days, e in zip(pairs, estimate_many(pairs, n_resamples=99), strict=True):
         x = np.log(days.energy_kwh[:, 0] / days.energy_kwh[:, 1])
         on = days.activated != NEITHER

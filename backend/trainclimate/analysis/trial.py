@@ -508,50 +508,51 @@ def _prepare(days_list: list[TrialDays]) -> list[TrialEstimate | _Bootstrap]:
         by_sizes.setdefault(sizes, []).append(p)
     out: list = [None] * len(days_list)
     for (n0, n1, n_ref), pairs in by_sizes.items():
-        first = start[pairs][:, None]
-        gathered = x[by_group[first + np.arange(n0 + n1 + n_ref)]]
-        groups = (gathered[:, :n0], gathered[:, n0 : n0 + n1], gathered[:, n0 + n1 :])
-        on = on_first[first + np.arange(n0 + n1)]
-        with np.errstate(all="ignore"):
-            act = np.add.reduce(energy[on, activated[on]], axis=1)
-            deact = np.add.reduce(energy[on, 1 - activated[on]], axis=1)
-            naive = (100.0 * (1.0 - act / deact)).tolist() if n0 + n1 else [None] * len(pairs)
-        if n0 and n1:
-            estimator, samples, coef = "crossover", (groups[0], groups[1]), 0.5
-        elif (n0 or n1) and n_ref:
-            on_group = 0 if n0 else 1
-            coef = 1.0 if on_group == 0 else -1.0
-            estimator, samples = "fixed_reference", (groups[on_group], groups[2])
-        else:
-            estimator, samples, coef = None, None, 0.0
-        if samples is not None:
-            theta, se = (v.tolist() for v in _effect(coef, *samples))
-            smallest = min(s.shape[1] for s in samples)
-        for j, p in enumerate(pairs):
-            counts = {
+        counts = [
+            {
                 "coach_0": n0,
                 "coach_1": n1,
                 "reference": n_ref,
                 "dropped": dict(days_list[p].dropped),
             }
-            if samples is None and (n0 or n1):
-                reason = "fixed plan: the saving is confounded with the coaches' own difference"
-                out[p] = TrialEstimate("fixed_naive", naive[j], None, reason, naive[j], counts)
-                continue
-            if samples is None:
-                out[p] = TrialEstimate(None, None, None, "no comparable days yet", None, counts)
-                continue
+            for p in pairs
+        ]
+        if not (n0 or n1):
+            for p, c in zip(pairs, counts, strict=True):
+                out[p] = TrialEstimate(None, None, None, "no comparable days yet", None, c)
+            continue
+        first = start[pairs][:, None]
+        on = on_first[first + np.arange(n0 + n1)]
+        with np.errstate(all="ignore"):
+            act = np.add.reduce(energy[on, activated[on]], axis=1)
+            deact = np.add.reduce(energy[on, 1 - activated[on]], axis=1)
+            naive = (100.0 * (1.0 - act / deact)).tolist()
+        if not ((n0 and n1) or n_ref):
+            reason = "fixed plan: the saving is confounded with the coaches' own difference"
+            for p, c, v in zip(pairs, counts, naive, strict=True):
+                out[p] = TrialEstimate("fixed_naive", v, None, reason, v, c)
+            continue
+        gathered = x[by_group[first + np.arange(n0 + n1 + n_ref)]]
+        groups = (gathered[:, :n0], gathered[:, n0 : n0 + n1], gathered[:, n0 + n1 :])
+        if n0 and n1:
+            estimator, samples, coef = "crossover", (groups[0], groups[1]), 0.5
+        else:
+            coef = 1.0 if n0 else -1.0
+            estimator, samples = "fixed_reference", (groups[0 if n0 else 1], groups[2])
+        theta, se = (v.tolist() for v in _effect(coef, *samples))
+        few = min(g.shape[1] for g in samples) < MIN_GROUP_DAYS
+        for j, p in enumerate(pairs):
             point = float(_savings(theta[j]))
-            if smallest < MIN_GROUP_DAYS:
+            if few:
                 reason = f"fewer than {MIN_GROUP_DAYS} days in a group of the {estimator} estimate"
-                out[p] = TrialEstimate(estimator, point, None, reason, naive[j], counts)
+                out[p] = TrialEstimate(estimator, point, None, reason, naive[j], counts[j])
             elif not se[j] > 0:
-                out[p] = TrialEstimate(
-                    estimator, point, None, "no day-to-day spread", naive[j], counts
-                )
+                reason = "no day-to-day spread"
+                out[p] = TrialEstimate(estimator, point, None, reason, naive[j], counts[j])
             else:
                 a, b = samples[0][j], samples[1][j]
-                out[p] = _Bootstrap(estimator, coef, a, b, theta[j], se[j], point, naive[j], counts)
+                prepared = (theta[j], se[j], point, naive[j], counts[j])
+                out[p] = _Bootstrap(estimator, coef, a, b, *prepared)
     return out
 
 

@@ -544,8 +544,9 @@ def _assemble(
     fields = np.zeros((len(days), width, len(FIELDS)))
     ordinals = np.zeros((len(days), width), np.int64)
     # the rows in the order of the pairs
-    at_row = np.array([flat[k] for k in np.flatnonzero(~computed).tolist()], np.int64)
-    at_pair, at_slot = pair_of[~computed], slot_of[~computed]
+    read = np.flatnonzero(~computed)
+    at_row = np.array([flat[k] for k in read.tolist()], np.int64)
+    at_pair, at_slot = pair_of[read], slot_of[read]
     read_days, digests = stored["day"][at_row], stored["chart_digest"][at_row]
     fields[at_pair, at_slot] = stored["fields"][at_row]
     ordinals[at_pair, at_slot] = read_days
