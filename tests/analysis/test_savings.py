@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from trainclimate.analysis.kpi import energy_kwh
-from trainclimate.analysis.savings import CoachSeries, compare, savings_pct
+from trainclimate.analysis.savings import CoachSeries, PairTotals, compare, savings_pct
 
 T0 = pd.Timestamp("2024-11-28 06:00", tz="UTC")
 RULE = 22.0
@@ -307,3 +307,34 @@ def test_series_of_the_wrong_length_are_refused():
         coach(time, np.ones(60), in_band=np.ones(30, bool))
     with pytest.raises(ValueError):
         coach(time, np.ones(60), t_room=np.full((59, 3), RULE))
+
+
+def test_pooled_totals_are_the_sum_in_order_to_the_bit():
+    # magnitudes over eight decades: a sum taken pairwise, or in another order, rounds otherwise
+    rng = np.random.default_rng(1)
+
+    def part() -> PairTotals:
+        scale = 10.0 ** rng.integers(-4, 4, size=4)
+        return PairTotals(
+            *(rng.exponential(size=2) * scale[:2]),
+            int(rng.integers(0, 100)),
+            int(rng.integers(0, 10)),
+            30.0,
+            float(rng.exponential() * scale[2]),
+            rng.exponential(size=3) * scale[3],
+            rng.exponential(size=3),
+        )
+
+    for n in (0, 1, 2, 450, 3000):
+        parts = [part() for _ in range(n)]
+        added = PairTotals.empty(30.0)
+        for p in parts:
+            added = added + p
+        pooled = PairTotals.pooled(parts, 30.0)
+        for name in ("energy_activated_kwh", "energy_deactivated_kwh", "counted_hours"):
+            assert getattr(pooled, name) == getattr(added, name)
+        assert (pooled.windows, pooled.excluded_windows) == (added.windows, added.excluded_windows)
+        assert np.array_equal(pooled.discomfort_kh, added.discomfort_kh)
+        assert np.array_equal(pooled.baseline_discomfort_kh, added.baseline_discomfort_kh)
+    with pytest.raises(ValueError, match="window lengths"):
+        PairTotals.pooled([PairTotals.empty(15.0)], 30.0)

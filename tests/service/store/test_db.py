@@ -1,7 +1,9 @@
 """The service's PostgreSQL sessions: the lock and idle-in-transaction timeouts every connection
-sets, added to (never replacing) the ``options`` its URL carries."""
+sets, added to (never replacing) the ``options`` its URL carries, and times read in UTC."""
 
 from __future__ import annotations
+
+from datetime import UTC, datetime
 
 import pytest
 from sqlalchemy import text
@@ -30,5 +32,23 @@ def test_a_schema_named_in_the_url_survives_the_timeouts():
                 assert conn.execute(text("SHOW search_path")).scalar() == "other"
                 assert conn.execute(text("SHOW lock_timeout")).scalar() in ("2s", "1s")
             engine.dispose()
+    finally:
+        drop_pg_database(name)
+
+
+@pytest.mark.skipif(not PG_URL, reason=PG_SKIP)
+def test_times_come_back_in_pythons_own_utc_whatever_the_servers_zone():
+    """The sessions work in UTC, so psycopg gives :data:`datetime.UTC` itself, which the models'
+    timestamps take as they are (a zone named otherwise, e.g. ``Etc/UTC`` or the URL's
+    ``-c TimeZone=…``, came back as a zoneinfo to convert on every row)."""
+    url, name = pg_database()
+    try:
+        zoned = f"{url}?options=-c%20TimeZone%3DEurope/Zurich"
+        engine = make_engine(zoned)
+        with engine.connect() as conn:
+            assert conn.execute(text("SHOW TimeZone")).scalar() == "UTC"
+            found = conn.execute(text("SELECT timestamptz '2024-07-01 12:00+02'")).scalar()
+        engine.dispose()
+        assert found == datetime(2024, 7, 1, 10, tzinfo=UTC) and found.tzinfo is UTC
     finally:
         drop_pg_database(name)

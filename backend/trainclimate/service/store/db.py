@@ -126,7 +126,10 @@ def make_engine(
     options = session_options(
         url, lock_timeout=lock_timeout_s, idle_in_transaction_session_timeout=idle_in_transaction_s
     )
-    connect = {"options": options}
+    # times come back in UTC, as Python's own UTC (psycopg's for the session's zone "UTC"):
+    # :class:`~.models.UTCDateTime` then takes them as they are (900 coaches' four times a
+    # summary; the server's own zone, e.g. Etc/UTC, gave a zoneinfo to convert from)
+    connect = {"options": f"{options} -c TimeZone=UTC"}
     if application_name:
         connect["application_name"] = application_name[:63]
     return create_engine(url, pool_pre_ping=True, connect_args=connect, **pool)

@@ -121,6 +121,7 @@ def pair_results(
     # each chunk's bootstraps run on their own threads while the next chunk is read (the
     # reads leave much of the second core idle); the figures are kept, not the sums they came
     # from: one answer per train and range
+    fleet: dict = {}  # the fleet days read, once for all chunks
     with ThreadPoolExecutor(trial.BOOTSTRAP_THREADS, thread_name_prefix="bootstrap") as executor:
         read = [
             (
@@ -133,7 +134,7 @@ def pair_results(
                     executor,
                     cache,
                     marks,
-                    fleet=True,
+                    fleet=fleet,
                 ),
             )
             for chunk in (missing[i : i + _CHUNK] for i in range(0, len(missing), _CHUNK))
@@ -251,22 +252,26 @@ def summary(
     # the fleet's headline is the HVAC units' meter when every train has it
     fleet_meters = [m for m in METERS if all(m in r[-1]["totals"] for r in results)]
     fleet_meter = HEADLINE_METER if HEADLINE_METER in fleet_meters else "hvac_and_floor"
-    fleet = {m: PairTotals.empty(WINDOW_MIN) for m in fleet_meters}
+    fleet = {
+        m: PairTotals.pooled([r[-1]["totals"][m] for r in results], WINDOW_MIN)
+        for m in fleet_meters
+    }
     out_trains, counted_w, counted_e = [], [], []
     chart_columns = [2 * list(METERS).index(fleet_meter) + k for k in (0, 1)]
     for t, c0, c1, first, stop, r in results:
-        fleet = {m: fleet[m] + r["totals"][m] for m in fleet}
         chart_w, chart_e = r["chart"]
         counted_w.append(chart_w)
-        counted_e.append(chart_e[:, chart_columns])
+        counted_e.append(chart_e)
+        on = c0 if c0.ddpc_active else c1 if c1.ddpc_active else None
+        off = c0 if not c0.ddpc_active else c1 if not c1.ddpc_active else None
         out_trains.append(
             {
                 "id": t.id,
                 "name": t.name,
                 "plan": r["plan"],
                 "coaches": [c0.id, c1.id],
-                "activated": next((c.id for c in (c0, c1) if c.ddpc_active), None),
-                "deactivated": next((c.id for c in (c0, c1) if not c.ddpc_active), None),
+                "activated": on.id if on is not None else None,
+                "deactivated": off.id if off is not None else None,
                 "start": first,
                 "end": stop,
                 **r["figures"],
@@ -275,7 +280,7 @@ def summary(
     # the counted windows' energies, pooled per window over the trains that count it
     all_w = np.concatenate([*counted_w, day_w])
     all_n = np.concatenate([np.ones(len(all_w) - len(day_w)), day_n])
-    all_e = np.concatenate([*counted_e, day_e[:, chart_columns]]).T
+    all_e = np.concatenate([*counted_e, day_e])[:, chart_columns].T
     # the windows are integers: binned by their offset from the first (a sort costs more)
     first_w = int(all_w.min()) if len(all_w) else 0
     offset = all_w - first_w

@@ -78,8 +78,8 @@ class UTCDateTime(TypeDecorator):
 
     def process_result_value(self, value, dialect):
         """From the database: timezone-aware in UTC."""
-        if value is None:
-            return None
+        if value is None or value.tzinfo is UTC:
+            return value
         return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
 
 

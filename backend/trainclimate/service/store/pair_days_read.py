@@ -14,7 +14,7 @@ import itertools
 from collections.abc import Callable
 from concurrent.futures import Executor
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 
 import numpy as np
 import pandas as pd
@@ -104,21 +104,21 @@ def _stored(
     pairs: list,
     switch_hours: list[int],
     layout: list,
-    fleet: bool = False,
+    fleet: dict | None = None,
     cache: ReadCache | None = None,
 ) -> tuple:
     """The stored pair days of the pairs' segments (``layout``, :func:`_segments`): their rows
     (:data:`_STORED`) and, per pair, per segment, its row (−1 where none is stored); with
     ``fleet`` (many pairs) read through the fleet days (:func:`_member_rows`, kept in
-    ``cache``)."""
+    ``cache`` and in ``fleet``)."""
     keys = [(c0, c1, h) for (c0, c1, _, _), h in zip(pairs, switch_hours, strict=True)]
     keys = list(dict.fromkeys(keys))
     span = [seg.day for _, segs in layout for seg in segs]
     if not span:
         return np.zeros(0, _STORED), [[] for _ in pairs]
     first, last = min(span), max(span)
-    if fleet:
-        rows = _member_rows(session, keys, (first, last), cache)
+    if fleet is not None:
+        rows = _member_rows(session, keys, (first, last), cache, fleet)
     else:
         rows = _stored_rows(session, keys, (first, last))
     placed = np.full((len(keys), last - first + 1), -1, np.int64)
@@ -190,14 +190,33 @@ def _stored_rows(session: Session, keys: list[tuple], days: tuple[int, int]) -> 
 
 
 def _member_rows(
-    session: Session, keys: list[tuple], days: tuple[int, int], cache: ReadCache | None
+    session: Session,
+    keys: list[tuple],
+    days: tuple[int, int],
+    cache: ReadCache | None,
+    found: dict | None = None,
 ) -> np.ndarray:
     """:func:`_stored_rows`, each day's rows taken from its fleet day's members where it has one
     (:data:`.fleet_days.MEMBER`: one row per day instead of one per pair and day; the members
-    read kept in ``cache`` under the fleet day's version), the others (a day without a fleet
-    day, a pair day made after its fleet day) from their own rows."""
-    f = fleet_days.table()
+    read kept in ``cache`` under the fleet day's version, and in ``found`` for the other
+    chunks of the same request), the others (a day without a fleet day, a pair day made after
+    its fleet day) from their own rows."""
     hours = sorted({k[2] for k in keys})
+    if found is None:
+        found = {}
+    held = found.get((tuple(hours), days))
+    if held is None:
+        held = found[(tuple(hours), days)] = _fleet_days(session, hours, days, cache)
+    return _placed_members(session, keys, days, held)
+
+
+def _fleet_days(
+    session: Session, hours: list[int], days: tuple[int, int], cache: ReadCache | None
+) -> dict[tuple[int, int], tuple]:
+    """The fleet days at ``hours`` over the days [first, last]: (hour, day) → (its members'
+    places, :func:`_member_index`, and its members' rows), those of an unchanged version from
+    ``cache``."""
+    f = fleet_days.table()
     in_range = (f.c.day >= days[0], f.c.day <= days[1], f.c.switch_hour.in_(hours))
     versions = session.execute(select(f.c.switch_hour, f.c.day, f.c.version).where(*in_range))
     held: dict[tuple[int, int], tuple] = {}
@@ -220,7 +239,14 @@ def _member_rows(
             held[(hour, day)] = (_member_index(members), np.frombuffer(packed, fleet_days.MEMBER))
             if cache is not None:
                 cache.put(("fleet-day", hour, day), version, held[(hour, day)])
-    by_hour = {h: [k for k, key in enumerate(keys) if key[2] == h] for h in hours}
+    return held
+
+
+def _placed_members(
+    session: Session, keys: list[tuple], days: tuple[int, int], held: dict
+) -> np.ndarray:
+    """:func:`_member_rows` from the fleet days ``held`` (:func:`_fleet_days`)."""
+    by_hour = {h: [k for k, key in enumerate(keys) if key[2] == h] for h, _ in held}
     covered = np.zeros((len(keys), days[1] - days[0] + 1), bool)
     # the keys' places among each day's members, once per distinct list of members
     places: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
@@ -266,11 +292,11 @@ def _member_index(members: str) -> dict[tuple[str, str], int]:
 
 def _unpack_windows(n: int, packed: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``n`` windows of a pair day as its ``minutes`` hold them: sums (n, len(SUMS)), labels and
-    own codes (n,)."""
+    own codes (n,), these two as stored (int8)."""
     size = n * len(SUMS) * 8
     grid = np.frombuffer(packed, np.float64, n * len(SUMS)).reshape(n, len(SUMS))
-    label = np.frombuffer(packed, np.int8, n, size).astype(np.int64)
-    code0 = np.frombuffer(packed, np.int8, n, size + n).astype(np.int64)
+    label = np.frombuffer(packed, np.int8, n, size)
+    code0 = np.frombuffer(packed, np.int8, n, size + n)
     return grid, label, code0
 
 
@@ -349,7 +375,7 @@ def pair_results_later(
     executor: Executor | None,
     cache: ReadCache | None = None,
     marks: dict[str, tuple] | None = None,
-    fleet: bool = False,
+    fleet: dict | None = None,
 ) -> Callable[[], list[dict]]:
     """Each pair's figures over its range (lo, hi] of 30-minute windows as
     :func:`.pair_trial.pair_results` gives them (``meter``, ``totals``, ``estimate``,
@@ -367,7 +393,8 @@ def pair_results_later(
     (:func:`.pair_windows.pair_data_extended`): a range ending now reads only the windows of
     its service day that are new since the last range read from the same start (``marks``:
     the coaches' :func:`.pair_windows.coach_marks`, else read there). With ``fleet`` (a summary
-    of many trains) the pair days are read through their fleet days (:func:`_member_rows`)."""
+    of many trains: a dict, the same for all its calls) the pair days are read through their
+    fleet days (:func:`_member_rows`), those read kept in it for the next call."""
     layout = [_segments(lo, hi, h) for (_, _, lo, hi), h in zip(pairs, switch_hours, strict=True)]
     stored, row_of = _stored(session, pairs, switch_hours, layout, fleet, cache)
     windows: dict[tuple[int, int], tuple] = {}  # (pair, segment) → (index, grid, label, code0)
@@ -430,10 +457,7 @@ def _windows_from_rollups(session, pairs, layout, row_of, overrides, windows, ca
         for k0, k1, i in batch:
             w_lo, segs = layout[i]
             a, b = segs[k0].a + w_lo, segs[k1 - 1].b + w_lo
-            lo, hi = (
-                pd.Timestamp(w * WINDOW_S, unit="s", tz="UTC").to_pydatetime() for w in (a, b)
-            )
-            ranges.append((pairs[i][0], pairs[i][1], lo, hi))
+            ranges.append((pairs[i][0], pairs[i][1], _window_time(a), _window_time(b)))
         # kept from a day's start only: a range starting within a day starts elsewhere next time
         keep = [layout[i][1][k0].opens for k0, _, i in batch]
         data = pair_windows.pair_data_extended(
@@ -448,6 +472,13 @@ def _windows_from_rollups(session, pairs, layout, row_of, overrides, windows, ca
                 a, b = segs[k].a - base, segs[k].b - base
                 index = np.arange(segs[k].a, segs[k].b) + w_lo
                 windows[(i, k)] = (index, grid[a:b], label[a:b], code0[a:b])
+
+
+@functools.lru_cache(maxsize=256)
+def _window_time(window: int) -> datetime:
+    """The start of ``window`` (window lengths since 1970; kept: a summary's trains share
+    their ranges' bounds)."""
+    return datetime.fromtimestamp(window * WINDOW_S, UTC)
 
 
 def _base_windows(grids: list, counts: list) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -512,6 +543,7 @@ def _compute(waiting, layout, position, windows, state, days) -> None:
         index, grid, label, code0 = (
             np.stack([windows[(i, position[i])][j] for i in group]) for j in range(4)
         )
+        label, code0 = label.astype(np.int64), code0.astype(np.int64)  # a pair day's: int8
         found = days_from_windows(
             [layout[i][1][position[i]].day for i in group],
             index,

@@ -339,6 +339,9 @@ def pair_states(
         return []
     if marks is None:
         marks = coach_marks(session, pairs)
+    by_coach: dict[str, list] = {}  # each pair looks at its coaches' overrides only
+    for o in overrides:
+        by_coach.setdefault(o[1], []).append(o)
     states = []
     for c0, c1, lo, hi in pairs:
         per_coach = []
@@ -351,7 +354,9 @@ def pair_states(
                     None if tick is None else min(tick, hi),
                 )
             )
-        mine = tuple(tuple(o) for o in overrides if o[1] in (c0, c1) and o[2] < hi and o[3] > lo)
+        theirs = by_coach.get(c0, []) + (by_coach.get(c1, []) if c1 != c0 else [])
+        theirs.sort(key=lambda o: o[0])  # by id, as ``overrides``
+        mine = tuple(tuple(o) for o in theirs if o[2] < hi and o[3] > lo)
         states.append((*per_coach, mine))
     return states
 
