@@ -459,8 +459,9 @@ def estimates_later(
 
     def result() -> list[TrialEstimate]:
         for (_, group), q in zip(jobs, found or [f.result() for f in futures], strict=True):
-            for (i, p), row in zip(group, q, strict=True):
-                out[i] = _interval(p, row, target_half_width_pct)
+            estimates = _intervals([p for _, p in group], q, target_half_width_pct)
+            for (i, _), estimate in zip(group, estimates, strict=True):
+                out[i] = estimate
         return [out[i] for i in range(len(days_list))]
 
     return result
@@ -556,29 +557,40 @@ def _prepare(days_list: list[TrialDays]) -> list[TrialEstimate | _Bootstrap]:
     return out
 
 
-def _interval(p: _Bootstrap, q: np.ndarray, target_half_width_pct: float) -> TrialEstimate:
-    """The pair's estimate from the quantiles ``q`` of its studentized bootstrap distribution."""
+def _intervals(
+    group: list[_Bootstrap], q: np.ndarray, target_half_width_pct: float
+) -> list[TrialEstimate]:
+    """The pairs' estimates from the quantiles ``q`` (rows, 4) of their studentized bootstrap
+    distributions (the bounds of all of them computed together, each as alone)."""
+    theta = np.array([p.theta for p in group])[:, None]
+    se = np.array([p.se for p in group])[:, None]
     # the interval of ln(1 − s) is θ − q·se; the savings fall as ln(1 − s) rises. A resample
     # without spread studentizes to ±inf, stood for by the largest floats: bounds that
     # overflow with them are no interval either
     with np.errstate(all="ignore"):
-        low, high, low68, high68 = (float(_savings(p.theta - q[i] * p.se)) for i in (0, 3, 1, 2))
-    if not math.isfinite(low + high + low68 + high68):
-        reason = "the bootstrap is degenerate"
-        return TrialEstimate(p.estimator, p.point, None, reason, p.naive, p.counts)
-    n = len(p.a) + len(p.b)
-    half = (high - low) / 2.0
-    return TrialEstimate(
-        estimator=p.estimator,
-        savings_pct=p.point,
-        savings_ci95_pct=[low, high],
-        ci_reason=None,
-        naive_savings_pct=p.naive,
-        days=p.counts,
-        standard_error_pct=float(100.0 * math.exp(p.theta) * p.se),
-        days_to_target=max(0, math.ceil(n * (half / target_half_width_pct) ** 2 - n)),
-        meets_guideline_14=bool((high68 - low68) / 2.0 < 0.5 * abs(p.point)),
-    )
+        bounds = _savings(theta - q * se)
+    out = []
+    for p, (low, low68, high68, high) in zip(group, bounds.tolist(), strict=True):
+        if not math.isfinite(low + high + low68 + high68):
+            reason = "the bootstrap is degenerate"
+            out.append(TrialEstimate(p.estimator, p.point, None, reason, p.naive, p.counts))
+            continue
+        n = len(p.a) + len(p.b)
+        half = (high - low) / 2.0
+        out.append(
+            TrialEstimate(
+                estimator=p.estimator,
+                savings_pct=p.point,
+                savings_ci95_pct=[low, high],
+                ci_reason=None,
+                naive_savings_pct=p.naive,
+                days=p.counts,
+                standard_error_pct=float(100.0 * math.exp(p.theta) * p.se),
+                days_to_target=max(0, math.ceil(n * (half / target_half_width_pct) ** 2 - n)),
+                meets_guideline_14=bool((high68 - low68) / 2.0 < 0.5 * abs(p.point)),
+            )
+        )
+    return out
 
 
 def _effect(coef: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

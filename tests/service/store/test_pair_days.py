@@ -450,15 +450,30 @@ def test_a_partial_day_reads_the_windows_asked_for_and_no_other(fleet):
         assert days
         for d in days:
             key = (d.coach_0, d.coach_1, d.switch_hour, d.day)
-            grid, label, code0 = pair_days_read._unpack_windows(d.windows, d.minutes)
+            grid, label, code0 = pair_days.unpack_windows(d.windows, d.minutes)
             f, n = d.first_window, d.windows
             for a, b in ((f, f + n), (f + 3, f + 11), (f - 5, f + 2), (f + n - 4, f + n + 9)):
-                [(first, g, lab, code)] = pair_days_read._stored_windows(s, {key: (a, b)}).values()
+                [(first, g, lab, code)] = pair_days.stored_windows(s, {key: (a, b)}).values()
                 j0, j1 = max(a - f, 0), min(b - f, n)
                 assert first == f + j0
                 assert g.tobytes() == grid[j0:j1].tobytes()
                 assert lab.tolist() == label[j0:j1].tolist()
                 assert code.tolist() == code0[j0:j1].tolist()
+        # many at once, of different lengths, one of them empty: each as read alone
+        wanted = {
+            (d.coach_0, d.coach_1, d.switch_hour, d.day): (
+                d.first_window + k % 5,
+                d.first_window + (k * 7) % (d.windows + 3) if k % 4 else d.first_window,
+            )
+            for k, d in enumerate(days)
+        }
+        together = pair_days.stored_windows(s, wanted)
+        assert together.keys() == wanted.keys()
+        for key, bounds in wanted.items():
+            [alone] = pair_days.stored_windows(s, {key: bounds}).values()
+            assert together[key][0] == alone[0]
+            for x, y in zip(together[key][1:], alone[1:], strict=True):
+                assert x.shape == y.shape and x.tobytes() == y.tobytes()
 
 
 def test_a_summary_is_read_again_when_a_pair_day_changes_under_it(fleet, monkeypatch):

@@ -29,11 +29,13 @@ from typing import cast
 
 import numpy as np
 import pandas as pd
+from psycopg import sql as psql
 from sqlalchemy import Table, and_, delete, func, or_, select
 from sqlalchemy.orm import Session
 
 from trainclimate.analysis import trial_plan
 from trainclimate.service.store import (
+    binary_rows,
     pair_labels,
     pair_trial,
     pair_windows,
@@ -42,7 +44,7 @@ from trainclimate.service.store import (
     rollups,
 )
 from trainclimate.service.store.models import Coach, CoachFeed, FleetDay, PairDay, Telemetry
-from trainclimate.service.store.pair_labels import NO_STATE
+from trainclimate.service.store.pair_labels import NO_STATE, SUMS
 from trainclimate.service.store.pair_trial import CHART_FIELDS
 from trainclimate.service.store.upsert import insert_new
 
@@ -127,6 +129,96 @@ def days_from_windows(
         Day(day=d, fields=f, chart_windows=w, chart=c, exiting=e)
         for d, f, w, c, e in zip(day, fields, chart_windows, chart, exiting, strict=True)
     ]
+
+
+# --- reading a pair day's windows ---------------------------------------------------------
+
+
+def _placed(t) -> tuple:
+    """A pair day's columns that say whose it is and which windows it holds: coach 0, coach 1,
+    switch hour, day, first window, windows."""
+    return t.c.coach_0, t.c.coach_1, t.c.switch_hour, t.c.day, t.c.first_window, t.c.windows
+
+
+def unpack_windows(n: int, packed: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` windows of a pair day as its ``minutes`` hold them: sums (n, len(SUMS)), labels and
+    own codes (n,), these two as stored (int8)."""
+    size = n * len(SUMS) * 8
+    grid = np.frombuffer(packed, np.float64, n * len(SUMS)).reshape(n, len(SUMS))
+    label = np.frombuffer(packed, np.int8, n, size)
+    code0 = np.frombuffer(packed, np.int8, n, size + n)
+    return grid, label, code0
+
+
+def stored_windows(session: Session, wanted: dict[tuple, tuple[int, int]]) -> dict[tuple, tuple]:
+    """The windows of the pair days ``wanted``, (coach 0, coach 1, hour, day) → the windows
+    [a, b) asked for: key → (the first of them it holds, their sums, labels and own codes).
+    On PostgreSQL each pair day through its key, and only those windows sent: the server cuts
+    them out of its ``minutes`` (a range's partial first and last days need about half a day
+    each; 900 of them took 40 ms to read whole, measured)."""
+    if not wanted:
+        return {}
+    keys = list(wanted)
+    if session.get_bind().dialect.name != "postgresql":
+        t = table()
+        found = {}
+        for r in session.execute(
+            select(*_placed(t), t.c.minutes).where(
+                t.c.day.in_(sorted({k[3] for k in keys})),
+                queries.among(t.c.coach_0, {k[0] for k in keys}),
+            )
+        ):
+            key = (r[0], r[1], r[2], r[3])
+            if key not in wanted:
+                continue
+            a, b = wanted[key]
+            first, n = r.first_window, r.windows
+            j0 = max(a - first, 0)
+            j1 = max(min(b - first, n), j0)
+            grid, label, code0 = unpack_windows(n, r.minutes)
+            found[key] = (first + j0, grid[j0:j1], label[j0:j1], code0[j0:j1])
+        return found
+    # p.m: the value read once for the three cuts (OFFSET 0 keeps the subquery, and so its one
+    # read, per row; stored uncompressed since migration 0020, an older row decompressed once);
+    # the sums of windows [j0, j1), then their labels and own codes
+    query = psql.SQL(
+        "SELECT k.i - 1, p.f + p.j0, p.j1 - p.j0, "
+        "substring(p.m from p.j0 * {row} + 1 for (p.j1 - p.j0) * {row}), "
+        "substring(p.m from p.n * {row} + p.j0 + 1 for p.j1 - p.j0) "
+        "|| substring(p.m from p.n * {row} + p.n + p.j0 + 1 for p.j1 - p.j0) "
+        "FROM unnest({c0}, {c1}, {hour}, {day}, {a}, {b}) WITH ORDINALITY "
+        "AS k(c0, c1, h, d, a, b, i) "
+        "CROSS JOIN LATERAL (SELECT q.*, greatest(least(k.b - q.f, q.n), q.j0)::int AS j1 FROM "
+        "(SELECT first_window AS f, windows::int AS n, greatest(k.a - first_window, 0)::int AS j0, "
+        "minutes || ''::bytea AS m FROM pair_days WHERE coach_0 = k.c0 AND coach_1 = k.c1 "
+        "AND switch_hour = k.h AND day = k.d OFFSET 0) AS q) AS p"
+    ).format(
+        row=psql.Literal(len(SUMS) * 8),
+        c0=binary_rows.array_of((k[0] for k in keys), "text"),
+        c1=binary_rows.array_of((k[1] for k in keys), "text"),
+        hour=binary_rows.array_of((int(k[2]) for k in keys), "int4"),
+        day=binary_rows.array_of((int(k[3]) for k in keys), "int4"),
+        a=binary_rows.array_of((int(wanted[k][0]) for k in keys), "int8"),
+        b=binary_rows.array_of((int(wanted[k][1]) for k in keys), "int8"),
+    )
+    read = binary_rows.rows(session, query)
+    if not read:
+        return {}
+    # every row's windows unpacked at once: the sums one after the other, each row's labels
+    # followed by its own codes
+    at, first, n, sums, marks = zip(*read, strict=True)
+    lengths = np.array(n, np.int64)
+    end = np.cumsum(lengths)
+    start = end - lengths
+    grid = np.frombuffer(b"".join(sums), np.float64).reshape(-1, len(SUMS))
+    both = np.frombuffer(b"".join(marks), np.int8)
+    # row r's labels start at 2·start[r] of ``both``, its codes n[r] later
+    place = np.arange(int(end[-1])) + np.repeat(start, lengths)
+    label, code0 = both[place], both[place + np.repeat(lengths, lengths)]
+    return {
+        keys[i]: (f, grid[a:b], label[a:b], code0[a:b])
+        for i, f, a, b in zip(at, first, start.tolist(), end.tolist(), strict=True)
+    }
 
 
 # --- building -----------------------------------------------------------------------------

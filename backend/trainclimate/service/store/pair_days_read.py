@@ -26,6 +26,7 @@ from trainclimate.analysis import trial, trial_plan
 from trainclimate.service.store import (
     binary_rows,
     fleet_days,
+    pair_days,
     pair_labels,
     pair_trial,
     pair_windows,
@@ -40,7 +41,7 @@ from trainclimate.service.store.pair_days import (
     stored_state,
     table,
 )
-from trainclimate.service.store.pair_labels import NO_STATE, SUMS
+from trainclimate.service.store.pair_labels import NO_STATE
 from trainclimate.service.store.pair_trial import CHART_FIELDS, FIELDS
 
 
@@ -71,12 +72,6 @@ def _segments(lo: datetime, hi: datetime, hour: int) -> tuple[int, tuple[_Segmen
         opens = not (a == 0 and day[0] == d)
         out.append(_Segment(d, a, b, opens, opens and not (b == n and day[-1] == d)))
     return w_lo, tuple(out)
-
-
-def _placed(t) -> tuple:
-    """A pair day's columns that say whose it is and which windows it holds: coach 0, coach 1,
-    switch hour, day, first window, windows."""
-    return t.c.coach_0, t.c.coach_1, t.c.switch_hour, t.c.day, t.c.first_window, t.c.windows
 
 
 #: A stored pair day's integer columns a range reads: its day, the states it was entered in and
@@ -290,73 +285,6 @@ def _member_index(members: str) -> dict[tuple[str, str], int]:
     return {(c0, c1): i for i, (c0, c1) in enumerate(pairs)}
 
 
-def _unpack_windows(n: int, packed: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``n`` windows of a pair day as its ``minutes`` hold them: sums (n, len(SUMS)), labels and
-    own codes (n,), these two as stored (int8)."""
-    size = n * len(SUMS) * 8
-    grid = np.frombuffer(packed, np.float64, n * len(SUMS)).reshape(n, len(SUMS))
-    label = np.frombuffer(packed, np.int8, n, size)
-    code0 = np.frombuffer(packed, np.int8, n, size + n)
-    return grid, label, code0
-
-
-def _stored_windows(session: Session, wanted: dict[tuple, tuple[int, int]]) -> dict[tuple, tuple]:
-    """The windows of the pair days ``wanted``, (coach 0, coach 1, hour, day) → the windows
-    [a, b) asked for: key → (the first of them it holds, their sums, labels and own codes).
-    On PostgreSQL each pair day through its key, and only those windows sent: the server cuts
-    them out of its ``minutes`` (a range's partial first and last days need about half a day
-    each; 900 of them took 40 ms to read whole, measured)."""
-    if not wanted:
-        return {}
-    keys = list(wanted)
-    if session.get_bind().dialect.name != "postgresql":
-        t = table()
-        found = {}
-        for r in session.execute(
-            select(*_placed(t), t.c.minutes).where(
-                t.c.day.in_(sorted({k[3] for k in keys})),
-                queries.among(t.c.coach_0, {k[0] for k in keys}),
-            )
-        ):
-            key = (r[0], r[1], r[2], r[3])
-            if key not in wanted:
-                continue
-            a, b = wanted[key]
-            first, n = r.first_window, r.windows
-            j0 = max(a - first, 0)
-            j1 = max(min(b - first, n), j0)
-            grid, label, code0 = _unpack_windows(n, r.minutes)
-            found[key] = (first + j0, grid[j0:j1], label[j0:j1], code0[j0:j1])
-        return found
-    # p.m: the value read once for the three cuts (OFFSET 0 keeps the subquery, and so its one
-    # read, per row; stored uncompressed since migration 0020, an older row decompressed once);
-    # the sums of windows [j0, j1), then their labels and own codes
-    query = psql.SQL(
-        "SELECT k.i - 1, p.f + p.j0, p.j1 - p.j0, "
-        "substring(p.m from p.j0 * {row} + 1 for (p.j1 - p.j0) * {row}) "
-        "|| substring(p.m from p.n * {row} + p.j0 + 1 for p.j1 - p.j0) "
-        "|| substring(p.m from p.n * {row} + p.n + p.j0 + 1 for p.j1 - p.j0) "
-        "FROM unnest({c0}, {c1}, {hour}, {day}, {a}, {b}) WITH ORDINALITY "
-        "AS k(c0, c1, h, d, a, b, i) "
-        "CROSS JOIN LATERAL (SELECT q.*, greatest(least(k.b - q.f, q.n), q.j0)::int AS j1 FROM "
-        "(SELECT first_window AS f, windows::int AS n, greatest(k.a - first_window, 0)::int AS j0, "
-        "minutes || ''::bytea AS m FROM pair_days WHERE coach_0 = k.c0 AND coach_1 = k.c1 "
-        "AND switch_hour = k.h AND day = k.d OFFSET 0) AS q) AS p"
-    ).format(
-        row=psql.Literal(len(SUMS) * 8),
-        c0=binary_rows.array_of((k[0] for k in keys), "text"),
-        c1=binary_rows.array_of((k[1] for k in keys), "text"),
-        hour=binary_rows.array_of((int(k[2]) for k in keys), "int4"),
-        day=binary_rows.array_of((int(k[3]) for k in keys), "int4"),
-        a=binary_rows.array_of((int(wanted[k][0]) for k in keys), "int8"),
-        b=binary_rows.array_of((int(wanted[k][1]) for k in keys), "int8"),
-    )
-    return {
-        keys[i]: (first, *_unpack_windows(n, packed))
-        for i, first, n, packed in binary_rows.rows(session, query)
-    }
-
-
 def pair_results(
     session: Session,
     pairs: list[tuple[str, str, datetime, datetime]],
@@ -523,7 +451,7 @@ def _windows_from_pair_days(
                 a, b = seg.a + layout[i][0], seg.b + layout[i][0]
                 lo, hi = bounds.get(key, (a, b))
                 bounds[key] = (min(lo, a), max(hi, b))
-    found = _stored_windows(session, bounds)
+    found = pair_days.stored_windows(session, bounds)
     for key, places in wanted.items():
         first, grid, label, code0 = found[key]
         for i, k in places:
@@ -583,19 +511,23 @@ def _assemble(
     fields[at_pair, at_slot] = stored["fields"][at_row]
     ordinals[at_pair, at_slot] = read_days
     made = np.flatnonzero(computed)
+    made_days = [flat[k] for k in made.tolist()]
+    made_of: list[list[Day]] = [[] for _ in days]  # per pair its computed days, in order
+    for p, d in zip(pair_of[made].tolist(), made_days, strict=True):
+        made_of[p].append(d)
     if len(made):
-        fields[pair_of[made], slot_of[made]] = np.stack([flat[k].fields for k in made.tolist()])
-        ordinals[pair_of[made], slot_of[made]] = [flat[k].day for k in made.tolist()]
+        fields[pair_of[made], slot_of[made]] = np.stack([d.fields for d in made_days])
+        ordinals[pair_of[made], slot_of[made]] = [d.day for d in made_days]
     estimates = trial.estimates_later(pair_trial.trial_days(fields, ordinals), executor)
 
     def results() -> list[dict]:
         out = pair_trial.results_from_fields(fields, ordinals, WINDOW_MIN, estimates())
         bounds = np.searchsorted(at_pair, np.arange(len(days) + 1)).tolist()
-        for p, (mine, result) in enumerate(zip(days, out, strict=True)):
-            computed = [d for d in mine if isinstance(d, Day)]
+        none = (np.zeros(0, np.int64), np.zeros((0, len(CHART_FIELDS))))
+        for p, (computed, result) in enumerate(zip(made_of, out, strict=True)):
             result["chart"] = (
-                np.concatenate([np.zeros(0, np.int64), *(d.chart_windows for d in computed)]),
-                np.concatenate([np.zeros((0, len(CHART_FIELDS))), *(d.chart for d in computed)]),
+                np.concatenate([none[0], *(d.chart_windows for d in computed)]),
+                np.concatenate([none[1], *(d.chart for d in computed)]),
             )
             a, b = bounds[p], bounds[p + 1]
             result["chart_days"] = (read_days[a:b], digests[a:b])
