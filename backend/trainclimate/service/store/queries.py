@@ -471,6 +471,9 @@ def pair_coaches(train: Train) -> tuple[Coach, Coach] | None:
 def pick_pair(coaches: list):
     """:func:`pair_coaches` of a train's ``coaches`` (by id; anything with ``id`` and
     ``ddpc_active``)."""
+    if len(coaches) == 2 and coaches[0].ddpc_active != coaches[1].ddpc_active:
+        a, b = coaches  # the usual train, one coach of each (a fleet summary asks 450 times)
+        return (a, b) if a.id < b.id else (b, a)
     on = [c for c in coaches if c.ddpc_active]
     off = [c for c in coaches if not c.ddpc_active]
     if on and off:
