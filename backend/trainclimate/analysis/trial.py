@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trainclimate.analysis import studentized
+from trainclimate.analysis.arrays import pieces
 from trainclimate.analysis.trial_plan import NEITHER
 
 #: The estimators, by what the days allow.
@@ -254,7 +255,7 @@ def days_from_sums(
     bounds = np.cumsum(good.sum(axis=-1))[:-1]
     day = np.broadcast_to(day, good.shape)
     parts = (
-        np.split(x[good], bounds) for x in (day, total, label.astype(np.int64), n.astype(np.int64))
+        pieces(x[good], bounds) for x in (day, total, label.astype(np.int64), n.astype(np.int64))
     )
     return [
         TrialDays(d, e, a, w, {name: k for name, k in zip(names, drop, strict=True) if k})
