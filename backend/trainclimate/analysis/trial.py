@@ -541,7 +541,7 @@ def _prepare(days_list: list[TrialDays]) -> list[TrialEstimate | _Bootstrap]:
         else:
             coef = 1.0 if n0 else -1.0
             estimator, samples = "fixed_reference", (groups[0 if n0 else 1], groups[2])
-        theta, se = (v.tolist() for v in _effect(coef, *samples))
+        theta, se = (v.tolist() for v in studentized.effect(coef, *samples))
         few = min(g.shape[1] for g in samples) < MIN_GROUP_DAYS
         for j, p in enumerate(pairs):
             point = float(_savings(theta[j]))
@@ -592,19 +592,3 @@ def _intervals(
             )
         )
     return out
-
-
-def _effect(coef: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """ln(1 − s) = coef (mean a − mean b) and its standard error |coef| √(var a/na + var b/nb)
-    of each row of ``a`` (rows, na) and ``b`` (rows, nb) (sample variances; NaN for a group of
-    one day). The sums are those ``numpy.mean`` and ``numpy.var`` take of each row, in the
-    same order, without their checks."""
-    moments = []
-    with np.errstate(all="ignore"):
-        for x in (a, b):
-            n = x.shape[1]
-            mean = np.add.reduce(x, axis=1) / n
-            d = x - mean[:, None]
-            moments.append((mean, np.add.reduce(d * d, axis=1) / (n - 1) / n))
-    (mean_a, var_a), (mean_b, var_b) = moments
-    return coef * (mean_a - mean_b), abs(coef) * np.sqrt(var_a + var_b)
