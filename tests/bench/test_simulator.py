@@ -10,7 +10,7 @@ def test_the_simulator_benchmark_reports_coach_days_per_second():
     assert d["steps"] == round(0.02 * 86400 / 10.0)
     assert d["coach_days_per_s"] > 0 and d["loop_coach_days_per_s"] > 0 and d["fleet_seconds"] > 0
     assert d["speedup_vs_loop"] == d["coach_days_per_s"] / d["loop_coach_days_per_s"]
-    assert set(d["machine"]) == {"cpu", "cores", "python", "numpy"}
+    assert set(d["machine"]) == {"cpu", "cpu_model", "cores", "python", "numpy"}
     assert simulator.text(d).startswith("simulator: ") and "speed-up" in simulator.text(d)
 
 

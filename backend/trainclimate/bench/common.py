@@ -14,13 +14,30 @@ import numpy as np
 
 
 def machine() -> dict:
-    """What the figures were measured on: CPU, number of cores, Python and numpy versions."""
+    """What the figures were measured on: CPU architecture and model (:func:`cpu_model`), number
+    of cores, Python and numpy versions. Hosts of one kind differ: the same code's figures on
+    two models of CPU compare only through the baseline each run measures."""
     return {
         "cpu": platform.processor() or platform.machine(),
+        "cpu_model": cpu_model(),
         "cores": os.cpu_count(),
         "python": platform.python_version(),
         "numpy": np.__version__,
     }
+
+
+def cpu_model(cpuinfo: str = "/proc/cpuinfo") -> str | None:
+    """The CPU's model name as the kernel reports it (the first ``model name`` line of
+    ``cpuinfo``, e.g. ``AMD EPYC``), None where there is none (not Linux, an unreadable file)."""
+    try:
+        with open(cpuinfo, encoding="utf-8", errors="replace") as f:
+            for line in f:
+                key, sep, value = line.partition(":")
+                if sep and key.strip() == "model name":
+                    return value.strip() or None
+    except OSError:
+        return None
+    return None
 
 
 def peak_rss_mb() -> float:
