@@ -280,6 +280,39 @@ def test_the_summary_from_pair_days_equals_the_rollups(fleet, monkeypatch):
     assert len(used) > 20  # whole days were read from their pair days
 
 
+def test_a_summary_in_chunks_of_one_train_is_the_one_in_a_single_chunk(fleet, monkeypatch):
+    _build(fleet)  # days from their pair days, and partial ones from their windows
+    want = _summaries(fleet)
+    sizes = []
+    chunks = fleet_summary._chunks
+
+    def spied(missing):
+        sizes.append([len(c) for c in chunks(missing)])
+        return chunks(missing)
+
+    monkeypatch.setattr(fleet_summary, "_chunks", spied)
+    assert _summaries(fleet) == want
+    assert sizes and all(s == [2] for s in sizes)
+    sizes.clear()
+    monkeypatch.setattr(fleet_summary, "_CHUNK_PAIR_DAYS", 1)
+    assert _summaries(fleet) == want
+    assert sizes and all(s == [1, 1] for s in sizes)
+
+
+def test_a_chunk_holds_at_most_its_pair_days():
+    def missing(pairs: int, days: float) -> list:
+        hi = START + timedelta(days=days)
+        return [(("a", "b", START, hi), 2, None, None)] * pairs
+
+    assert fleet_summary._CHUNK_PAIR_DAYS == 8192
+    # a range touches its whole days and a partial day at either end
+    assert [len(c) for c in fleet_summary._chunks(missing(450, 30))] == [256, 194]
+    assert [len(c) for c in fleet_summary._chunks(missing(450, 31))] == [248, 202]
+    assert [len(c) for c in fleet_summary._chunks(missing(1000, 7))] == [910, 90]
+    assert [len(c) for c in fleet_summary._chunks(missing(450, 0.25))] == [450]
+    assert fleet_summary._chunks([]) == []
+
+
 def test_a_late_row_drops_the_days_it_changes_and_they_are_made_again(fleet):
     assert _build(fleet) == 12
     late = START + timedelta(minutes=LATE_MINUTE)
