@@ -586,7 +586,7 @@ def _intervals(
                 ci_reason=None,
                 naive_savings_pct=p.naive,
                 days=p.counts,
-                standard_error_pct=float(100.0 * math.exp(p.theta) * p.se),
+                standard_error_pct=float(100.0 * np.exp(p.theta) * p.se),
                 days_to_target=max(0, math.ceil(n * (half / target_half_width_pct) ** 2 - n)),
                 meets_guideline_14=bool((high68 - low68) / 2.0 < 0.5 * abs(p.point)),
             )
