@@ -287,8 +287,9 @@ def test_a_summary_in_chunks_of_one_train_is_the_one_in_a_single_chunk(fleet, mo
     chunks = fleet_summary._chunks
 
     def spied(missing):
-        sizes.append([len(c) for c in chunks(missing)])
-        return chunks(missing)
+        out = chunks(missing)
+        sizes.append([len(c) for c in out])
+        return out
 
     monkeypatch.setattr(fleet_summary, "_chunks", spied)
     assert _summaries(fleet) == want

@@ -75,9 +75,9 @@ def coach_feeds(session: Session) -> dict[str, tuple]:
 
 
 #: Pair days analysed together at most (bounds the arrays: 8 192 pair days of windows ≈ 95 MB,
-#: where no pair day holds them): 256 trains over 30 days, up to 910 over a
-#: week. Each chunk costs its own reads and set-up: a new summary of 450 trains took 3-8 % less
-#: in one chunk than in two of 256 on a slower host, 0-4 % on a quicker one (measured).
+#: where no pair day holds them): 256 trains over 30 days, up to 910 over a week. Each chunk
+#: costs its own reads and set-up: a new summary of 450 trains took 3-8 % less in one chunk than
+#: in two of 256 on a slower host, 0-4 % on a quicker one (measured).
 _CHUNK_PAIR_DAYS = 8192
 #: The summary's window: the rollups' and the pair days'. [min]
 WINDOW_MIN = float(pair_days.WINDOW_MIN)
